@@ -1,0 +1,71 @@
+# The two commands a newcomer needs: `make demo` and `make test`. Everything else is detail.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip
+DEMO_DRONES ?= 4
+DEMO_DURATION ?= 0
+
+.PHONY: help test demo lint typecheck pytest system-deps bench plots clean
+
+help:
+	@echo "make demo   - create .venv, install, run the SITL fleet and the ground station"
+	@echo "make test   - create .venv, install with test extras, run ruff, mypy and pytest"
+	@echo "make bench  - run the benchmarks in benchmarks/ (each prints a table)"
+	@echo "make plots  - draw the thesis figures of the utility model into out/plots"
+
+$(VENV)/bin/python:
+	@$(PYTHON) -m venv $(VENV) 2>/dev/null || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing python3-venv with apt-get"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq python3-venv >/dev/null; \
+	    rm -rf $(VENV); $(PYTHON) -m venv $(VENV); \
+	  else echo "python3 -m venv failed: install python3-venv (Debian: apt-get install python3-venv)"; exit 1; fi; }
+	@$(PIP) install -q --upgrade pip
+
+$(VENV)/.installed: $(VENV)/bin/python pyproject.toml
+	$(PIP) install -q -e .
+	@touch $@
+
+$(VENV)/.installed-test: $(VENV)/bin/python pyproject.toml
+	$(PIP) install -q -e '.[test]'
+	@touch $@ $(VENV)/.installed
+
+# Debian packages the tests use: Chromium for the dashboard test, iperf3 and iproute2 for the
+# link tests. Installed when running as root on Debian (as CI does); elsewhere those tests
+# skip and say how to enable them.
+system-deps:
+	@missing=""; \
+	command -v chromium >/dev/null || missing="$$missing chromium"; \
+	command -v iperf3 >/dev/null || missing="$$missing iperf3"; \
+	command -v tc >/dev/null || missing="$$missing iproute2"; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing with apt-get:$$missing"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
+	  else echo "note: missing$$missing (apt-get install$$missing as root); those tests will skip"; fi; \
+	fi
+
+lint: $(VENV)/.installed-test
+	$(VENV)/bin/ruff check .
+
+typecheck: $(VENV)/.installed-test
+	$(VENV)/bin/mypy utility_specs companion/middleware companion/protocol
+
+pytest: $(VENV)/.installed-test system-deps
+	$(PY) -m pytest -q -m "not slow" -p no:cacheprovider
+
+test: lint typecheck pytest
+
+demo: $(VENV)/.installed
+	$(VENV)/bin/uav-sitl fleet --drones $(DEMO_DRONES) --scene demo --duration $(DEMO_DURATION)
+
+plots: $(VENV)/.installed
+	$(VENV)/bin/uav-utility plot all --out out/plots
+
+bench: $(VENV)/.installed-test
+	@status=0; for b in benchmarks/bench_*.py; do echo "== $$b"; $(PY) $$b || status=1; done; exit $$status
+
+clean:
+	rm -rf $(VENV) out artifacts .pytest_cache .mypy_cache .ruff_cache

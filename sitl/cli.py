@@ -1,0 +1,51 @@
+"""``uav-sitl``: one entry point, one subcommand per tool; each lives in its own module."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# subcommand -> (module, help). Each module exposes ``main(argv: list[str]) -> int``.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "vehicle": ("sitl.vehicle.cli", "run simulated MAVLink vehicles"),
+    "fleet": ("sitl.fleet", "run a whole simulated fleet with companions and a ground station"),
+    "camera": ("sitl.camera_cli", "render synthetic camera frames of a scene"),
+}
+STUDIES: dict[str, tuple[str, str]] = {
+    "drop-rate-vs-utility": ("sitl.study.drop_rate", "thesis figure 5.7: utility vs drop share"),
+    "adaptive-vs-aimd": ("sitl.study.adaptive", "thesis figure 6.5: adaptive constraint vs AIMD"),
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(
+        prog="uav-sitl",
+        description="Simulated vehicles, cameras, fleets and simulation studies.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (_, text) in COMMANDS.items():
+        sub.add_parser(name, help=text, add_help=False)
+    study = sub.add_parser("study", help="simulation studies that reproduce thesis figures")
+    study.add_argument("name", choices=sorted(STUDIES), help="which study")
+    if not argv or argv[0] in ("-h", "--help"):
+        parser.print_help()
+        return 0 if argv else 2
+    command, rest = argv[0], argv[1:]
+    if command == "study":
+        if not rest or rest[0] not in STUDIES:
+            study.print_help()
+            return 2
+        module_name = STUDIES[rest[0]][0]
+        rest = rest[1:]
+    elif command in COMMANDS:
+        module_name = COMMANDS[command][0]
+    else:
+        parser.error(f"unknown command {command!r}")
+    module = importlib.import_module(module_name)
+    return int(module.main(rest))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,196 @@
+"""Mission specs: which information types a mission has and what each is worth.
+
+A spec is a TOML file (``utility_specs/missions/*.toml``)::
+
+    [mission]
+    name = "telemetry"
+
+    [types.battery]
+    utility = "battery"          # a name from utility_specs.functions.FUNCTIONS
+    aggregation = "max"          # sum | max | last (eq. 4.4-4.7)
+    weight = 1.0                 # ω_p of eq. 4.2
+    per_sender = true            # aggregate each sender's stream on its own
+    markovian = true             # only the newest message matters (eq. 5.8)
+    params = { depletion_rate = 0.01 }
+
+Reading the file is a thin edge (:func:`load_spec`); :func:`parse_spec` validates a mapping
+and every error names the file, the key and what was expected.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal, cast
+
+from utility_specs.errors import SpecError
+from utility_specs.functions import UtilityFunction, make_function
+
+__all__ = [
+    "AGGREGATIONS",
+    "InfoType",
+    "MissionSpec",
+    "builtin_spec",
+    "builtin_specs",
+    "load_spec",
+    "parse_spec",
+]
+
+Aggregation = Literal["sum", "max", "last"]
+AGGREGATIONS: tuple[Aggregation, ...] = ("sum", "max", "last")
+_TYPE_KEYS = {"utility", "aggregation", "weight", "per_sender", "markovian", "params"}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class InfoType:
+    """One information type p: its utility function, aggregation and weight ω_p."""
+
+    name: str
+    utility: UtilityFunction
+    aggregation: Aggregation
+    weight: float = 1.0
+    per_sender: bool = False
+    markovian: bool = False
+
+    def __post_init__(self) -> None:
+        if self.aggregation not in AGGREGATIONS:
+            raise SpecError(f"type {self.name!r}: aggregation must be one of {AGGREGATIONS}")
+        if self.aggregation not in self.utility.aggregations:
+            raise SpecError(
+                f"type {self.name!r}: utility {self.utility.name!r} supports aggregation "
+                f"{sorted(self.utility.aggregations)}, not {self.aggregation!r}"
+            )
+        if not (math.isfinite(self.weight) and self.weight >= 0):
+            raise SpecError(f"type {self.name!r}: weight must be a finite number >= 0")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MissionSpec:
+    """The model instance of one mission (sec. 4.2): its information types."""
+
+    name: str
+    types: Mapping[str, InfoType]
+    t_end: float | None = None
+    """Default mission end (seconds) when the log does not say."""
+    source: str = "<memory>"
+    extra: Mapping[str, Any] = field(default_factory=dict)
+    """Other keys of the [mission] table, for the tools that read them."""
+
+    def __getitem__(self, type_name: str) -> InfoType:
+        return self.types[type_name]
+
+
+def _expect(cond: bool, source: str, key: str, expected: str, got: object) -> None:
+    if not cond:
+        raise SpecError(f"{source}: {key}: expected {expected}, got {got!r}")
+
+
+def parse_spec(raw: Mapping[str, Any], *, source: str = "<memory>") -> MissionSpec:
+    """Validate a parsed TOML mapping into a :class:`MissionSpec`."""
+    _expect(isinstance(raw, Mapping), source, "<root>", "a table", raw)
+    unknown = set(raw) - {"mission", "types"}
+    _expect(not unknown, source, ", ".join(sorted(unknown)), "only [mission] and [types]", "")
+    mission = raw.get("mission", {})
+    _expect(isinstance(mission, Mapping), source, "mission", "a table", mission)
+    name = mission.get("name", Path(source).stem)
+    _expect(isinstance(name, str) and bool(name), source, "mission.name", "a string", name)
+    t_end = mission.get("t_end")
+    if t_end is not None:
+        _expect(
+            isinstance(t_end, int | float) and not isinstance(t_end, bool) and t_end > 0,
+            source,
+            "mission.t_end",
+            "a number > 0 (seconds)",
+            t_end,
+        )
+    types_raw = raw.get("types")
+    _expect(
+        isinstance(types_raw, Mapping) and bool(types_raw),
+        source,
+        "types",
+        "at least one [types.NAME] table",
+        types_raw,
+    )
+    types: dict[str, InfoType] = {}
+    for type_name, table in cast(Mapping[str, Any], types_raw).items():
+        types[type_name] = _parse_type(type_name, table, source)
+    extra = {k: v for k, v in mission.items() if k not in {"name", "t_end"}}
+    return MissionSpec(
+        name=name,
+        types=types,
+        t_end=float(t_end) if t_end is not None else None,
+        source=source,
+        extra=extra,
+    )
+
+
+def _parse_type(type_name: str, table: Any, source: str) -> InfoType:
+    key = f"types.{type_name}"
+    _expect(isinstance(table, Mapping), source, key, "a table", table)
+    unknown = sorted(set(table) - _TYPE_KEYS)
+    _expect(not unknown, source, f"{key}.{','.join(unknown)}", f"one of {sorted(_TYPE_KEYS)}", "")
+    utility = table.get("utility")
+    _expect(isinstance(utility, str), source, f"{key}.utility", "a utility name", utility)
+    aggregation = table.get("aggregation")
+    _expect(
+        aggregation in AGGREGATIONS, source, f"{key}.aggregation", " | ".join(AGGREGATIONS),
+        aggregation,
+    )
+    weight = table.get("weight", 1.0)
+    _expect(
+        isinstance(weight, int | float) and not isinstance(weight, bool) and weight >= 0,
+        source,
+        f"{key}.weight",
+        "a number >= 0",
+        weight,
+    )
+    flags = {}
+    for flag in ("per_sender", "markovian"):
+        value = table.get(flag, False)
+        _expect(isinstance(value, bool), source, f"{key}.{flag}", "true or false", value)
+        flags[flag] = value
+    params = table.get("params", {})
+    _expect(isinstance(params, Mapping), source, f"{key}.params", "a table", params)
+    try:
+        function = make_function(cast(str, utility), params)
+        return InfoType(
+            name=type_name,
+            utility=function,
+            aggregation=cast(Aggregation, aggregation),
+            weight=float(weight),
+            per_sender=flags["per_sender"],
+            markovian=flags["markovian"],
+        )
+    except SpecError as exc:
+        raise SpecError(f"{source}: {key}: {exc}") from None
+
+
+def load_spec(path: str | Path) -> MissionSpec:
+    """Read and validate a spec file (the only function here that touches a file)."""
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SpecError(f"{path}: no such spec file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path}: not valid TOML ({exc})") from None
+    return parse_spec(raw, source=str(path))
+
+
+def builtin_specs() -> list[str]:
+    """Names of the mission specs shipped in ``utility_specs/missions``."""
+    folder = resources.files("utility_specs") / "missions"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def builtin_spec(name: str) -> MissionSpec:
+    """A shipped spec by name (``telemetry``, ``image_streaming``...)."""
+    resource = resources.files("utility_specs") / "missions" / f"{name}.toml"
+    if not resource.is_file():
+        raise SpecError(f"no built-in spec {name!r}; expected one of {builtin_specs()}")
+    raw = tomllib.loads(resource.read_text(encoding="utf-8"))
+    return parse_spec(raw, source=f"utility_specs/missions/{name}.toml")
