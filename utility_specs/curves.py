@@ -28,6 +28,11 @@ class Curve(ABC):
     t_gen: float
     expiry: float
     """From this time on the value is 0 for good (inf if never)."""
+    evict_bounded: bool = False
+    """Worth proving, at admission, that a newer curve stays above an older one until the
+    older expires (so the older can go). Lines need it: a newer, steeper battery line never
+    dominates outright. Shapes do not: equal scales dominate outright, and the scales left
+    form a short staircase."""
 
     @abstractmethod
     def value(self, t: float) -> float: ...
@@ -123,6 +128,7 @@ class LineCurve(Curve):
     """max(0, u0 - c·(t - t_gen)): battery (eq. 4.9) and the study's linear utility."""
 
     __slots__ = ("c", "u0")
+    evict_bounded = True
 
     def __init__(self, t_gen: float, u0: float, c: float) -> None:
         self.t_gen, self.u0, self.c = t_gen, u0, c

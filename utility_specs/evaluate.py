@@ -268,6 +268,28 @@ def _max(occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
     if _newest_leads(occs):
         return _max_newest_leads(occs, t0, t1)
     occs = sorted(occs, key=lambda o: o.start)
+    if any(o.until != math.inf for o in occs):
+        return _max_with_versions(occs, t0, t1)
+    candidates: list[_Occurrence] = []
+    total = 0.0
+    n = len(occs)
+    for i, o in enumerate(occs):
+        _admit(candidates, o, t1)
+        lo = max(o.start, t0)
+        hi = min(occs[i + 1].start if i + 1 < n else t1, t1)
+        if hi <= lo or not candidates:
+            continue
+        if len(candidates) == 1:
+            total += candidates[0].curve.integral(lo, hi)  # type: ignore[union-attr]
+            continue
+        candidates[:] = [c for c in candidates if c.curve.expiry > lo]  # type: ignore[union-attr]
+        if candidates:
+            total += _envelope_integral(candidates, lo, hi)
+    return total
+
+
+def _max_with_versions(occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
+    """:func:`_max` when better versions replace copies: their ``until`` ends a piece too."""
     times = sorted({o.start for o in occs} | {o.until for o in occs if o.until < t1} | {t0, t1})
     candidates: list[_Occurrence] = []
     index, n = 0, len(occs)
@@ -292,6 +314,9 @@ def _admit(candidates: list[_Occurrence], new: _Occurrence, horizon: float) -> N
     end = min(curve.expiry, horizon)
     if end <= start:
         return
+    if all(curve.dominates(c.curve) for c in candidates):  # type: ignore[arg-type]
+        candidates[:] = [new]
+        return
     new_start, new_end = curve.value(start), curve.value(end)
     for c in candidates:
         other = c.curve
@@ -307,7 +332,7 @@ def _admit(candidates: list[_Occurrence], new: _Occurrence, horizon: float) -> N
         if curve.dominates(other):
             continue
         other_end = min(other.expiry, horizon)
-        if curve.expiry >= other_end and (
+        if curve.evict_bounded and curve.expiry >= other_end and (
             curve.first_above(
                 other, start, other_end, self_lo=new_start,
                 self_hi=new_end if other_end == end else None,
