@@ -152,6 +152,33 @@ class LineCurve(Curve):
     def knots(self) -> tuple[float, ...]:
         return (self.expiry,) if self.expiry < INF else ()
 
+    def first_above(
+        self,
+        other: Curve,
+        lo: float,
+        hi: float,
+        *,
+        self_lo: float | None = None,
+        self_hi: float | None = None,
+    ) -> float | None:
+        """Closed form for two lines: linear until the first expiry, then one of them is 0."""
+        if not isinstance(other, LineCurve):
+            return super().first_above(other, lo, hi, self_lo=self_lo, self_hi=self_hi)
+        mine_lo = self.value(lo) if self_lo is None else self_lo
+        gap_lo = other.value(lo) - mine_lo
+        if gap_lo > 1e-12 * (1.0 + abs(mine_lo)):
+            return lo
+        first_expiry = min(self.expiry, other.expiry)
+        end = min(first_expiry, hi)
+        if end > lo:
+            mine_end = self.u0 - self.c * (end - self.t_gen)
+            gap_end = other.u0 - other.c * (end - other.t_gen) - mine_end
+            if gap_end > 1e-12 * (1.0 + abs(mine_end)):
+                return lo + (end - lo) * (-gap_lo) / (gap_end - gap_lo)
+        if first_expiry < hi and self.expiry < other.expiry:
+            return max(lo, first_expiry)  # self reached 0, other is still above it
+        return None
+
     def dominates(self, other: Curve) -> bool:
         if not isinstance(other, LineCurve):
             return False
@@ -205,7 +232,8 @@ class ShapeCurve(Curve):
         return self.scale * self.shape.phi_integral(a - self.t_gen, b - self.t_gen)
 
     def knots(self) -> tuple[float, ...]:
-        return tuple(self.t_gen + x for x in self.shape.x_knots)
+        g = self.t_gen
+        return tuple([g + x for x in self.shape.x_knots])
 
     def critical_points(self, other: Curve) -> tuple[float, ...]:
         if not isinstance(other, ShapeCurve) or other.shape is not self.shape:

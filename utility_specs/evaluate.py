@@ -308,39 +308,44 @@ def _max_with_versions(occs: Sequence[_Occurrence], t0: float, t1: float) -> flo
 
 
 def _admit(candidates: list[_Occurrence], new: _Occurrence, horizon: float) -> None:
+    """Add ``new`` to the envelope candidates, dropping whoever can no longer lead."""
     curve = new.curve
     assert curve is not None
     start = new.start
     end = min(curve.expiry, horizon)
     if end <= start:
         return
-    if all(curve.dominates(c.curve) for c in candidates):  # type: ignore[arg-type]
+    kept: list[_Occurrence] = []
+    for c in candidates:
+        other = c.curve
+        assert other is not None
+        if other.dominates(curve):
+            return  # never above c
+        if not curve.dominates(other):
+            kept.append(c)
+    if not kept:
         candidates[:] = [new]
         return
-    new_start, new_end = curve.value(start), curve.value(end)
-    for c in candidates:
-        other = c.curve
-        assert other is not None
-        if other.dominates(curve) or (
-            other.expiry >= end and other.first_above(curve, start, end) is None
-        ):
-            return  # it never rises above c while it could count
-    kept = []
-    for c in candidates:
-        other = c.curve
-        assert other is not None
-        if curve.dominates(other):
-            continue
-        other_end = min(other.expiry, horizon)
-        if curve.evict_bounded and curve.expiry >= other_end and (
-            curve.first_above(
-                other, start, other_end, self_lo=new_start,
-                self_hi=new_end if other_end == end else None,
-            )
-            is None
-        ):
-            continue
-        kept.append(c)
+    if curve.evict_bounded:
+        # A line may never dominate outright and still stay on top for as long as it matters.
+        new_start, new_end = curve.value(start), curve.value(end)
+        survivors = []
+        for c in kept:
+            other = c.curve
+            assert other is not None
+            if other.expiry >= end and other.first_above(curve, start, end) is None:
+                return  # it never rises above c while it could count
+            other_end = min(other.expiry, horizon)
+            if curve.expiry >= other_end and (
+                curve.first_above(
+                    other, start, other_end, self_lo=new_start,
+                    self_hi=new_end if other_end == end else None,
+                )
+                is None
+            ):
+                continue
+            survivors.append(c)
+        kept = survivors
     kept.append(new)
     candidates[:] = kept
 
@@ -349,7 +354,12 @@ def _envelope_integral(candidates: Sequence[_Occurrence], a: float, b: float) ->
     curves: list[Curve] = [c.curve for c in candidates]  # type: ignore[misc]
     if len(curves) == 1:
         return curves[0].integral(a, b)
-    leader = max(curves, key=lambda c: (c.value(a), c.t_gen))
+    leader = curves[0]
+    best = (leader.value(a), leader.t_gen)
+    for c in curves[1:]:
+        key = (c.value(a), c.t_gen)
+        if key > best:
+            leader, best = c, key
     cursor, total = a, 0.0
     for _ in range(_MAX_SWITCHES):
         switch_at, challenger = b, None

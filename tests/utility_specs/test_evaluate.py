@@ -35,7 +35,8 @@ def test_sum_of_two_battery_messages_by_hand() -> None:
     fn = Battery(depletion_rate=0.1)
     a = msg(0.0, 1.0, seq=0, level=1.0)  # zero at 10
     b = msg(2.0, 3.0, seq=1, level=0.5)  # zero at 7
-    # ∫_1^10 (1 - 0.1 t) dt = 9 - 0.05 (100 - 1) = 4.05; ∫_3^7 (1 - 0.2 (t - 2)) = 4 - 0.1(25-1) = 1.6
+    # ∫_1^10 (1 - 0.1 t) dt = 9 - 0.05 (100 - 1) = 4.05
+    # ∫_3^7 (1 - 0.2 (t - 2)) dt = 4 - 0.1 (25 - 1) = 1.6
     assert total(info(fn, "sum"), [a, b], 20.0) == pytest.approx(4.05 + 1.6)
 
 
@@ -118,7 +119,8 @@ def test_figure_4_9_halving_the_rate_at_f1_costs_S() -> None:
     fn = Video(S=0.1, f_max=24.0, f_1=12.0)
     assert utility_per_second(fn, 24.0) == pytest.approx(1.0)
     assert utility_per_second(fn, 48.0) == pytest.approx(1.0)
-    assert utility_per_second(fn, 12.0) - utility_per_second(fn, 6.0) == pytest.approx(0.1, abs=1e-9)
+    halving_cost = utility_per_second(fn, 12.0) - utility_per_second(fn, 6.0)
+    assert halving_cost == pytest.approx(0.1, abs=1e-9)
     # closed form of the per-second utility below f_max (derived from eq. 4.28):
     # u(f) = 1 - k log2(f_max / f) + k (1 - f / f_max) / ln 2
     for f in (1.0, 3.0, 8.0):
@@ -148,7 +150,8 @@ CASES = [
     ("battery-sum", info(Battery(depletion_rate=0.05), "sum"),
      {"level": lambda r: float(r.uniform(0.2, 1.0))}),
     ("linear-max", info(Linear(), "max"),
-     {"initial": lambda r: float(r.uniform(0.5, 3.0)), "slope": lambda r: float(r.uniform(0.05, 1))}),
+     {"initial": lambda r: float(r.uniform(0.5, 3.0)),
+      "slope": lambda r: float(r.uniform(0.05, 1))}),
     ("position-max", info(Position(v_max=1.0, area=300.0), "max"), {}),
     ("status-last", info(Status(), "last"), {}),
     ("poisson-max", info(StatusPoisson(rate=0.3), "max"), {}),

@@ -127,7 +127,10 @@ def test_video_versions_eq_4_33_scales_by_diagonal() -> None:
     fn = VideoVersions(S=0.1, f_max=24.0, f_1=12.0)
     m = msg(0.0, 0.0, diagonal=400.0, full_diagonal=800.0)
     assert fn.value(m, 1.0) == pytest.approx(0.5 * Video().shape(1.0))
-    versions = (Version(name="full", size=100, quality=1.0), Version(name="q", size=10, quality=0.25))
+    versions = (
+        Version(name="full", size=100, quality=1.0),
+        Version(name="q", size=10, quality=0.25),
+    )
     v = Message(sender="a", seq=0, type="x", t_gen=0.0, t_rcv=0.0, versions=versions, version=1)
     assert fn.value(v, 1.0) == pytest.approx(0.25 * Video().shape(1.0))
 
