@@ -11,7 +11,12 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from companion.middleware.linkstats import RoundTrip
 
 __all__ = ["ConstantConstraint", "GoodputConstraint", "LinkSample"]
 
@@ -52,6 +57,14 @@ class GoodputConstraint(ABC):
 
     def on_sample(self, sample: LinkSample, *, now: float) -> None:  # noqa: B027
         """Learn from one delivered message (default: nothing to learn)."""
+
+    def on_samples(self, samples: Iterable[LinkSample], *, now: float) -> None:
+        """Learn from all messages of one receiver report (default: one by one)."""
+        for sample in samples:
+            self.on_sample(sample, now=now)
+
+    def on_round_trip(self, round_trip: RoundTrip, *, now: float) -> None:  # noqa: B027
+        """A report round trip (clock offset and delay); default: not used."""
 
     def on_sent(self, size_bytes: int, *, now: float) -> None:
         """Record that ``size_bytes`` went on the link at ``now``."""

@@ -1,0 +1,349 @@
+"""Load benchmark of the ground station (issue 6 acceptance).
+
+10 simulated drones x 10 images/s x 30 KB on loopback for 60 s (``--duration`` to shorten).
+The station runs as its own process (``uav-ground-station run``), the senders in another
+one, and this process watches the dashboard WebSocket like a browser would. Reported:
+images sent / received / stored, images lost by the ground station itself (must be 0:
+on loopback nothing else can lose them), dashboard update lag (generation -> WebSocket
+delivery, p50/p95 must be < 1 s), CPU of the station and the senders. Prints a table,
+writes CSV and PNG under artifacts/bench_ground/, exits non-zero on a miss.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import csv
+import json
+import os
+import random
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+
+KEY = "bench-ground-fleet-key-000000"
+FLEET_ID = 11
+LAG_TARGET_S = 1.0
+
+
+# -- sender process -------------------------------------------------------------------------
+def sender_main(args: argparse.Namespace) -> int:
+    """Paced senders, one UDP socket per drone, spread evenly over each frame period."""
+    from companion.protocol import Encoder
+    from utility_specs.message import Message
+
+    rng = random.Random(1)
+    payloads = [rng.randbytes(args.size) for _ in range(8)]
+    ground = ("127.0.0.1", args.udp_port)
+    drones = []
+    for i in range(args.drones):
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.bind(("127.0.0.1", 0))
+        sock.setblocking(False)
+        drones.append((f"uav{i + 1:02d}", Encoder(FLEET_ID, f"uav{i + 1:02d}", KEY.encode()), sock))
+    period = 1.0 / args.rate
+    slot = period / args.drones
+    sent_images = sent_datagrams = 0
+    cpu0 = time.process_time()
+    t_start = time.time() + 0.2
+    frame = 0
+    while True:
+        frame_t = t_start + frame * period
+        if frame_t - t_start >= args.duration:
+            break
+        for i, (name, encoder, sock) in enumerate(drones):
+            due = frame_t + i * slot
+            delay = due - time.time()
+            if delay > 0:
+                time.sleep(delay)
+            now = time.time()
+            red = rng.random() * 0.3
+            m = Message(
+                sender=name,
+                seq=frame + 1,
+                type="image",
+                t_gen=now,
+                size=args.size,
+                data={"red": round(red, 3), "lat": 51.1 + i * 1e-4, "lon": 17.0, "alt": 40.0},
+            )
+            for datagram in encoder.fragment(m, payloads[(frame + i) % 8], now):
+                while True:
+                    try:
+                        sock.sendto(datagram, ground)
+                        break
+                    except BlockingIOError:  # local send buffer full: wait, never skip
+                        time.sleep(0.0005)
+                sent_datagrams += 1
+            sent_images += 1
+            # drain reports so our receive buffers do not matter
+            try:
+                while sock.recv(65536):
+                    pass
+            except BlockingIOError:
+                pass
+        frame += 1
+    wall = time.time() - t_start
+    print(
+        json.dumps(
+            {
+                "images": sent_images,
+                "datagrams": sent_datagrams,
+                "wall_s": wall,
+                "cpu_s": time.process_time() - cpu0,
+            }
+        ),
+        flush=True,
+    )
+    return 0
+
+
+# -- measuring process ----------------------------------------------------------------------
+def free_port(kind: int) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def proc_cpu_s(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    ticks = os.sysconf("SC_CLK_TCK")
+    return (int(fields[11]) + int(fields[12])) / ticks  # utime + stime
+
+
+def udp_rcvbuf_errors() -> int:
+    lines = Path("/proc/net/snmp").read_text().splitlines()
+    udp = [line.split() for line in lines if line.startswith("Udp:")]
+    header, values = udp[0], udp[1]
+    return int(values[header.index("RcvbufErrors")])
+
+
+def percentile(values: list[float], q: float) -> float:
+    if not values:
+        return float("nan")
+    ordered = sorted(values)
+    k = (len(ordered) - 1) * q
+    lo, hi = int(k), min(int(k) + 1, len(ordered) - 1)
+    return ordered[lo] + (ordered[hi] - ordered[lo]) * (k - lo)
+
+
+async def watch_dashboard(
+    url: str, token: str, lags: list[tuple[float, float]], stop: asyncio.Event
+) -> None:
+    """Every image tile update: (arrival time, arrival - t_gen of the image)."""
+    async with (
+        aiohttp.ClientSession() as session,
+        session.ws_connect(url, headers={"Authorization": f"Bearer {token}"}, max_msg_size=0) as ws,
+    ):
+        seen: dict[str, int] = {}
+        while not stop.is_set():
+            try:
+                msg = await asyncio.wait_for(ws.receive(), timeout=0.5)
+            except TimeoutError:
+                continue
+            if msg.type != aiohttp.WSMsgType.TEXT:
+                break
+            now = time.time()
+            data = json.loads(msg.data)
+            if data.get("kind") != "drone":
+                continue
+            image = data["drone"].get("latest_image")
+            if image and seen.get(data["drone"]["drone"]) != image["seq"]:
+                seen[data["drone"]["drone"]] = image["seq"]
+                lags.append((now, now - image["t_gen"]))
+
+
+async def get_stats(http: str, token: str) -> dict[str, Any]:
+    async with (
+        aiohttp.ClientSession() as session,
+        session.get(f"{http}/api/stats", headers={"Authorization": f"Bearer {token}"}) as resp,
+    ):
+        return dict(await resp.json())
+
+
+async def bench(args: argparse.Namespace) -> int:
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    work = Path(tempfile.mkdtemp(prefix="bench-ground-"))
+    udp_port, http_port = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_STREAM)
+    config = work / "gs.toml"
+    config.write_text(
+        "[ground_station]\n"
+        f'fleet_key = "{KEY}"\nfleet_id = {FLEET_ID}\ndata_dir = "data"\nmission = "bench"\n'
+        f'udp_host = "127.0.0.1"\nudp_port = {udp_port}\nhttp_port = {http_port}\n'
+        f"fsync = {'true' if args.fsync else 'false'}\n"
+    )
+    print(
+        f"bench_ground: {args.drones} drones x {args.rate} images/s x {args.size} B for "
+        f"{args.duration} s; station data in {work}",
+        flush=True,
+    )
+    station = subprocess.Popen(
+        [sys.executable, "-m", "ground_station.cli", "run", "--config", str(config)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    http = f"http://127.0.0.1:{http_port}"
+    try:
+        assert station.stdout is not None
+        token = station.stdout.readline().rsplit(": ", 1)[1].strip()
+        async with asyncio.timeout(20):
+            while True:
+                try:
+                    await get_stats(http, token)
+                    break
+                except aiohttp.ClientError:
+                    await asyncio.sleep(0.1)
+        lags: list[tuple[float, float]] = []
+        stop = asyncio.Event()
+        watcher = asyncio.create_task(
+            watch_dashboard(f"ws://127.0.0.1:{http_port}/ws", token, lags, stop)
+        )
+        await asyncio.sleep(0.5)
+        rcvbuf0 = udp_rcvbuf_errors()
+        cpu0, t0 = proc_cpu_s(station.pid), time.time()
+        sender = await asyncio.create_subprocess_exec(
+            sys.executable,
+            __file__,
+            "--sender",
+            "--udp-port",
+            str(udp_port),
+            "--drones",
+            str(args.drones),
+            "--rate",
+            str(args.rate),
+            "--size",
+            str(args.size),
+            "--duration",
+            str(args.duration),
+            stdout=subprocess.PIPE,
+        )
+        progress_at = time.time() + 10
+        while sender.returncode is None:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(sender.wait(), timeout=1.0)
+            if time.time() >= progress_at:
+                progress_at += 10
+                s = await get_stats(http, token)
+                print(
+                    f"  t={time.time() - t0:5.0f} s  received {s['link'].get('images', 0)}"
+                    f"  stored {s['storage']['images_stored']}"
+                    f"  backlog {s['storage']['backlog']}",
+                    flush=True,
+                )
+        assert sender.stdout is not None
+        sent = json.loads((await sender.stdout.read()).decode().strip().splitlines()[-1])
+        cpu_station = proc_cpu_s(station.pid) - cpu0
+        wall = time.time() - t0
+        # let the station finish writing what it received
+        async with asyncio.timeout(60):
+            while True:
+                s = await get_stats(http, token)
+                if (
+                    s["storage"]["backlog"] == 0
+                    and s["storage"]["written"] == s["storage"]["submitted"]
+                ):
+                    break
+                await asyncio.sleep(0.2)
+        await asyncio.sleep(0.5)
+        stats = await get_stats(http, token)
+        stop.set()
+        await watcher
+        rcvbuf_errors = udp_rcvbuf_errors() - rcvbuf0
+    finally:
+        station.send_signal(signal.SIGINT)
+        try:
+            station.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            station.kill()
+        if not args.keep:
+            shutil.rmtree(work, ignore_errors=True)
+    received = int(stats["link"].get("images", 0))
+    stored = int(stats["storage"]["images_stored"])
+    lost = sent["images"] - stored
+    lag_values = [lag for _, lag in lags]
+    p50, p95 = percentile(lag_values, 0.5), percentile(lag_values, 0.95)
+    rows = [
+        ("images sent", f"{sent['images']}", ""),
+        ("images received", f"{received}", ""),
+        ("images stored (fsync'd + indexed)", f"{stored}", ""),
+        ("lost by the ground station", f"{lost}", "must be 0"),
+        (
+            "  of which incomplete/evicted",
+            f"{stats['drops'].get('incomplete', 0)}/{stats['drops'].get('evicted', 0)}",
+            "",
+        ),
+        ("  UDP receive-buffer drops (host-wide)", f"{rcvbuf_errors}", ""),
+        ("  storage errors", f"{stats['storage']['errors']}", ""),
+        ("datagrams sent", f"{sent['datagrams']}", ""),
+        ("goodput received", f"{received * args.size / wall / 1e6:.2f} MB/s", ""),
+        ("dashboard lag p50", f"{p50 * 1000:.0f} ms", f"< {LAG_TARGET_S * 1000:.0f} ms"),
+        ("dashboard lag p95", f"{p95 * 1000:.0f} ms", f"< {LAG_TARGET_S * 1000:.0f} ms"),
+        ("dashboard updates seen", f"{len(lags)}", ""),
+        ("station CPU", f"{100 * cpu_station / wall:.0f} % of one core", ""),
+        ("senders CPU", f"{100 * sent['cpu_s'] / sent['wall_s']:.0f} % of one core", ""),
+        ("machine", f"{os.cpu_count()} cores, fsync={'on' if args.fsync else 'off'}", ""),
+    ]
+    width = max(len(r[0]) for r in rows)
+    print(f"\n{'measure':<{width}}  {'value':>22}  target")
+    for name, value, target in rows:
+        print(f"{name:<{width}}  {value:>22}  {target}")
+    with open(out_dir / "bench_ground.csv", "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["measure", "value", "target"])
+        writer.writerows(rows)
+    plot(lags, t0, out_dir / "bench_ground_lag.png")
+    ok = lost == 0 and p95 < LAG_TARGET_S and p50 < LAG_TARGET_S and len(lags) > 0
+    print(
+        f"\n{'PASS' if ok else 'FAIL'} (table: {out_dir / 'bench_ground.csv'}, "
+        f"plot: {out_dir / 'bench_ground_lag.png'})"
+    )
+    return 0 if ok else 1
+
+
+def plot(lags: list[tuple[float, float]], t0: float, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 3.8))
+    ax1.plot([t - t0 for t, _ in lags], [lag * 1000 for _, lag in lags], ".", ms=2)
+    ax1.axhline(LAG_TARGET_S * 1000, color="red", lw=1, label="target")
+    ax1.set(xlabel="time (s)", ylabel="dashboard lag (ms)", title="lag of each tile update")
+    ax1.legend()
+    ax2.hist([lag * 1000 for _, lag in lags], bins=60)
+    ax2.set(xlabel="dashboard lag (ms)", ylabel="updates", title="distribution")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=60.0, help="seconds of load")
+    parser.add_argument("--drones", type=int, default=10)
+    parser.add_argument("--rate", type=float, default=10.0, help="images per second per drone")
+    parser.add_argument("--size", type=int, default=30_000, help="image bytes")
+    parser.add_argument("--no-fsync", dest="fsync", action="store_false")
+    parser.add_argument("--out", default="artifacts/bench_ground")
+    parser.add_argument("--keep", action="store_true", help="keep the station's data folder")
+    parser.add_argument("--sender", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--udp-port", type=int, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.sender:
+        return sender_main(args)
+    return asyncio.run(bench(args))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,170 @@
+"""Benchmark of the MCTS middleware (issue 3): speed and quality targets; exits 1 on a miss.
+
+    .venv/bin/python benchmarks/bench_mcts.py [--out DIR] [--quick]
+
+Speed: reference setup of thesis ch. 5.4 (10 agents, 1500 iterations, 100 s) mean <= 15 ms,
+p95 <= 30 ms per decision, flat (last 10 % of decisions vs the 2nd 10 %: <= 1.5x; the first
+10 % are cheaper because the fleet is not known yet); image streaming (4 drones, 5 frames/s
+with 3 versions, 1 Hz position, 0.2 Hz battery, 300 iterations) p99 <= 10 ms.
+Quality: utility >= the thesis reference at its drop shares (mostly-low), >= random at every
+drop share in all scenarios (interpolated), within 5 % of the offline optimum on average over
+20 seeded short missions, fewer violations than the reference (max 9 per run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from companion.middleware.constraint import ConstantConstraint
+from companion.middleware.middleware import Middleware, MiddlewareConfig
+from sitl.netsim import ChannelConfig, SimAgent, StreamConfig, simulate
+from sitl.study.drop_rate import (
+    REFERENCE_DROP,
+    REFERENCE_MCTS,
+    REFERENCE_VIOLATIONS_MAX,
+    optimum_gap,
+    run_mission,
+)
+from utility_specs.message import Version
+from utility_specs.spec import builtin_spec
+
+ROWS: list[tuple[str, str, str, bool]] = []
+
+
+def check(name: str, value: str, target: str, ok: bool) -> None:
+    ROWS.append((name, value, target, ok))
+    print(f"  {'ok  ' if ok else 'MISS'} {name}: {value} (target {target})", flush=True)
+
+
+def speed_reference(t_end: float) -> None:
+    _run, result, _ = run_mission("mostly-low", "mcts1500", 9.25, seed=11, t_end=t_end)
+    wall = np.array(result.decide_wall_s[1:]) * 1e3  # the first call loads the compiled kernel
+    cpu = np.array(result.decide_cpu_s[1:]) * 1e3
+    tenth = max(1, len(wall) // 10)
+    second, last = wall[tenth:2 * tenth].mean(), wall[-tenth:].mean()
+    check("ref 1500 it mean", f"{wall.mean():.2f} ms (cpu {cpu.mean():.2f})", "<= 15 ms",
+          wall.mean() <= 15)
+    check("ref 1500 it p95", f"{np.percentile(wall, 95):.2f} ms (cpu "
+          f"{np.percentile(cpu, 95):.2f})", "<= 30 ms", bool(np.percentile(wall, 95) <= 30))
+    check("ref flat (last/2nd decile)", f"{last:.2f}/{second:.2f} ms", "ratio <= 1.5",
+          last <= 1.5 * second)
+
+
+def speed_images(t_end: float) -> None:
+    spec = builtin_spec("image_streaming")
+    versions = (Version(name="full", size=40_000, quality=1.0),
+                Version(name="half", size=10_000, quality=0.5),
+                Version(name="quarter", size=2_500, quality=0.25))
+    agents = []
+    for i in range(4):
+        config = MiddlewareConfig(spec=spec, agent=f"uav{i}", max_iterations=300, horizon_s=1.0)
+        mw = Middleware(config, rng=np.random.default_rng(i),
+                        constraint=ConstantConstraint(limit_bytes_per_s=300_000, window_s=1.0))
+
+        def red(k: int, g: np.random.Generator, i: int = i) -> dict[str, Any]:
+            return {"red": float(min(1.0, abs(g.normal(0.02 * i, 0.05))))}
+
+        agents.append(SimAgent(name=f"uav{i}", policy=mw, streams=[
+            StreamConfig(type="image", period_s=0.2, size=40_000, phase_s=0.01 * i,
+                         versions=versions, data=red),
+            StreamConfig(type="position", period_s=1.0, size=64, phase_s=0.1 + 0.01 * i),
+            StreamConfig(type="battery", period_s=5.0, size=32, phase_s=0.2 + 0.01 * i,
+                         data=lambda k, g: {"level": max(0.1, 1.0 - 0.001 * k)}),
+        ]))
+    result = simulate(agents, channel=ChannelConfig(capacity_bytes_per_s=1_000_000),
+                      t_end=t_end, rng=np.random.default_rng(5))
+    wall = np.array(result.decide_wall_s[4:]) * 1e3
+    cpu = np.array(result.decide_cpu_s[4:]) * 1e3
+    check("images 300 it p99", f"{np.percentile(wall, 99):.2f} ms (mean {wall.mean():.2f}; "
+          f"cpu p99 {np.percentile(cpu, 99):.2f})", "<= 10 ms", bool(np.percentile(wall, 99) <= 10))
+
+
+def quality(t_end: float, out: Path, scenarios: list[str]) -> None:
+    budgets = [25.0, 22.0, 19.25, 15.75, 12.0, 9.25, 5.5, 2.5]
+    drops = [0.0, 0.1, 0.23, 0.37, 0.52, 0.63, 0.78, 0.9, 1.0]
+    rows = []
+    for scenario in scenarios:
+        mcts = []
+        worst_violations = 0
+        for b in budgets:
+            run, _, _ = run_mission(scenario, "mcts1500", b, seed=21, t_end=t_end)
+            mcts.append((run.drop_share, run.utility_pct))
+            worst_violations = max(worst_violations, run.violations)
+            rows.append({"scenario": scenario, "policy": "mcts1500", "param": b,
+                         "drop": run.drop_share, "utility": run.utility_pct,
+                         "violations": run.violations})
+            print(f"    {scenario} mcts1500 budget={b}: drop={run.drop_share:.2f} "
+                  f"utility={run.utility_pct:.1f}% violations={run.violations}", flush=True)
+        rand = []
+        for p in drops:
+            run, _, _ = run_mission(scenario, "random", p, seed=21, t_end=t_end)
+            rand.append((run.drop_share, run.utility_pct))
+            rows.append({"scenario": scenario, "policy": "random", "param": p,
+                         "drop": run.drop_share, "utility": run.utility_pct, "violations": 0})
+        mx, my = zip(*sorted(mcts), strict=True)
+        rx, ry = zip(*sorted(rand), strict=True)
+        grid = [x for x in np.linspace(0.05, 0.95, 19) if mx[0] <= x <= mx[-1]]
+        gap = min(float(np.interp(x, mx, my) - np.interp(x, rx, ry)) for x in grid)
+        check(f"{scenario}: mcts - random (worst)", f"{gap:+.1f} points", ">= 0", gap >= 0)
+        ours = [float(np.interp(x, mx, my)) for x in REFERENCE_DROP]
+        if scenario == "mostly-low":
+            # the issue gives the reference's numbers for this scenario only
+            diff = min(o - r for o, r in zip(ours, REFERENCE_MCTS, strict=True))
+            check(f"{scenario} vs thesis MCTS", " ".join(f"{o:.1f}" for o in ours),
+                  " ".join(f"{r:.1f}" for r in REFERENCE_MCTS), diff >= 0)
+        else:
+            print(f"    {scenario} at the reference drop shares: "
+                  + " ".join(f"{o:.1f}" for o in ours) + " (no reference numbers)")
+        check(f"{scenario}: violations per run (max)", str(worst_violations),
+              f"< {REFERENCE_VIOLATIONS_MAX}", worst_violations < REFERENCE_VIOLATIONS_MAX)
+    with (out / "bench_mcts_quality.csv").open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def optimum(n_missions: int, t_end: float) -> None:
+    """MCTS (1500 it.) against the exact optimum with full knowledge, 4 agents, 3 msgs/T."""
+    ratios = []
+    for seed in range(n_missions):
+        scenario = ("mostly-low", "uniform", "mostly-high")[seed % 3]
+        mcts_pct, opt_pct, _ = optimum_gap(scenario, 3.0, seed=seed, t_end=t_end, n_agents=4)
+        ratios.append(mcts_pct / opt_pct if opt_pct > 0 else 1.0)
+    mean = float(np.mean(ratios))
+    check(f"vs offline optimum ({n_missions} x {t_end:g} s)", f"{100 * mean:.1f} % (worst "
+          f"{100 * min(ratios):.1f} %)", ">= 95 %", mean >= 0.95)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/out"))
+    parser.add_argument("--quick", action="store_true", help="shorter missions (indicative)")
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    t_end = 30.0 if args.quick else 100.0
+    print("speed: reference setup", flush=True)
+    speed_reference(t_end)
+    print("speed: image streaming", flush=True)
+    speed_images(10.0 if args.quick else 30.0)
+    print("quality: drop share vs utility", flush=True)
+    quality(t_end, args.out, ["mostly-low"] if args.quick else
+            ["mostly-low", "uniform", "mostly-high"])
+    print("quality: offline optimum", flush=True)
+    optimum(6 if args.quick else 20, 20.0)
+    print(f"\n{'check':42s} {'measured':34s} {'target':28s} result")
+    for name, value, target, ok in ROWS:
+        print(f"{name:42s} {value:34s} {target:28s} {'ok' if ok else 'MISS'}")
+    print(f"({time.perf_counter() - t0:.0f} s)")
+    return 0 if all(ok for *_, ok in ROWS) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

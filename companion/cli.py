@@ -1,0 +1,259 @@
+"""``uav-companion``: run the companion, check a setup, install the systemd service.
+
+    uav-companion run [--config PATH]
+    uav-companion check [--config PATH] [--timeout S] [--skip-mavlink] [--skip-camera]
+    uav-companion install-service [--config PATH] [--unit-dir DIR] [--dry-run] [--no-enable]
+
+Exit status: 0 success, 1 a probe or the service failed, 2 a bad configuration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+__all__ = ["main"]
+
+DEFAULT_CONFIG = "/etc/uav-companion/config.toml"
+_STD_ATTRS = frozenset(vars(logging.LogRecord("", 0, "", 0, "", (), None))) | {"message"}
+
+
+class JsonFormatter(logging.Formatter):
+    """One JSON object per line: time, level, logger, message and any ``extra`` fields."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        out: dict[str, Any] = {
+            "t": record.created,
+            "level": record.levelname.lower(),
+            "logger": record.name,
+            "msg": record.getMessage(),
+        }
+        for key, value in vars(record).items():
+            if key not in _STD_ATTRS and not key.startswith("_"):
+                out[key] = value
+        if record.exc_info:
+            out["exc"] = self.formatException(record.exc_info)
+        return json.dumps(out, default=str)
+
+
+def configure_logging(level: str, fmt: str) -> None:
+    handler = logging.StreamHandler(sys.stderr)
+    if fmt == "json":
+        handler.setFormatter(JsonFormatter())
+    else:
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(level.upper())
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="uav-companion", description=__doc__.split("\n")[0])
+    parser.add_argument("--log-level", default="info",
+                        choices=["debug", "info", "warning", "error"])
+    parser.add_argument("--log-format", default="json", choices=["json", "text"])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run the companion until SIGTERM")
+    run.add_argument("--config", default=DEFAULT_CONFIG)
+
+    check = sub.add_parser("check", help="validate the config, probe MAVLink and the camera")
+    check.add_argument("--config", default=DEFAULT_CONFIG)
+    check.add_argument("--timeout", type=float, default=5.0,
+                       help="seconds to wait for the autopilot (default 5)")
+    check.add_argument("--skip-mavlink", action="store_true")
+    check.add_argument("--skip-camera", action="store_true")
+
+    inst = sub.add_parser("install-service", help="write and enable the systemd unit")
+    inst.add_argument("--config", default=DEFAULT_CONFIG)
+    inst.add_argument("--unit-dir", default=None,
+                      help="where to write the unit (default /etc/systemd/system)")
+    inst.add_argument("--dry-run", action="store_true", help="print the unit, change nothing")
+    inst.add_argument("--no-enable", action="store_true",
+                      help="write the unit but do not run systemctl")
+    inst.add_argument("--user", default=None, help="run the service as this user")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    # pymavlink picks its wire version from the environment at import: set it before.
+    os.environ.setdefault("MAVLINK20", "1")
+    args = _parser().parse_args(list(argv) if argv is not None else None)
+    configure_logging(args.log_level, args.log_format)
+    if args.command == "run":
+        return _run(args)
+    if args.command == "check":
+        return _check(args)
+    return _install(args)
+
+
+def _load(path: str) -> Any:
+    from companion.config import ConfigError, load_config
+
+    try:
+        return load_config(path)
+    except ConfigError as exc:
+        print(f"configuration error: {exc}", file=sys.stderr)
+        return None
+
+
+def _run(args: argparse.Namespace) -> int:
+    import asyncio
+    import signal
+
+    from companion.app import AppSetupError, create_app
+
+    config = _load(args.config)
+    if config is None:
+        return 2
+
+    async def main_async() -> int:
+        try:
+            app = create_app(config, clock=time.time)
+        except AppSetupError as exc:
+            print(f"cannot start: {exc}", file=sys.stderr)
+            return 2
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(sig, app.stop)
+        await app.run()
+        return 0
+
+    try:
+        return asyncio.run(main_async())
+    except ExceptionGroup as group:  # a service failed; systemd restarts us (on-failure)
+        logging.getLogger("companion").error("companion failed", exc_info=group)
+        print(f"companion failed: {group.exceptions[0]!r}", file=sys.stderr)
+        return 1
+
+
+def _check(args: argparse.Namespace) -> int:
+    from companion.app import AppSetupError, check_setup
+
+    config = _load(args.config)
+    if config is None:
+        return 2
+    print(f"config: {args.config}: ok (drone {config.drone_id})")
+    try:
+        for line in check_setup(config):
+            print(line)
+    except AppSetupError as exc:
+        print(f"configuration error: {exc}", file=sys.stderr)
+        return 2
+    failures = 0
+    snapshot = None
+    if not args.skip_mavlink:
+        snapshot, lines, ok = _probe_mavlink(config, args.timeout)
+        failures += not ok
+        for line in lines:
+            print(line)
+    if config.camera.enabled and not args.skip_camera:
+        lines, ok = _probe_camera(config, snapshot)
+        failures += not ok
+        for line in lines:
+            print(line)
+    print("check: ok" if failures == 0 else f"check: {failures} problem(s)")
+    return 0 if failures == 0 else 1
+
+
+def _probe_mavlink(config: Any, timeout_s: float) -> tuple[Any, list[str], bool]:
+    import threading
+
+    from companion.mavlink import MavlinkReader
+    from companion.telemetry import TelemetryState
+
+    state = TelemetryState()
+    lock = threading.Lock()
+
+    def post(sample: Any) -> None:
+        with lock:
+            state.apply(sample)
+
+    reader = MavlinkReader(config.mavlink, clock=time.time, post=post)
+    reader.start()
+    deadline = time.monotonic() + timeout_s
+    try:
+        while time.monotonic() < deadline:
+            with lock:
+                snap = state.snapshot()
+            if snap.connected and snap.lat_deg is not None and snap.battery_v is not None:
+                break
+            time.sleep(0.1)
+    finally:
+        reader.stop()
+        reader.join(5.0)
+    with lock:
+        snap = state.snapshot()
+    url = config.mavlink.url
+    if not snap.connected and snap.t_heartbeat is None:
+        return snap, [f"mavlink: {url}: no autopilot HEARTBEAT within {timeout_s:g} s"], False
+    lines = [f"mavlink: {url}: {snap.autopilot} autopilot, vehicle type {snap.vehicle_type}, "
+             f"mode {snap.mode}, {'armed' if snap.armed else 'disarmed'}"]
+    if snap.lat_deg is not None:
+        lines.append(f"mavlink: position {snap.lat_deg:.7f} {snap.lon_deg:.7f} "
+                     f"alt_rel {snap.alt_rel_m:.1f} m")
+    else:
+        lines.append("mavlink: no GLOBAL_POSITION_INT yet (streams requested)")
+    if snap.battery_v is not None:
+        remaining = ("?" if snap.battery_remaining is None
+                     else f"{100 * snap.battery_remaining:.0f} %")
+        lines.append(f"mavlink: battery {snap.battery_v:.2f} V, {remaining}")
+    return snap, lines, True
+
+
+def _probe_camera(config: Any, snapshot: Any) -> tuple[list[str], bool]:
+    from companion.camera import CameraError, open_source
+    from companion.telemetry import TelemetrySnapshot
+
+    cam = config.camera
+    pose = snapshot if snapshot is not None and snapshot.lat_deg is not None else \
+        TelemetrySnapshot(lat_deg=0.0, lon_deg=0.0, alt_rel_m=30.0, roll_rad=0.0,
+                          pitch_rad=0.0, yaw_rad=0.0)
+    try:
+        source = open_source(cam.source, width=cam.width, height=cam.height,
+                             rate_hz=cam.rate_hz, pose=lambda: pose, options=dict(cam.options))
+        try:
+            image = source.read(timeout_s=3.0)
+        finally:
+            source.close()
+    except (CameraError, OSError, ValueError, TypeError) as exc:
+        return [f"camera: {cam.source}: {exc}"], False
+    if image is None:
+        return [f"camera: {cam.source}: opened but no frame"], False
+    return [f"camera: {source.description}: frame {image.shape[1]}x{image.shape[0]}, "
+            f"sent as {cam.width}x{cam.height} at {cam.rate_hz:g} Hz"], True
+
+
+def _install(args: argparse.Namespace) -> int:
+    from companion.service import DEFAULT_UNIT_DIR, install_service
+
+    config_path = Path(args.config).resolve()
+    unit_dir = Path(args.unit_dir) if args.unit_dir else DEFAULT_UNIT_DIR
+    try:
+        result = install_service(config_path=config_path, unit_dir=unit_dir,
+                                 dry_run=args.dry_run, enable=not args.no_enable,
+                                 user=args.user)
+    except (OSError, RuntimeError) as exc:
+        print(f"install-service failed: {exc}", file=sys.stderr)
+        return 1
+    if args.dry_run:
+        print(f"# would write {result.unit_path}")
+        print(result.text)
+        for command in result.commands:
+            print("# would run: " + " ".join(command))
+    else:
+        print(f"wrote {result.unit_path}")
+        for command in result.commands:
+            print("ran: " + " ".join(command))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

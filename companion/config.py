@@ -1,0 +1,356 @@
+"""The companion's TOML configuration, validated once at start.
+
+Default location ``/etc/uav-companion/config.toml`` (``--config`` overrides). Every error is a
+:class:`ConfigError` whose text names the file, the key and the expected value, e.g.
+``/etc/uav-companion/config.toml: camera.rate_hz: expected a number > 0, got -1``.
+Unknown keys are errors too (a typo must not silently fall back to a default).
+See ``examples/companion.toml`` for every key with its default.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from companion.mavlink import DEFAULT_STREAM_RATES_HZ, MavlinkSettings
+from companion.scoring import ArucoSettings, RedShareSettings
+
+__all__ = [
+    "DEFAULT_CONFIG_PATH",
+    "BudgetConfig",
+    "CameraConfig",
+    "CompanionConfig",
+    "ConfigError",
+    "ConstraintConfig",
+    "GroundStationConfig",
+    "MissionConfig",
+    "ScoringConfig",
+    "TelemetryConfig",
+    "load_config",
+    "parse_config",
+]
+
+DEFAULT_CONFIG_PATH = Path("/etc/uav-companion/config.toml")
+DEMO_FLEET_KEY = b"uav-infodist-demo-fleet-key"
+"""The ground station's demo default; real fleets set ``ground_station.fleet_key_file``."""
+MIN_KEY_BYTES = 16
+
+
+class ConfigError(ValueError):
+    """A configuration that cannot be used; the text names file, key and expected value."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CameraConfig:
+    enabled: bool = True
+    source: str = "synthetic"
+    width: int = 640
+    height: int = 480
+    rate_hz: float = 5.0
+    jpeg_quality: int = 80
+    versions: tuple[str, ...] = ("full", "half", "quarter")
+    """Resolutions each image is offered in (eq. 4.33), best first."""
+    options: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ScoringConfig:
+    scorers: tuple[str, ...] = ("red_share",)
+    red_share: RedShareSettings = field(default_factory=RedShareSettings)
+    aruco: ArucoSettings = field(default_factory=ArucoSettings)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MissionConfig:
+    spec: str = "builtin:image_streaming"
+    """A spec file path, or ``builtin:NAME`` for one shipped with utility_specs."""
+    log: str | None = None
+    """Mission log (JSON Lines) path; None = no log."""
+    wait_for_start: bool = False
+    """Send only status until the ground station's ``start`` command (synchronised start)."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GroundStationConfig:
+    host: str = "127.0.0.1"
+    port: int = 14600
+    fleet_key: bytes = DEMO_FLEET_KEY
+    """HMAC key of the fleet (from ``fleet_key_file``; ``fleet_key`` only for demos)."""
+    fleet_id: int = 1
+    listen_host: str = "0.0.0.0"
+    listen_port: int = 0
+    """Local UDP port for reports and commands (0 = any)."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BudgetConfig:
+    mcts_iterations: int = 300
+    time_budget_s: float = 0.05
+    """Wall time the decision of one message may take (executor wait bound)."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ConstraintConfig:
+    name: str = "adaptive"
+    params: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TelemetryConfig:
+    position_rate_hz: float = 1.0
+    battery_period_s: float = 5.0
+    status_period_s: float = 5.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CompanionConfig:
+    drone_id: str
+    mavlink: MavlinkSettings
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    scoring: ScoringConfig = field(default_factory=ScoringConfig)
+    mission: MissionConfig = field(default_factory=MissionConfig)
+    ground_station: GroundStationConfig = field(default_factory=GroundStationConfig)
+    budgets: BudgetConfig = field(default_factory=BudgetConfig)
+    constraint: ConstraintConfig = field(default_factory=ConstraintConfig)
+    telemetry: TelemetryConfig = field(default_factory=TelemetryConfig)
+    middleware: Mapping[str, Any] = field(default_factory=dict)
+    """Extra middleware parameters (``alpha``...), passed through to the optimiser."""
+    source: str = "<memory>"
+
+
+class _Table:
+    """Typed reads from one TOML table; errors name ``source: prefix.key``."""
+
+    def __init__(self, raw: Any, source: str, prefix: str) -> None:
+        self.source = source
+        self.prefix = prefix
+        if not isinstance(raw, Mapping):
+            self.fail("", "a table", raw)
+        self.raw: Mapping[str, Any] = raw
+        self.used: set[str] = set()
+
+    def key(self, name: str) -> str:
+        return f"{self.prefix}.{name}" if self.prefix and name else (self.prefix or name)
+
+    def fail(self, name: str, expected: str, got: Any) -> None:
+        raise ConfigError(f"{self.source}: {self.key(name)}: expected {expected}, got {got!r}")
+
+    def get(self, name: str, default: Any, expected: str, ok: Callable[[Any], bool]) -> Any:
+        self.used.add(name)
+        if name not in self.raw:
+            return default
+        value = self.raw[name]
+        if not ok(value):
+            self.fail(name, expected, value)
+        return value
+
+    def string(self, name: str, default: str | None, *, required: bool = False) -> Any:
+        if required and name not in self.raw:
+            self.fail(name, "a non-empty string", None)
+        return self.get(name, default, "a non-empty string",
+                        lambda v: isinstance(v, str) and bool(v))
+
+    def number(self, name: str, default: float, *, minimum: float = 0.0,
+               strict: bool = True) -> float:
+        rule = f"a number {'>' if strict else '>='} {minimum:g}"
+        return float(self.get(name, default, rule, lambda v: _is_number(v) and (
+            v > minimum if strict else v >= minimum)))
+
+    def integer(self, name: str, default: int, *, low: int, high: int) -> int:
+        return int(self.get(name, default, f"an integer in {low}..{high}",
+                            lambda v: isinstance(v, int) and not isinstance(v, bool)
+                            and low <= v <= high))
+
+    def boolean(self, name: str, default: bool) -> bool:
+        return bool(self.get(name, default, "true or false", lambda v: isinstance(v, bool)))
+
+    def table(self, name: str) -> _Table:
+        self.used.add(name)
+        return _Table(self.raw.get(name, {}), self.source, self.key(name))
+
+    def mapping(self, name: str) -> dict[str, Any]:
+        return dict(self.get(name, {}, "a table", lambda v: isinstance(v, Mapping)))
+
+    def done(self) -> None:
+        unknown = sorted(set(self.raw) - self.used)
+        if unknown:
+            self.fail(unknown[0], f"one of {sorted(self.used)}", self.raw[unknown[0]])
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(
+        value)
+
+
+def _hsv(t: _Table, name: str, default: tuple[int, int, int]) -> tuple[int, int, int]:
+    value = t.get(name, default, "[H 0..179, S 0..255, V 0..255]",
+                  lambda v: isinstance(v, list | tuple) and len(v) == 3
+                  and all(isinstance(x, int) and not isinstance(x, bool) for x in v)
+                  and 0 <= v[0] <= 179 and all(0 <= x <= 255 for x in v[1:]))
+    return (int(value[0]), int(value[1]), int(value[2]))
+
+
+def _resolve(path: str, base: Path) -> Path:
+    """A path from the file, relative to the file's folder."""
+    p = Path(path).expanduser()
+    return p if p.is_absolute() else base / p
+
+
+def _fleet_key(t: _Table, base: Path) -> bytes:
+    key_file = t.string("fleet_key_file", None)
+    key_text = t.string("fleet_key", None)
+    if key_file is not None:
+        try:
+            key = _resolve(key_file, base).read_bytes().strip()
+        except OSError as exc:
+            t.fail("fleet_key_file", "a readable key file", f"{key_file} ({exc.strerror})")
+    elif key_text is not None:
+        key = str(key_text).encode()
+    else:
+        return DEMO_FLEET_KEY
+    if len(key) < MIN_KEY_BYTES:
+        t.fail("fleet_key_file" if key_file is not None else "fleet_key",
+               f"a key of at least {MIN_KEY_BYTES} bytes", f"{len(key)} bytes")
+    return key
+
+
+def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> CompanionConfig:
+    """Validate a parsed TOML mapping into a :class:`CompanionConfig`."""
+    root = _Table(raw, source, "")
+    base = Path(source).parent if source != "<memory>" else Path.cwd()
+
+    drone = root.table("drone")
+    drone_id = drone.string("id", None, required=True)
+    drone.done()
+
+    mav = root.table("mavlink")
+    url = mav.string("url", "udpin:0.0.0.0:14550")
+    rates = mav.get("stream_rates_hz", dict(DEFAULT_STREAM_RATES_HZ),
+                    f"a table of message names ({', '.join(DEFAULT_STREAM_RATES_HZ)}) to Hz",
+                    lambda v: isinstance(v, Mapping) and all(
+                        k in DEFAULT_STREAM_RATES_HZ and _is_number(x) and x >= 0
+                        for k, x in v.items()))
+    mavlink = MavlinkSettings(
+        url=url,
+        source_system=mav.integer("source_system", 1, low=1, high=255),
+        source_component=mav.integer("source_component", 191, low=1, high=255),
+        heartbeat_timeout_s=mav.number("heartbeat_timeout_s", 3.0),
+        reconnect_delay_s=mav.number("reconnect_delay_s", 1.0),
+        stream_ack_timeout_s=mav.number("stream_ack_timeout_s", 1.5),
+        baud=mav.integer("baud", 115200, low=1200, high=12_000_000),
+        stream_rates_hz={k: float(v) for k, v in rates.items()},
+    )
+    mav.done()
+
+    cam = root.table("camera")
+    camera = CameraConfig(
+        enabled=cam.boolean("enabled", True),
+        source=cam.string("source", "synthetic"),
+        width=cam.integer("width", 640, low=16, high=8192),
+        height=cam.integer("height", 480, low=16, high=8192),
+        rate_hz=cam.number("rate_hz", 5.0),
+        jpeg_quality=cam.integer("jpeg_quality", 80, low=1, high=100),
+        versions=tuple(sorted(
+            cam.get("versions", ["full", "half", "quarter"],
+                    "a non-empty list of full | half | quarter",
+                    lambda v: isinstance(v, list) and bool(v) and len(set(v)) == len(v)
+                    and all(x in ("full", "half", "quarter") for x in v)),
+            key=["full", "half", "quarter"].index)),
+        options=cam.mapping("options"),
+    )
+    cam.done()
+
+    sc = root.table("scoring")
+    names = sc.get("scorers", ["red_share"], "a list of red_share | aruco | hog_people",
+                   lambda v: isinstance(v, list) and all(
+                       x in ("red_share", "aruco", "hog_people") for x in v))
+    red = sc.table("red_share")
+    red_settings = RedShareSettings(
+        lower1=_hsv(red, "lower1", (0, 100, 70)), upper1=_hsv(red, "upper1", (10, 255, 255)),
+        lower2=_hsv(red, "lower2", (170, 100, 70)), upper2=_hsv(red, "upper2", (179, 255, 255)),
+        kernel_px=red.integer("kernel_px", 3, low=0, high=51),
+        scale=red.get("scale", 0.5, "a number in (0, 1]",
+                      lambda v: _is_number(v) and 0 < v <= 1),
+    )
+    red.done()
+    ar = sc.table("aruco")
+    aruco_settings = ArucoSettings(
+        dictionary=ar.get("dictionary", "DICT_4X4_50", "an OpenCV ArUco dictionary name "
+                          "like DICT_4X4_50", lambda v: isinstance(v, str) and v.startswith(
+                              "DICT_")),
+        target_ids=tuple(ar.get("target_ids", [], "a list of marker ids >= 0",
+                                lambda v: isinstance(v, list) and all(
+                                    isinstance(x, int) and x >= 0 for x in v))),
+        scale=ar.get("scale", 0.5, "a number in (0, 1]", lambda v: _is_number(v) and 0 < v <= 1),
+    )
+    ar.done()
+    sc.done()
+    scoring = ScoringConfig(scorers=tuple(names), red_share=red_settings, aruco=aruco_settings)
+
+    mi = root.table("mission")
+    spec = mi.string("spec", "builtin:image_streaming")
+    if not spec.startswith("builtin:"):
+        spec = str(_resolve(spec, base))
+    log_path = mi.string("log", None)
+    mission = MissionConfig(spec=spec,
+                            log=None if log_path is None else str(_resolve(log_path, base)),
+                            wait_for_start=mi.boolean("wait_for_start", False))
+    mi.done()
+
+    gs = root.table("ground_station")
+    ground = GroundStationConfig(
+        host=gs.string("host", "127.0.0.1"),
+        port=gs.integer("port", 14600, low=1, high=65535),
+        fleet_key=_fleet_key(gs, base),
+        fleet_id=gs.integer("fleet_id", 1, low=0, high=0xFFFF_FFFF),
+        listen_host=gs.string("listen_host", "0.0.0.0"),
+        listen_port=gs.integer("listen_port", 0, low=0, high=65535),
+    )
+    gs.done()
+
+    bu = root.table("budgets")
+    budgets = BudgetConfig(
+        mcts_iterations=bu.integer("mcts_iterations", 300, low=1, high=1_000_000),
+        time_budget_s=bu.number("time_budget_s", 0.05),
+    )
+    bu.done()
+
+    co = root.table("constraint")
+    constraint = ConstraintConfig(name=co.string("name", "adaptive"), params=co.mapping("params"))
+    co.done()
+
+    te = root.table("telemetry")
+    telemetry = TelemetryConfig(
+        position_rate_hz=te.number("position_rate_hz", 1.0, strict=False),
+        battery_period_s=te.number("battery_period_s", 5.0),
+        status_period_s=te.number("status_period_s", 5.0),
+    )
+    te.done()
+
+    middleware = root.mapping("middleware")
+    root.done()
+    return CompanionConfig(
+        drone_id=drone_id, mavlink=mavlink, camera=camera, scoring=scoring, mission=mission,
+        ground_station=ground, budgets=budgets, constraint=constraint, telemetry=telemetry,
+        middleware=middleware, source=source,
+    )
+
+
+def load_config(path: str | Path = DEFAULT_CONFIG_PATH) -> CompanionConfig:
+    """Read and validate the configuration file (the only function here touching a file)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such configuration file (use --config PATH)") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    return parse_config(raw, source=str(path))

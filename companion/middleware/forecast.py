@@ -1,0 +1,266 @@
+"""Forecast of future messages (thesis ch. 5.1) and robust latency estimates.
+
+The optimiser needs the generation times of messages that do not exist yet. As in the thesis,
+streams are assumed periodic: per (sender, type) stream the period and the phase are estimated
+from observed generation times, and the stream is extrapolated over the planning horizon.
+Everything is sans-I/O: observations come in with their own timestamps.
+"""
+
+from __future__ import annotations
+
+import cmath
+import itertools
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from utility_specs.message import Message, Version
+
+__all__ = ["LatencyEstimator", "StreamForecaster", "StreamKeyT"]
+
+StreamKeyT = tuple[str, str]
+"""(sender, type): one periodic stream of one agent."""
+
+_HISTORY = 32
+"""Observations kept per stream: forecasting cost does not grow with mission length."""
+
+
+@dataclass(slots=True)
+class _Stream:
+    times: deque[float] = field(default_factory=lambda: deque(maxlen=_HISTORY))
+    seqs: deque[int] = field(default_factory=lambda: deque(maxlen=_HISTORY))
+    sizes: deque[int] = field(default_factory=lambda: deque(maxlen=8))
+    last: Message | None = None
+    cached: tuple[float | None, float] | None = None
+    """(period, anchor) until the next observation."""
+    """The newest known message (its data and versions are what forecasts carry)."""
+
+
+class StreamForecaster:
+    """Period and phase per stream from generation times; predicted messages over a horizon.
+
+    Observations may have gaps (dropped messages are never heard of), so the period is not the
+    mean gap. When the stream is its sender's only one, sequence numbers count the periods
+    between observations. Otherwise each gap is divided by its estimated number of periods
+    ``round(gap / p20)``
+    (p20, the 20th percentile of gaps, is close to one period even when most messages are
+    missing) and the period is Σ gap / Σ periods. The phase is the circular mean of
+    ``t_gen mod period`` (as an angle, so that phases near 0 and near the period average
+    correctly instead of to period / 2).
+    """
+
+    __slots__ = ("_streams", "assume_fleet_period", "prior_period")
+
+    def __init__(self, *, assume_fleet_period: bool = True) -> None:
+        self._streams: dict[StreamKeyT, _Stream] = {}
+        self.assume_fleet_period = assume_fleet_period
+        self.prior_period: float | None = None
+        """Median period of the streams seen at least twice (refreshed by :meth:`refresh`);
+        a stream heard of only once is assumed to repeat at it (``assume_fleet_period``)."""
+
+    def refresh(self) -> None:
+        """Recompute :attr:`prior_period` (once per decision, not per stream)."""
+        if not self.assume_fleet_period:
+            self.prior_period = None
+            return
+        periods = sorted(p for p in (self._estimate(k)[0] for k in self._streams) if p is not None)
+        self.prior_period = periods[len(periods) // 2] if periods else None
+
+    def observe(self, message: Message) -> None:
+        """Learn from one known message (own generated, or another agent's delivered)."""
+        stream = self._streams.get((message.sender, message.type))
+        if stream is None:
+            stream = self._streams[(message.sender, message.type)] = _Stream()
+        if stream.times and abs(stream.times[-1] - message.t_gen) < 1e-9:
+            return  # the same message seen twice (e.g. own send, then its delivery)
+        if stream.times and message.t_gen < stream.times[-1]:
+            return  # late news about an older message: the newest data stays the newest
+        stream.times.append(message.t_gen)
+        stream.seqs.append(message.seq)
+        stream.sizes.append(_best_size(message))
+        stream.last = message
+        stream.cached = None
+
+    def streams(self) -> list[StreamKeyT]:
+        return list(self._streams)
+
+    def last(self, key: StreamKeyT) -> Message | None:
+        stream = self._streams.get(key)
+        return None if stream is None else stream.last
+
+    def period(self, key: StreamKeyT) -> float | None:
+        """Estimated period in seconds, ``None`` before two observations."""
+        stream = self._streams.get(key)
+        if stream is None or len(stream.times) < 2:
+            return None
+        times = list(stream.times)
+        seqs = list(stream.seqs)
+        steps = seqs[-1] - seqs[0]
+        if steps > 0 and all(b > a for a, b in itertools.pairwise(seqs)) and self._alone(key):
+            # The sender's only stream: its sequence numbers count the periods in between,
+            # which tells a 3 s stream from a 1 s stream of which every third message arrived.
+            return (times[-1] - times[0]) / steps
+        gaps = [b - a for a, b in itertools.pairwise(times) if b - a > 1e-9]
+        if not gaps:
+            return None
+        ordered = sorted(gaps)
+        base = ordered[int(0.2 * (len(ordered) - 1))]
+        periods = sum(max(1, round(g / base)) for g in gaps)
+        return sum(gaps) / periods
+
+    def _alone(self, key: StreamKeyT) -> bool:
+        return sum(1 for sender, _ in self._streams if sender == key[0]) == 1
+
+    def _estimate(self, key: StreamKeyT) -> tuple[float | None, float]:
+        """(period, anchor), cached until the stream's next observation."""
+        stream = self._streams[key]
+        if stream.cached is None:
+            estimate = self.period(key)
+            anchor = self._anchor(key, estimate) if estimate is not None else 0.0
+            stream.cached = (estimate, anchor)
+        return stream.cached
+
+    def phase(self, key: StreamKeyT, period: float) -> float:
+        """Circular mean of ``t_gen mod period`` over the kept observations, in [0, period).
+
+        Offsets are taken from the newest observation, so that a small error of the period
+        does not grow with the absolute time (Unix seconds) into a large phase error.
+        """
+        stream = self._streams[key]
+        ref = stream.times[-1]
+        total = sum(
+            (cmath.exp(2j * math.pi * (((t - ref) % period) / period)) for t in stream.times),
+            start=0j,
+        )
+        angle = cmath.phase(total) if abs(total) > 1e-12 else 0.0
+        return (ref + (angle / (2 * math.pi) % 1.0) * period) % period
+
+    def predict(self, key: StreamKeyT, *, t_from: float, t_to: float) -> list[float]:
+        """Predicted generation times in (t_from, t_to] that are not already known.
+
+        A time within half a period of the newest known generation time is that message,
+        not a new one: a known message is never forecast again.
+        """
+        stream = self._streams.get(key)
+        if stream is None or not stream.times:
+            return []
+        period, ref = self._estimate(key)
+        if period is None:
+            period = self.prior_period
+            if period is None:
+                return []
+            ref = stream.times[-1]
+        newest = stream.times[-1]
+        start = max(t_from, newest + 0.5 * period)
+        k = math.floor((start - ref) / period) + 1
+        out: list[float] = []
+        t = ref + k * period
+        while t <= t_to:
+            if t > start - 1e-12:
+                out.append(t)
+            k += 1
+            t = ref + k * period
+        return out
+
+    def _anchor(self, key: StreamKeyT, period: float) -> float:
+        """A generation time of the stream's phase near its newest observation."""
+        stream = self._streams[key]
+        ref = stream.times[-1]
+        total = sum(
+            (cmath.exp(2j * math.pi * (((t - ref) % period) / period)) for t in stream.times),
+            start=0j,
+        )
+        angle = cmath.phase(total) if abs(total) > 1e-12 else 0.0
+        offset = angle / (2 * math.pi) * period  # in (-period/2, period/2]
+        return ref + offset
+
+    def mean_size(self, key: StreamKeyT) -> int:
+        stream = self._streams[key]
+        return round(sum(stream.sizes) / len(stream.sizes)) if stream.sizes else 0
+
+    def forecast(self, key: StreamKeyT, *, t_from: float, t_to: float) -> list[Message]:
+        """Messages predicted for (t_from, t_to]: the last known data, the recent mean size."""
+        stream = self._streams.get(key)
+        if stream is None or stream.last is None:
+            return []
+        last = stream.last
+        size = self.mean_size(key)
+        versions = _scaled_versions(last, size)
+        out = []
+        for i, t in enumerate(self.predict(key, t_from=t_from, t_to=t_to)):
+            out.append(
+                Message(
+                    sender=last.sender,
+                    seq=-1 - i,
+                    type=last.type,
+                    t_gen=t,
+                    size=versions[0].size if versions else size,
+                    data=last.data,
+                    versions=versions,
+                    version=0 if versions else None,
+                )
+            )
+        return out
+
+    def forget(self, older_than: float) -> None:
+        """Drop streams silent since ``older_than`` (bounded memory over long missions)."""
+        stale = [k for k, s in self._streams.items() if not s.times or s.times[-1] < older_than]
+        for key in stale:
+            del self._streams[key]
+
+
+def _best_size(message: Message) -> int:
+    return message.versions[0].size if message.versions else message.size
+
+
+def _scaled_versions(last: Message, best_size: int) -> tuple[Version, ...]:
+    if not last.versions:
+        return ()
+    full = last.versions[0].size
+    factor = best_size / full if full > 0 else 1.0
+    return tuple(
+        Version(name=v.name, size=round(v.size * factor), quality=v.quality) for v in last.versions
+    )
+
+
+class LatencyEstimator:
+    """One-way latency (t_rcv - t_sent) over the last ``window`` samples.
+
+    ``mean_s`` (the thesis plans with the average observed latency, ch. 5.3) places planned
+    receptions; ``high_s`` (a high percentile) bounds how old a message may be and still be in
+    flight. One slow sample moves neither much, unlike the last sample alone.
+    """
+
+    __slots__ = ("_default_s", "_samples", "quantile")
+
+    def __init__(self, *, default_s: float, window: int = 64, quantile: float = 0.95) -> None:
+        if not default_s >= 0:
+            raise ValueError(f"default_s must be >= 0, got {default_s}")
+        self._default_s = default_s
+        self._samples: deque[float] = deque(maxlen=window)
+        self.quantile = quantile
+
+    def update(self, latency_s: float) -> LatencyEstimator:
+        if math.isfinite(latency_s) and latency_s >= 0:
+            self._samples.append(latency_s)
+        return self
+
+    def __len__(self) -> int:
+        return len(self._samples)
+
+    @property
+    def mean_s(self) -> float:
+        if not self._samples:
+            return self._default_s
+        return sum(self._samples) / len(self._samples)
+
+    @property
+    def high_s(self) -> float:
+        if not self._samples:
+            return 2.0 * self._default_s
+        ordered = sorted(self._samples)
+        return ordered[min(len(ordered) - 1, int(self.quantile * len(ordered)))]
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"mean_s": self.mean_s, "high_s": self.high_s, "samples": len(self)}

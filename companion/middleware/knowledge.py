@@ -1,0 +1,146 @@
+"""What one agent knows about the fleet's messages (thesis alg. 3): a bounded window of history.
+
+Own generated and sent messages, other agents' messages learned from receptions or receiver
+reports, latency samples. Everything older than the planning needs (window T, latency,
+horizon) is forgotten, so the cost of a decision does not grow with mission length.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from companion.middleware.forecast import LatencyEstimator, StreamForecaster
+from companion.middleware.incremental import FixedItem, PlanItem, stream_of
+from utility_specs.message import Message
+from utility_specs.spec import MissionSpec
+
+__all__ = ["FleetKnowledge", "PlanningView"]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PlanningView:
+    """The inputs of one decision's tree, assembled from what the agent knows."""
+
+    items: list[PlanItem]
+    fixed: list[FixedItem]
+    root_window: list[tuple[float, int]]
+    horizon_end: float
+
+
+class FleetKnowledge:
+    """Fleet knowledge of one agent, updated by its own decisions and by deliveries."""
+
+    __slots__ = (
+        "_delivered",
+        "_inflight",
+        "_seen",
+        "_seen_order",
+        "_sends",
+        "agent",
+        "forecaster",
+        "latency",
+        "spec",
+    )
+
+    def __init__(self, spec: MissionSpec, *, agent: str, default_latency_s: float) -> None:
+        self.spec = spec
+        self.agent = agent
+        self.forecaster = StreamForecaster()
+        self.latency = LatencyEstimator(default_s=default_latency_s)
+        self._delivered: dict[tuple[str, str | None], tuple[Message, float]] = {}
+        self._inflight: dict[tuple[str, int], tuple[Message, float]] = {}
+        self._sends: dict[tuple[str, int], tuple[float, int]] = {}
+        self._seen: set[tuple[str, int]] = set()
+        self._seen_order: deque[tuple[str, int]] = deque()
+
+    # --- updates -------------------------------------------------------------------------
+    def on_generated(self, message: Message) -> None:
+        self.forecaster.observe(message)
+
+    def on_sent(self, message: Message, *, now: float) -> None:
+        self._inflight[message.key] = (message, now)
+        self._sends[message.key] = (now, message.size)
+
+    def on_delivered(self, messages: Iterable[Message], *, now: float) -> int:
+        """Learn deliveries (own or other agents'); returns how many were new."""
+        new = 0
+        for m in messages:
+            if m.t_rcv is None or m.type not in self.spec.types or m.key in self._seen:
+                continue
+            new += 1
+            self._seen.add(m.key)
+            self._seen_order.append(m.key)
+            self.forecaster.observe(m)
+            t_sent = m.t_sent if m.t_sent is not None else m.t_gen
+            self.latency.update(m.t_rcv - t_sent)
+            self._inflight.pop(m.key, None)
+            self._sends.setdefault(m.key, (t_sent, m.size))
+            stream = stream_of(self.spec, m)
+            known = self._delivered.get(stream)
+            if known is None or known[0].t_gen < m.t_gen:
+                self._delivered[stream] = (m, m.t_rcv)
+        while len(self._seen_order) > 4096:
+            self._seen.discard(self._seen_order.popleft())
+        return new
+
+    def forget(self, *, now: float, keep_s: float) -> None:
+        """Drop what no decision can need any more (older than ``keep_s``)."""
+        floor = now - keep_s
+        for key in [k for k, (_, t) in self._inflight.items() if t < floor]:
+            del self._inflight[key]
+        for key in [k for k, (t, _) in self._sends.items() if t < floor]:
+            del self._sends[key]
+        self.forecaster.forget(floor - 10.0 * keep_s)
+
+    # --- reads ---------------------------------------------------------------------------
+    def sent_in_window(self, *, now: float, window_s: float) -> int:
+        """Bytes the fleet is known to have sent in [now - T, now] (eq. 5.7)."""
+        return sum(b for t, b in self._sends.values() if t >= now - window_s - 1e-9)
+
+    def sends(self) -> list[tuple[float, int]]:
+        return list(self._sends.values())
+
+    def base_message(self, message: Message) -> tuple[Message, float] | None:
+        """The newest message of ``message``'s stream already sent (delivered or in flight)."""
+        stream = stream_of(self.spec, message)
+        best = self._delivered.get(stream)
+        mean = self.latency.mean_s
+        for m, t_sent in self._inflight.values():
+            if stream_of(self.spec, m) == stream and (best is None or m.t_gen > best[0].t_gen):
+                best = (m, t_sent + mean)
+        return best
+
+    def view(self, message: Message, *, now: float, horizon_s: float, max_items: int,
+             window_s: float) -> PlanningView:
+        """Items of the tree for deciding ``message`` at ``now`` (alg. 3, line 7)."""
+        mean = self.latency.mean_s
+        high = max(self.latency.high_s, mean)
+        horizon_end = now + horizon_s
+        self.forecaster.refresh()
+        decided = message.with_version(0) if message.versions else message
+        items = [PlanItem(message=decided, send_t=now, rcv_t=now + mean, kind="decide")]
+        for key in self.forecaster.streams():
+            if key[1] not in self.spec.types:
+                continue
+            if key[0] != self.agent:
+                for m in self.forecaster.forecast(key, t_from=now - high, t_to=now):
+                    items.append(
+                        PlanItem(message=m, send_t=m.t_gen, rcv_t=max(m.t_gen + mean, now),
+                                 kind="inflight")
+                    )
+            for m in self.forecaster.forecast(key, t_from=now, t_to=horizon_end):
+                items.append(PlanItem(message=m, send_t=m.t_gen, rcv_t=m.t_gen + mean))
+        items.sort(key=lambda it: it.send_t)
+        if len(items) > max_items:
+            keep = [it for it in items if it.kind != "forecast"]
+            rest = [it for it in items if it.kind == "forecast"]
+            items = sorted(keep + rest[: max(0, max_items - len(keep))], key=lambda it: it.send_t)
+        fixed = [FixedItem(message=m, send_t=m.t_sent if m.t_sent is not None else m.t_gen,
+                           rcv_t=r) for m, r in self._delivered.values()]
+        fixed += [FixedItem(message=m, send_t=t, rcv_t=t + mean)
+                  for m, t in self._inflight.values()]
+        root_window = [(t, b) for t, b in self._sends.values() if t >= now - window_s - 1e-9]
+        return PlanningView(items=items, fixed=fixed, root_window=root_window,
+                            horizon_end=horizon_end)

@@ -1,0 +1,233 @@
+"""The information distribution layer (thesis fig. 5.1, alg. 3): ``decide(message, now)``.
+
+Sans-I/O, aioquic-shaped: the shell hands in each generated message with ``now`` (fleet
+clock) and gets a :class:`Decision`; deliveries learned from receptions or receiver reports
+come in through :meth:`Middleware.on_delivered` / :meth:`Middleware.on_report`. Nothing here
+reads a clock, except the optional injected ``budget_clock`` when a decision is bounded by
+wall time (``deadline``); by default the budget is an iteration count, which keeps decisions
+deterministic.
+
+The goodput budget ξ·T of :class:`GoodputConstraint` is the *fleet's* (one shared medium,
+each agent plans for the whole fleet, ch. 5.3): windows count every send the agent knows of.
+When it decides to send, the middleware itself records the send (``constraint.on_sent``):
+the shell must not record it a second time.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from companion.middleware.constraint import GoodputConstraint
+from companion.middleware.incremental import Problem, build_problem, option_message
+from companion.middleware.knowledge import FleetKnowledge
+from companion.middleware.mcts import MCTS, greedy_option
+from utility_specs.errors import UtilitySpecsError
+from utility_specs.message import Message, Version
+from utility_specs.spec import MissionSpec
+
+__all__ = ["Decision", "Middleware", "MiddlewareConfig", "MiddlewareError"]
+
+
+class MiddlewareError(ValueError):
+    """The caller misused the middleware (bad configuration or argument)."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MiddlewareConfig:
+    """Parameters of the optimiser (ch. 5.3). Times in seconds."""
+
+    spec: MissionSpec
+    agent: str
+    """This agent's sender name (its own messages are decided, others' only planned for)."""
+    max_iterations: int = 1500
+    c: float = 0.35
+    """Discovery factor of UCT (eq. 5.3)."""
+    horizon_s: float = 3.0
+    """How far ahead messages are forecast; should exceed the window T of the constraint."""
+    tail_s: float = 0.0
+    """Utility is integrated until ``horizon_s + tail_s``: the last forecast messages keep
+    some value beyond the forecast horizon instead of being cut at it."""
+    default_latency_s: float = 0.05
+    """Latency assumed before the first delivery is known."""
+    max_items: int = 64
+    """At most this many levels (nearest first): bounds the work per decision."""
+    chunk_iterations: int = 100
+    """With a wall-time deadline, the budget clock is read every this many iterations."""
+
+    def __post_init__(self) -> None:
+        if not self.agent:
+            raise MiddlewareError("agent must not be empty")
+        if self.max_iterations < 0 or self.chunk_iterations <= 0 or self.max_items <= 0:
+            raise MiddlewareError("max_iterations >= 0, chunk_iterations > 0, max_items > 0")
+        if not (self.horizon_s > 0 and self.c >= 0 and self.default_latency_s >= 0
+                and self.tail_s >= 0):
+            raise MiddlewareError("need horizon_s > 0, c >= 0, default_latency_s >= 0, tail_s >= 0")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Decision:
+    """Send or drop one message, which version, and why."""
+
+    send: bool
+    version: int | None = None
+    """Index of the version to send (0 = best) for messages with versions, else None."""
+    score: float = float("nan")
+    """Mean normalised node score (eq. 5.2) of the chosen option; NaN when no tree ran."""
+    reason: str = ""
+    """``mcts``, ``mcts-exact`` (tree exhausted), ``fallback-greedy``, ``unknown-type``..."""
+    iterations: int = 0
+    nodes: int = 0
+    pruned: int = 0
+    merged: int = 0
+    levels: int = 0
+    """Messages in the tree (levels)."""
+    level: int = -1
+    """Level of the decided message in the tree."""
+
+    def __post_init__(self) -> None:
+        if not self.send and self.version is not None:
+            raise MiddlewareError("a dropped message has no version")
+
+
+class Middleware:
+    """Per-agent optimiser: forecast + in-flight + MCTS with pruning and merging (ch. 5)."""
+
+    def __init__(
+        self,
+        config: MiddlewareConfig,
+        *,
+        rng: np.random.Generator | None = None,
+        constraint: GoodputConstraint,
+        budget_clock: Callable[[], float] | None = None,
+    ) -> None:
+        self.config = config
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        """Kept for the policy interface; the search itself is deterministic (ties are broken
+        by a fixed option order), so decisions do not depend on it."""
+        self.constraint = constraint
+        self.budget_clock = budget_clock
+        self.knowledge = FleetKnowledge(
+            config.spec, agent=config.agent, default_latency_s=config.default_latency_s
+        )
+        self.counters: Counter[str] = Counter()
+        self.last_problem: Problem | None = None
+
+    @property
+    def spec(self) -> MissionSpec:
+        return self.config.spec
+
+    def decide(self, message: Message, now: float, *, deadline: float | None = None) -> Decision:
+        """Send or drop ``message`` generated by this agent (alg. 3, lines 5-14).
+
+        ``deadline`` (on ``budget_clock``'s clock) bounds the search by wall time; the
+        iteration budget ``max_iterations`` always applies.
+        """
+        if message.sender != self.config.agent:
+            raise MiddlewareError(
+                f"decide() is for this agent's ({self.config.agent}) messages, got "
+                f"{message.sender}/{message.seq}"
+            )
+        self.counters["decisions"] += 1
+        if message.type not in self.spec.types:
+            self.counters["unknown_type"] += 1
+            return Decision(send=False, reason="unknown-type")
+        self.knowledge.on_generated(message)
+        window_s = self.constraint.window_s
+        view = self.knowledge.view(
+            message, now=now, horizon_s=self.config.horizon_s,
+            max_items=self.config.max_items, window_s=window_s,
+        )
+        try:
+            problem = build_problem(
+                self.spec, items=view.items, fixed=view.fixed,
+                horizon_end=view.horizon_end + self.config.tail_s,
+                budget_bytes=self.constraint.budget_bytes(now=now), window_s=window_s,
+                root_window=view.root_window,
+            )
+        except UtilitySpecsError as exc:  # bad message data: counted, not a crash
+            self.counters["bad_message"] += 1
+            return Decision(send=False, reason=f"bad-message: {exc}")
+        self.last_problem = problem
+        search = MCTS(problem, c=self.config.c, max_nodes=self.config.max_iterations + 1)
+        self._run(search, deadline)
+        result = search.result()
+        level = problem.decided_level
+        if result.option is None:
+            option, reason = greedy_option(problem, level), "fallback-greedy"
+            self.counters["fallback"] += 1
+        else:
+            option, reason = result.option, "mcts-exact" if result.exhausted else "mcts"
+        decision = Decision(
+            send=option != 0,
+            version=(option - 1) if option != 0 and message.versions else None,
+            score=result.score,
+            reason=reason,
+            iterations=result.iterations,
+            nodes=result.nodes,
+            pruned=result.pruned,
+            merged=result.merged,
+            levels=problem.n,
+            level=level,
+        )
+        self._after(message, decision, now)
+        return decision
+
+    def _run(self, search: MCTS, deadline: float | None) -> None:
+        budget = self.config.max_iterations
+        if deadline is None or self.budget_clock is None:
+            search.run(budget)
+            return
+        while budget > 0 and self.budget_clock() < deadline:
+            ran = search.run(min(budget, self.config.chunk_iterations))
+            if ran == 0:
+                return
+            budget -= ran
+
+    def _after(self, message: Message, decision: Decision, now: float) -> None:
+        self.counters["sent" if decision.send else "dropped"] += 1
+        if decision.send:
+            sent = option_message(message, (decision.version or 0) + 1)
+            self.knowledge.on_sent(sent, now=now)
+            self.constraint.on_sent(sent.size, now=now)
+        horizon = max(self.constraint.window_s, self.config.horizon_s)
+        self.knowledge.forget(now=now, keep_s=horizon + 4.0 * self.knowledge.latency.high_s)
+
+    def on_delivered(self, messages: Iterable[Message], now: float) -> None:
+        """Messages (any agent's) known to have arrived, with ``t_rcv`` (and ``t_sent``)."""
+        self.counters["delivered"] += self.knowledge.on_delivered(messages, now=now)
+
+    def on_report(self, report: Any, now: float) -> None:
+        """A receiver report (``companion.protocol.records.Report``): learn its entries."""
+        messages = []
+        for entry in getattr(report, "entries", ()):
+            try:
+                # The report names the carried version by index and quality only: one
+                # synthetic version keeps the quality (eq. 4.33) the utility reads.
+                version = getattr(entry, "version", None)
+                versions = () if version is None else (
+                    Version(name=f"v{version}", size=entry.size,
+                            quality=getattr(entry, "quality", 1.0)),
+                )
+                messages.append(
+                    Message(
+                        sender=entry.sender, seq=entry.seq, type=entry.type,
+                        t_gen=entry.t_gen, t_sent=entry.t_sent, t_rcv=entry.t_rcv,
+                        size=entry.size, data=dict(entry.data), receiver="ground",
+                        versions=versions, version=0 if versions else None,
+                    )
+                )
+            except (UtilitySpecsError, AttributeError, TypeError):
+                self.counters["bad_report_entry"] += 1
+        self.on_delivered(messages, now)
+
+    def get_timer(self) -> float | None:
+        """No timers: everything happens in ``decide`` and ``on_delivered``."""
+        return None
+
+    def handle_timer(self, now: float) -> None:
+        return None

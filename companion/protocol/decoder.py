@@ -1,0 +1,623 @@
+"""The receiving side: authenticate, reject replays, reassemble, hand out events.
+
+Sans-I/O in the aioquic shape: ``receive_datagram(data, addr, now)`` and
+``handle_timer(now)`` go in; ``next_event()`` and ``get_timer()`` come out. Bad input never
+escapes: every ``RemoteProtocolError`` is caught in ``receive_datagram``, counted under its
+reason in ``counters`` and turned into a ``PacketDropped`` event. Memory is bounded by
+``DecoderLimits`` whatever arrives.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections import OrderedDict, deque
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from companion.protocol.errors import (
+    MalformedPacket,
+    OversizePacket,
+    RemoteProtocolError,
+    ReplayedPacket,
+    StalePacket,
+)
+from companion.protocol.events import (
+    Address,
+    CommandReceived,
+    Event,
+    MessageExpired,
+    MessageReassembled,
+    PacketDropped,
+    ReportReceived,
+    StatusReceived,
+)
+from companion.protocol.records import ClockEcho, Command, Report, ReportEntry, Status
+from companion.protocol.wire import (
+    COMMAND_FIXED,
+    DATA_FIXED,
+    MAX_DATAGRAM_BYTES,
+    MAX_ID_BYTES,
+    METADATA_LEN,
+    REPORT_FIXED,
+    STATUS_FIXED,
+    U8,
+    Header,
+    PacketKind,
+    check_key,
+    decode_id,
+    loads_json,
+    loads_json_object,
+    unpack_datagram,
+)
+from utility_specs.errors import MessageError
+from utility_specs.message import Message, Version
+
+__all__ = ["COUNTER_NAMES", "Decoder", "DecoderLimits"]
+
+COUNTER_NAMES = (
+    "datagrams",
+    "accepted",
+    "malformed",
+    "unsupported_version",
+    "wrong_fleet",
+    "bad_tag",
+    "stale",
+    "replayed",
+    "oversize",
+    "duplicate_fragment",
+    "late_fragment",
+    "messages",
+    "expired",
+    "evicted",
+    "reports",
+    "commands",
+    "statuses",
+    "events_overflow",
+)
+"""Every key of ``Decoder.counters`` (all start at 0)."""
+
+MessageKey = tuple[str, int, float]
+"""(sender, seq, t_gen): t_gen tells a restarted sender's seq 0 from the previous run's."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DecoderLimits:
+    """The bounds that keep a decoder's memory and work finite (defaults in protocol.md)."""
+
+    max_datagram_bytes: int = MAX_DATAGRAM_BYTES
+    max_message_bytes: int = 1 << 20
+    """Largest reassembled payload, bytes."""
+    max_fragments: int = 1024
+    """Most fragments one message may declare."""
+    max_partials: int = 64
+    """Most messages being reassembled at once; the least recently active is evicted."""
+    max_buffered_bytes: int = 8 << 20
+    """Most payload and metadata bytes held by all partial messages together."""
+    reassembly_timeout_s: float = 3.0
+    """A partial message expires this long after its latest fragment arrived."""
+    max_clock_skew_s: float | None = 30.0
+    """Largest accepted |t_sent - now|; ``None`` turns the staleness check off."""
+    replay_window: int = 4096
+    """Packets per sender that may arrive out of order before counting as replayed."""
+    max_senders: int = 256
+    """Senders whose replay state is kept (least recently heard evicted)."""
+    max_pending_events: int = 10_000
+    """Events kept for ``next_event``; the oldest is dropped (and counted) beyond this."""
+    recent_messages: int = 4096
+    """Completed or expired messages remembered so their late fragments are dropped."""
+
+    def __post_init__(self) -> None:
+        for name in (
+            "max_datagram_bytes",
+            "max_message_bytes",
+            "max_fragments",
+            "max_partials",
+            "max_buffered_bytes",
+            "replay_window",
+            "max_senders",
+            "max_pending_events",
+            "recent_messages",
+        ):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.max_buffered_bytes < self.max_message_bytes:
+            raise ValueError("max_buffered_bytes must be >= max_message_bytes")
+        if not self.reassembly_timeout_s > 0:
+            raise ValueError(f"reassembly_timeout_s must be > 0, got {self.reassembly_timeout_s}")
+        if self.max_clock_skew_s is not None and not self.max_clock_skew_s > 0:
+            raise ValueError(f"max_clock_skew_s must be > 0 or None, got {self.max_clock_skew_s}")
+
+
+class _Reader:
+    """Sequential reads from an authenticated body; running short is a MalformedPacket."""
+
+    __slots__ = ("_offset", "_view")
+
+    def __init__(self, view: memoryview) -> None:
+        self._view = view
+        self._offset = 0
+
+    def unpack(self, fmt: struct.Struct) -> tuple[Any, ...]:
+        if self._offset + fmt.size > len(self._view):
+            raise MalformedPacket("body too short")
+        values = fmt.unpack_from(self._view, self._offset)
+        self._offset += fmt.size
+        return values
+
+    def take(self, n: int) -> bytes:
+        if self._offset + n > len(self._view):
+            raise MalformedPacket("body too short")
+        raw = bytes(self._view[self._offset : self._offset + n])
+        self._offset += n
+        return raw
+
+    def rest(self) -> bytes:
+        raw = bytes(self._view[self._offset :])
+        self._offset = len(self._view)
+        return raw
+
+    def short_id(self, length: int, what: str) -> str:
+        if not 1 <= length <= MAX_ID_BYTES:
+            raise MalformedPacket(f"{what} length {length} not in 1..{MAX_ID_BYTES}")
+        return decode_id(self.take(length), what)
+
+
+@dataclass(slots=True)
+class _ReplayWindow:
+    """RFC 4303 sec. 3.4.3-style sliding window over one sender's packet numbers."""
+
+    highest: int
+    seen: int
+    """Bit i set: packet number ``highest - i`` was accepted."""
+    last_accept: float
+
+
+@dataclass(slots=True)
+class _Partial:
+    key: MessageKey
+    type: str
+    count: int
+    total: int
+    deadline: float
+    chunks: dict[int, bytes] = field(default_factory=dict)
+    buffered: int = 0
+    """Payload plus metadata bytes held."""
+    payload_bytes: int = 0
+    prototype: Message | None = None
+    t_sent: float | None = None
+
+
+def _number(value: Any, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise MalformedPacket(f"{what} must be a number")
+    try:
+        result = float(value)
+    except OverflowError as exc:  # a JSON integer with hundreds of digits
+        raise MalformedPacket(f"{what} is out of range") from exc
+    if not math.isfinite(result):
+        raise MalformedPacket(f"{what} must be finite")
+    return result
+
+
+def _integer(value: Any, what: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise MalformedPacket(f"{what} must be an integer")
+    return value
+
+
+def _string(value: Any, what: str) -> str:
+    if not isinstance(value, str):
+        raise MalformedPacket(f"{what} must be a string")
+    return value
+
+
+def _object(value: Any, what: str) -> Mapping[str, Any]:
+    if not isinstance(value, dict):
+        raise MalformedPacket(f"{what} must be a JSON object")
+    return value
+
+
+class Decoder:
+    """Decodes every packet kind for one fleet.
+
+    ``local_id`` becomes ``receiver`` of reassembled messages (the ground station's id).
+    """
+
+    def __init__(
+        self,
+        fleet_id: int,
+        key: bytes,
+        *,
+        local_id: str | None = None,
+        limits: DecoderLimits | None = None,
+    ) -> None:
+        self.fleet_id = fleet_id
+        self._key = check_key(key)
+        self.local_id = local_id
+        self.limits = limits or DecoderLimits()
+        self.counters: dict[str, int] = dict.fromkeys(COUNTER_NAMES, 0)
+        self._events: deque[Event] = deque()
+        self._partials: OrderedDict[MessageKey, _Partial] = OrderedDict()
+        self._buffered = 0
+        self._recent: OrderedDict[MessageKey, None] = OrderedDict()
+        self._windows: OrderedDict[str, _ReplayWindow] = OrderedDict()
+
+    # -- outputs -------------------------------------------------------------------------
+
+    @property
+    def buffered_bytes(self) -> int:
+        """Payload and metadata bytes held by partial messages now."""
+        return self._buffered
+
+    @property
+    def partial_count(self) -> int:
+        return len(self._partials)
+
+    @property
+    def sender_count(self) -> int:
+        """Senders with replay state."""
+        return len(self._windows)
+
+    def next_event(self) -> Event | None:
+        """The oldest pending event, or ``None``."""
+        return self._events.popleft() if self._events else None
+
+    def get_timer(self) -> float | None:
+        """Absolute time of the next reassembly timeout, or ``None`` without partials."""
+        if not self._partials:
+            return None
+        return min(p.deadline for p in self._partials.values())
+
+    # -- inputs --------------------------------------------------------------------------
+
+    def handle_timer(self, now: float) -> None:
+        """Expire every partial message whose deadline is at or before ``now``."""
+        for key in [k for k, p in self._partials.items() if p.deadline <= now]:
+            self._discard(key, evicted=False)
+
+    def receive_datagram(self, data: bytes, addr: Address, now: float) -> None:
+        """Take one UDP payload; results come out of ``next_event``."""
+        self.counters["datagrams"] += 1
+        try:
+            header, body = unpack_datagram(
+                data,
+                key=self._key,
+                fleet_id=self.fleet_id,
+                max_datagram_bytes=self.limits.max_datagram_bytes,
+            )
+            self._check_fresh(header, now)
+            self._check_replay(header, now)
+            self.counters["accepted"] += 1
+            reader = _Reader(body)
+            if header.kind is PacketKind.DATA:
+                self._receive_data(header, reader, addr, now)
+            elif header.kind is PacketKind.REPORT:
+                self._receive_report(header, reader, addr, now)
+            elif header.kind is PacketKind.COMMAND:
+                self._receive_command(header, reader, addr, now)
+            else:
+                self._receive_status(header, reader, addr, now)
+        except RemoteProtocolError as exc:
+            self._drop(exc.reason, str(exc), addr)
+
+    # -- checks --------------------------------------------------------------------------
+
+    def _check_fresh(self, header: Header, now: float) -> None:
+        skew = self.limits.max_clock_skew_s
+        if skew is not None and abs(header.t_sent - now) > skew:
+            raise StalePacket(
+                f"t_sent {header.t_sent:.3f} is {header.t_sent - now:+.3f} s from now "
+                f"(allowed ±{skew} s)"
+            )
+
+    def _check_replay(self, header: Header, now: float) -> None:
+        pn = header.packet_number
+        window = self._windows.get(header.sender)
+        skew = self.limits.max_clock_skew_s
+        if window is not None and skew is not None and now - window.last_accept > 2 * skew:
+            # Every packet accepted before is stale by now, so forgetting is safe, and it
+            # lets a sender whose clock went back (reboot without RTC) be heard again.
+            window = None
+        if window is None:
+            if len(self._windows) >= self.limits.max_senders and header.sender not in self._windows:
+                self._windows.popitem(last=False)
+            self._windows[header.sender] = _ReplayWindow(highest=pn, seen=1, last_accept=now)
+            self._windows.move_to_end(header.sender)
+            return
+        size = self.limits.replay_window
+        if pn > window.highest:
+            shift = pn - window.highest
+            window.seen = ((window.seen << shift) | 1) if shift < size else 1
+            window.seen &= (1 << size) - 1
+            window.highest = pn
+        else:
+            offset = window.highest - pn
+            if offset >= size:
+                raise ReplayedPacket(f"packet number {pn} is older than the replay window")
+            if window.seen >> offset & 1:
+                raise ReplayedPacket(f"packet number {pn} already received")
+            window.seen |= 1 << offset
+        window.last_accept = now
+        self._windows.move_to_end(header.sender)
+
+    # -- DATA ----------------------------------------------------------------------------
+
+    def _receive_data(self, header: Header, reader: _Reader, addr: Address, now: float) -> None:
+        limits = self.limits
+        seq, t_gen, index, count, total, type_len = reader.unpack(DATA_FIXED)
+        msg_type = reader.short_id(type_len, "message type")
+        if not math.isfinite(t_gen):
+            raise MalformedPacket("t_gen is not finite")
+        if not 0 <= index < count:
+            raise MalformedPacket(f"fragment index {index} not in 0..{count - 1}")
+        if count > limits.max_fragments:
+            raise OversizePacket(f"{count} fragments > {limits.max_fragments}")
+        if total > limits.max_message_bytes:
+            raise OversizePacket(f"message of {total} bytes > {limits.max_message_bytes}")
+        prototype = None
+        meta_len = 0
+        if index == 0:
+            (meta_len,) = reader.unpack(METADATA_LEN)
+            metadata = reader.take(meta_len)
+            prototype = self._prototype(header, seq, msg_type, t_gen, metadata)
+        chunk = reader.rest()
+        if len(chunk) > total:
+            raise MalformedPacket(f"fragment of {len(chunk)} bytes > message of {total}")
+        key: MessageKey = (header.sender, seq, t_gen)
+        if key in self._recent:
+            self.counters["late_fragment"] += 1
+            self._emit(PacketDropped(reason="late_fragment", detail=str(key), addr=addr))
+            return
+        if count == 1:
+            if len(chunk) != total or prototype is None:
+                raise MalformedPacket("single fragment does not hold the whole message")
+            self._complete(prototype, header.t_sent, chunk, addr, now, fragments=1)
+            self._remember(key)
+            return
+        partial = self._partials.get(key)
+        if partial is None:
+            partial = self._new_partial(key, msg_type, count, total, now)
+        elif partial.count != count or partial.total != total or partial.type != msg_type:
+            self._discard(key, evicted=False)
+            raise MalformedPacket(f"fragment of {key} disagrees with the earlier ones")
+        if index in partial.chunks:
+            self.counters["duplicate_fragment"] += 1
+            self._emit(PacketDropped(reason="duplicate_fragment", detail=str(key), addr=addr))
+            return
+        if partial.payload_bytes + len(chunk) > total:
+            self._discard(key, evicted=False)
+            raise MalformedPacket(f"fragments of {key} exceed the declared {total} bytes")
+        cost = len(chunk) + meta_len
+        partial.chunks[index] = chunk
+        partial.buffered += cost
+        partial.payload_bytes += len(chunk)
+        self._buffered += cost
+        partial.deadline = now + limits.reassembly_timeout_s
+        self._partials.move_to_end(key)
+        if prototype is not None:
+            partial.prototype = prototype
+            partial.t_sent = header.t_sent
+        self._enforce_buffer_bound(keep=key)
+        if key not in self._partials:
+            return
+        if len(partial.chunks) == partial.count:
+            payload = b"".join(partial.chunks[i] for i in range(partial.count))
+            self._release(key)
+            self._remember(key)
+            if len(payload) != partial.total or partial.prototype is None:
+                raise MalformedPacket(f"fragments of {key} add up to {len(payload)} bytes")
+            assert partial.t_sent is not None
+            self._complete(
+                partial.prototype, partial.t_sent, payload, addr, now, fragments=partial.count
+            )
+
+    def _prototype(
+        self, header: Header, seq: int, msg_type: str, t_gen: float, raw: bytes
+    ) -> Message:
+        meta = loads_json_object(raw, "message metadata")
+        size = _integer(meta.get("z", 0), "metadata size")
+        data = _object(meta.get("d", {}), "metadata data")
+        try:
+            versions = _versions(meta.get("v", []))
+            version = meta.get("i")
+            return Message(
+                sender=header.sender,
+                seq=seq,
+                type=msg_type,
+                t_gen=t_gen,
+                size=size,
+                receiver=self.local_id,
+                t_sent=header.t_sent,
+                data=data,
+                versions=versions,
+                version=None if version is None else _integer(version, "metadata version"),
+            )
+        except MessageError as exc:
+            raise MalformedPacket(f"metadata describes an invalid message: {exc}") from exc
+
+    def _new_partial(
+        self, key: MessageKey, msg_type: str, count: int, total: int, now: float
+    ) -> _Partial:
+        while len(self._partials) >= self.limits.max_partials:
+            oldest = next(iter(self._partials))
+            self._discard(oldest, evicted=True)
+        partial = _Partial(
+            key=key,
+            type=msg_type,
+            count=count,
+            total=total,
+            deadline=now + self.limits.reassembly_timeout_s,
+        )
+        self._partials[key] = partial
+        return partial
+
+    def _enforce_buffer_bound(self, *, keep: MessageKey) -> None:
+        """Evict the least recently active partials (``keep`` last) until under the bound."""
+        while self._buffered > self.limits.max_buffered_bytes:
+            victim = next((k for k in self._partials if k != keep), keep)
+            self._discard(victim, evicted=True)
+
+    def _complete(
+        self,
+        prototype: Message,
+        t_sent: float,
+        payload: bytes,
+        addr: Address,
+        now: float,
+        *,
+        fragments: int,
+    ) -> None:
+        message = replace(prototype, t_sent=t_sent, t_rcv=max(now, prototype.t_gen))
+        self.counters["messages"] += 1
+        self._emit(
+            MessageReassembled(
+                message=message, payload=payload, addr=addr, t_rcv=now, fragments=fragments
+            )
+        )
+
+    def _release(self, key: MessageKey) -> _Partial:
+        partial = self._partials.pop(key)
+        self._buffered -= partial.buffered
+        return partial
+
+    def _discard(self, key: MessageKey, *, evicted: bool) -> None:
+        partial = self._release(key)
+        self._remember(key)
+        self.counters["evicted" if evicted else "expired"] += 1
+        sender, seq, _ = key
+        self._emit(
+            MessageExpired(
+                sender=sender,
+                seq=seq,
+                type=partial.type,
+                fragments_missing=partial.count - len(partial.chunks),
+                fragment_count=partial.count,
+                evicted=evicted,
+            )
+        )
+
+    def _remember(self, key: MessageKey) -> None:
+        self._recent[key] = None
+        self._recent.move_to_end(key)
+        while len(self._recent) > self.limits.recent_messages:
+            self._recent.popitem(last=False)
+
+    # -- REPORT, COMMAND, STATUS ---------------------------------------------------------
+
+    def _receive_report(self, header: Header, reader: _Reader, addr: Address, now: float) -> None:
+        number, part, count = reader.unpack(REPORT_FIXED)
+        if not part < count:
+            raise MalformedPacket(f"report part {part} not in 0..{count - 1}")
+        body = loads_json_object(reader.rest(), "report")
+        entries_raw = body.get("e", [])
+        echoes_raw = body.get("c", [])
+        if not isinstance(entries_raw, list) or not isinstance(echoes_raw, list):
+            raise MalformedPacket("report entries and echoes must be lists")
+        try:
+            entries = tuple(_report_entry(e) for e in entries_raw)
+            echoes = tuple(_clock_echo(e) for e in echoes_raw)
+        except ValueError as exc:
+            raise MalformedPacket(f"invalid report: {exc}") from exc
+        self.counters["reports"] += 1
+        self._emit(
+            ReportReceived(
+                report=Report(entries=entries, echoes=echoes),
+                reporter=header.sender,
+                report_number=number,
+                part_index=part,
+                part_count=count,
+                t_sent=header.t_sent,
+                t_rcv=now,
+                addr=addr,
+            )
+        )
+
+    def _receive_command(self, header: Header, reader: _Reader, addr: Address, now: float) -> None:
+        command_id, t_exec, name_len = reader.unpack(COMMAND_FIXED)
+        name = reader.short_id(name_len, "command name")
+        (target_len,) = reader.unpack(U8)
+        target = reader.short_id(target_len, "command target") if target_len else None
+        args = _object(loads_json(reader.rest(), "command args"), "command args")
+        try:
+            command = Command(
+                command_id=command_id, name=name, t_exec=t_exec, args=args, target=target
+            )
+        except ValueError as exc:
+            raise MalformedPacket(f"invalid command: {exc}") from exc
+        self.counters["commands"] += 1
+        self._emit(
+            CommandReceived(
+                command=command, sender=header.sender, t_sent=header.t_sent, t_rcv=now, addr=addr
+            )
+        )
+
+    def _receive_status(self, header: Header, reader: _Reader, addr: Address, now: float) -> None:
+        command_id, state_len = reader.unpack(STATUS_FIXED)
+        state = reader.short_id(state_len, "status state")
+        info = _object(loads_json(reader.rest(), "status info"), "status info")
+        status = Status(state=state, command_id=command_id or None, info=info)
+        self.counters["statuses"] += 1
+        self._emit(
+            StatusReceived(
+                status=status, sender=header.sender, t_sent=header.t_sent, t_rcv=now, addr=addr
+            )
+        )
+
+    # -- plumbing ------------------------------------------------------------------------
+
+    def _drop(self, reason: str, detail: str, addr: Address) -> None:
+        self.counters[reason] = self.counters.get(reason, 0) + 1
+        self._emit(PacketDropped(reason=reason, detail=detail, addr=addr))
+
+    def _emit(self, event: Event) -> None:
+        if len(self._events) >= self.limits.max_pending_events:
+            self._events.popleft()
+            self.counters["events_overflow"] += 1
+        self._events.append(event)
+
+
+def _versions(raw: Any) -> tuple[Version, ...]:
+    if not isinstance(raw, list):
+        raise MalformedPacket("metadata versions must be a list")
+    versions = []
+    for item in raw:
+        if not isinstance(item, list) or len(item) != 3:
+            raise MalformedPacket("metadata version must be [name, size, quality]")
+        versions.append(
+            Version(
+                name=_string(item[0], "version name"),
+                size=_integer(item[1], "version size"),
+                quality=_number(item[2], "version quality"),
+            )
+        )
+    return tuple(versions)
+
+
+def _clock_echo(raw: Any) -> ClockEcho:
+    if not isinstance(raw, list) or len(raw) != 3:
+        raise MalformedPacket("clock echo must be [sender, t_sent, t_rcv]")
+    return ClockEcho(
+        sender=_string(raw[0], "echo sender"),
+        t_sent=_number(raw[1], "echo t_sent"),
+        t_rcv=_number(raw[2], "echo t_rcv"),
+    )
+
+
+def _report_entry(raw: Any) -> ReportEntry:
+    if not isinstance(raw, list) or len(raw) != 10:
+        raise MalformedPacket("report entry must be a list of 10 fields")
+    sender, seq, msg_type, t_gen, t_sent, t_rcv, size, version, quality, data = raw
+    return ReportEntry(
+        sender=_string(sender, "entry sender"),
+        seq=_integer(seq, "entry seq"),
+        type=_string(msg_type, "entry type"),
+        t_gen=_number(t_gen, "entry t_gen"),
+        t_sent=None if t_sent is None else _number(t_sent, "entry t_sent"),
+        t_rcv=_number(t_rcv, "entry t_rcv"),
+        size=_integer(size, "entry size"),
+        version=None if version is None else _integer(version, "entry version"),
+        quality=_number(quality, "entry quality"),
+        data=_object(data, "entry data"),
+    )

@@ -1,0 +1,217 @@
+"""The sending side: messages, reports, commands and status as authenticated datagrams.
+
+Sans-I/O: ``now`` comes in with every call and bytes come out; the caller sends them.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from companion.protocol.errors import LocalProtocolError
+from companion.protocol.records import ClockEcho, Command, Report, ReportEntry, Status
+from companion.protocol.wire import (
+    COMMAND_FIXED,
+    DATA_FIXED,
+    MAX_DATAGRAM_BYTES,
+    METADATA_LEN,
+    OVERHEAD_BYTES,
+    REPORT_FIXED,
+    STATUS_FIXED,
+    U8,
+    PacketKind,
+    check_key,
+    dumps_json,
+    encode_id,
+    pack_datagram,
+)
+from utility_specs.message import Message
+
+__all__ = ["Encoder", "message_metadata"]
+
+_MAX_U16 = 0xFFFF
+_MAX_U32 = 0xFFFF_FFFF
+_MAX_U64 = 0xFFFF_FFFF_FFFF_FFFF
+
+
+def message_metadata(message: Message) -> dict[str, Any]:
+    """The small JSON object that travels in fragment 0 (keys documented in protocol.md)."""
+    meta: dict[str, Any] = {"z": message.size}
+    if message.data:
+        meta["d"] = dict(message.data)
+    if message.versions:
+        meta["v"] = [[v.name, v.size, v.quality] for v in message.versions]
+    if message.version is not None:
+        meta["i"] = message.version
+    return meta
+
+
+def _entry_json(entry: ReportEntry) -> list[Any]:
+    return [
+        entry.sender,
+        entry.seq,
+        entry.type,
+        entry.t_gen,
+        entry.t_sent,
+        entry.t_rcv,
+        entry.size,
+        entry.version,
+        entry.quality,
+        dict(entry.data),
+    ]
+
+
+def _echo_json(echo: ClockEcho) -> list[Any]:
+    return [echo.sender, echo.t_sent, echo.t_rcv]
+
+
+class Encoder:
+    """Turns values into datagrams of at most ``max_datagram_bytes`` for one sender.
+
+    Every datagram gets the next packet number of this encoder. The first one is
+    ``int(now) << 32``: packet numbers keep increasing across restarts of the sender as long
+    as its clock does, so the receivers' replay windows need no handshake.
+    """
+
+    def __init__(
+        self,
+        fleet_id: int,
+        sender: str,
+        key: bytes,
+        *,
+        max_datagram_bytes: int = MAX_DATAGRAM_BYTES,
+    ) -> None:
+        if not 0 <= fleet_id <= _MAX_U32:
+            raise LocalProtocolError(f"fleet_id must fit 32 bits, got {fleet_id}")
+        self.fleet_id = fleet_id
+        self.sender = sender
+        self._sender_raw = encode_id(sender, "sender id")
+        self._key = check_key(key)
+        self.max_datagram_bytes = max_datagram_bytes
+        self._body_budget = max_datagram_bytes - OVERHEAD_BYTES - len(self._sender_raw)
+        if self._body_budget < DATA_FIXED.size + 64 + METADATA_LEN.size + 64:
+            raise LocalProtocolError(f"max_datagram_bytes {max_datagram_bytes} is too small")
+        self._next_packet_number: int | None = None
+        self._report_number = 0
+
+    def _pack(self, kind: PacketKind, body: bytes, now: float) -> bytes:
+        if not math.isfinite(now):
+            raise LocalProtocolError(f"now must be finite, got {now}")
+        if self._next_packet_number is None:
+            self._next_packet_number = max(0, int(now)) << 32
+        packet_number = self._next_packet_number & _MAX_U64
+        self._next_packet_number += 1
+        return pack_datagram(
+            key=self._key,
+            kind=kind,
+            fleet_id=self.fleet_id,
+            packet_number=packet_number,
+            t_sent=now,
+            sender_raw=self._sender_raw,
+            body=body,
+        )
+
+    def fragment(self, message: Message, payload: bytes, now: float) -> list[bytes]:
+        """All DATA datagrams of one message; losing any of them loses the message.
+
+        Fragment 0 carries the metadata (``message_metadata``), then as much payload as
+        fits; the others carry payload only.
+        """
+        if message.sender != self.sender:
+            raise LocalProtocolError(
+                f"message sender {message.sender!r} is not this encoder's {self.sender!r}"
+            )
+        if not 0 <= message.seq <= _MAX_U32:
+            raise LocalProtocolError(f"seq must fit 32 bits, got {message.seq}")
+        type_raw = encode_id(message.type, "message type")
+        metadata = dumps_json(message_metadata(message), "message metadata")
+        capacity = self._body_budget - DATA_FIXED.size - len(type_raw)
+        first_capacity = capacity - METADATA_LEN.size - len(metadata)
+        if first_capacity < 0:
+            raise LocalProtocolError(
+                f"metadata of {len(metadata)} bytes does not fit in one datagram "
+                f"(at most {capacity - METADATA_LEN.size} here)"
+            )
+        total = len(payload)
+        if total > _MAX_U32:
+            raise LocalProtocolError(f"payload of {total} bytes is too large")
+        rest = max(0, total - first_capacity)
+        count = 1 + -(-rest // capacity)
+        if count > _MAX_U16:
+            raise LocalProtocolError(f"payload of {total} bytes needs {count} > 65535 fragments")
+        view = memoryview(payload)
+        datagrams = []
+        start = 0
+        for index in range(count):
+            end = min(total, start + (first_capacity if index == 0 else capacity))
+            fixed = DATA_FIXED.pack(message.seq, message.t_gen, index, count, total, len(type_raw))
+            prefix = fixed + type_raw
+            if index == 0:
+                prefix += METADATA_LEN.pack(len(metadata)) + metadata
+            datagrams.append(self._pack(PacketKind.DATA, prefix + view[start:end], now))
+            start = end
+        return datagrams
+
+    def encode_report(self, report: Report, now: float) -> list[bytes]:
+        """One report as one or more self-contained datagrams (echoes in the first one)."""
+        self._report_number = self._report_number % _MAX_U32 + 1
+        budget = self._body_budget - REPORT_FIXED.size
+        echoes = b",".join(dumps_json(_echo_json(e), "clock echo") for e in report.echoes)
+        entries = [dumps_json(_entry_json(e), "report entry") for e in report.entries]
+        # {"e":[...],"c":[...]}: 15 bytes of structure around the two lists.
+        parts: list[tuple[list[bytes], bytes]] = []
+        current: list[bytes] = []
+        current_echoes = echoes
+        used = 15 + len(current_echoes)
+        if used > budget:
+            raise LocalProtocolError(f"{len(report.echoes)} clock echoes do not fit one datagram")
+        for raw in entries:
+            extra = len(raw) + (1 if current else 0)
+            if 15 + len(raw) > budget:
+                raise LocalProtocolError(f"report entry of {len(raw)} bytes does not fit")
+            if used + extra > budget:
+                parts.append((current, current_echoes))
+                current, current_echoes, used = [], b"", 15
+                extra = len(raw)
+            current.append(raw)
+            used += extra
+        parts.append((current, current_echoes))
+        if len(parts) > _MAX_U16:
+            raise LocalProtocolError("report too large")
+        datagrams = []
+        for index, (chunk, echo_raw) in enumerate(parts):
+            body = (
+                REPORT_FIXED.pack(self._report_number, index, len(parts))
+                + b'{"e":['
+                + b",".join(chunk)
+                + b'],"c":['
+                + echo_raw
+                + b"]}"
+            )
+            datagrams.append(self._pack(PacketKind.REPORT, body, now))
+        return datagrams
+
+    def encode_command(self, command: Command, now: float) -> bytes:
+        """One COMMAND datagram (ground -> drones)."""
+        name = encode_id(command.name, "command name")
+        target = encode_id(command.target or "", "command target", allow_empty=True)
+        args = dumps_json(dict(command.args), "command args")
+        body = (
+            COMMAND_FIXED.pack(command.command_id, command.t_exec, len(name))
+            + name
+            + U8.pack(len(target))
+            + target
+            + args
+        )
+        if len(body) > self._body_budget:
+            raise LocalProtocolError(f"command of {len(body)} bytes does not fit one datagram")
+        return self._pack(PacketKind.COMMAND, body, now)
+
+    def encode_status(self, status: Status, now: float) -> bytes:
+        """One STATUS datagram (drone -> ground): an acknowledgement or a status."""
+        state = encode_id(status.state, "status state")
+        info = dumps_json(dict(status.info), "status info")
+        body = STATUS_FIXED.pack(status.command_id or 0, len(state)) + state + info
+        if len(body) > self._body_budget:
+            raise LocalProtocolError(f"status of {len(body)} bytes does not fit one datagram")
+        return self._pack(PacketKind.STATUS, body, now)

@@ -1,0 +1,226 @@
+"""Byte layout of every datagram: constants, struct formats, the HMAC tag (docs/protocol.md).
+
+Every integer and float is big-endian (network byte order, struct ``!``). A datagram is::
+
+    common header (27 bytes) | sender id (n bytes) | body (body_len bytes) | tag (16 bytes)
+
+and the tag is HMAC-SHA256(fleet key, every byte before the tag) truncated to 16 bytes.
+"""
+
+from __future__ import annotations
+
+import enum
+import hmac
+import json
+import math
+import struct
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from companion.protocol.errors import (
+    BadTag,
+    LocalProtocolError,
+    MalformedPacket,
+    OversizePacket,
+    UnsupportedVersion,
+    WrongFleet,
+)
+
+__all__ = [
+    "COMMAND_FIXED",
+    "DATA_FIXED",
+    "HEADER",
+    "MAGIC",
+    "MAX_DATAGRAM_BYTES",
+    "MAX_ID_BYTES",
+    "MIN_KEY_BYTES",
+    "PROTOCOL_VERSION",
+    "REPORT_FIXED",
+    "STATUS_FIXED",
+    "TAG_BYTES",
+    "Header",
+    "PacketKind",
+    "check_key",
+    "dumps_json",
+    "encode_id",
+    "loads_json_object",
+    "pack_datagram",
+    "unpack_datagram",
+]
+
+MAGIC = b"UV"
+"""First two bytes of every datagram (0x55 0x56)."""
+PROTOCOL_VERSION = 1
+MAX_DATAGRAM_BYTES = 1200
+"""UDP payload bound that keeps datagrams below any sane path MTU (ARCHITECTURE.md)."""
+TAG_BYTES = 16
+"""HMAC-SHA256 truncated to 128 bits (as RFC 4868 does for IPsec)."""
+MAX_ID_BYTES = 32
+"""Longest sender id, message type, command name, state... in UTF-8 bytes."""
+MIN_KEY_BYTES = 16
+
+HEADER = struct.Struct("!2sBBIQdHB")
+"""magic, version, kind, fleet id, packet number, t_sent, body length, sender id length."""
+DATA_FIXED = struct.Struct("!IdHHIB")
+"""seq, t_gen, fragment index, fragment count, total payload length, type length."""
+METADATA_LEN = struct.Struct("!H")
+REPORT_FIXED = struct.Struct("!IHH")
+"""report number, part index, part count."""
+COMMAND_FIXED = struct.Struct("!IdB")
+"""command id, t_exec, name length."""
+STATUS_FIXED = struct.Struct("!IB")
+"""command id (0: unsolicited), state length."""
+U8 = struct.Struct("!B")
+
+OVERHEAD_BYTES = HEADER.size + TAG_BYTES
+"""Bytes of every datagram outside the sender id and the body."""
+
+
+class PacketKind(enum.IntEnum):
+    """Byte 3 of the header."""
+
+    DATA = 1
+    """A fragment of a message, drone -> ground."""
+    REPORT = 2
+    """Receiver report, ground -> drones."""
+    COMMAND = 3
+    """Mission manager command, ground -> drones."""
+    STATUS = 4
+    """Command acknowledgement or status, drone -> ground."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Header:
+    """The authenticated common header of a datagram."""
+
+    kind: PacketKind
+    fleet_id: int
+    packet_number: int
+    """Per sender, strictly increasing; the replay window runs over it."""
+    t_sent: float
+    """Sender's clock when the datagram was encoded, seconds."""
+    sender: str
+
+
+def check_key(key: bytes) -> bytes:
+    if not isinstance(key, bytes | bytearray) or len(key) < MIN_KEY_BYTES:
+        raise LocalProtocolError(f"fleet key must be at least {MIN_KEY_BYTES} bytes")
+    return bytes(key)
+
+
+def encode_id(value: str, what: str, *, allow_empty: bool = False) -> bytes:
+    """UTF-8 bytes of a short identifier, checked against ``MAX_ID_BYTES``."""
+    raw = value.encode("utf-8")
+    if not raw and not allow_empty:
+        raise LocalProtocolError(f"{what} must not be empty")
+    if len(raw) > MAX_ID_BYTES:
+        raise LocalProtocolError(f"{what} {value!r} is {len(raw)} bytes; at most {MAX_ID_BYTES}")
+    return raw
+
+
+def decode_id(raw: bytes, what: str) -> str:
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise MalformedPacket(f"{what} is not UTF-8") from exc
+
+
+def dumps_json(value: Any, what: str) -> bytes:
+    """Compact, strict JSON (no NaN/Infinity) as UTF-8 bytes."""
+    try:
+        text = json.dumps(value, separators=(",", ":"), ensure_ascii=False, allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise LocalProtocolError(f"{what} is not JSON-encodable: {exc}") from exc
+    return text.encode("utf-8")
+
+
+def _reject_constant(name: str) -> Any:
+    raise MalformedPacket(f"non-standard JSON constant {name}")
+
+
+def loads_json(raw: bytes, what: str) -> Any:
+    try:
+        return json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise MalformedPacket(f"{what} is not valid JSON: {exc}") from exc
+
+
+def loads_json_object(raw: bytes, what: str) -> Mapping[str, Any]:
+    value = loads_json(raw, what)
+    if not isinstance(value, dict):
+        raise MalformedPacket(f"{what} must be a JSON object")
+    return value
+
+
+def tag(key: bytes, signed: bytes | memoryview) -> bytes:
+    return hmac.digest(key, signed, "sha256")[:TAG_BYTES]
+
+
+def pack_datagram(
+    *,
+    key: bytes,
+    kind: PacketKind,
+    fleet_id: int,
+    packet_number: int,
+    t_sent: float,
+    sender_raw: bytes,
+    body: bytes,
+) -> bytes:
+    """Header + sender + body + tag; the caller has already bounded the body."""
+    signed = (
+        HEADER.pack(
+            MAGIC,
+            PROTOCOL_VERSION,
+            kind,
+            fleet_id,
+            packet_number,
+            t_sent,
+            len(body),
+            len(sender_raw),
+        )
+        + sender_raw
+        + body
+    )
+    return signed + tag(key, signed)
+
+
+def unpack_datagram(
+    data: bytes, *, key: bytes, fleet_id: int, max_datagram_bytes: int
+) -> tuple[Header, memoryview]:
+    """Check structure, fleet and tag; return the header and the (authenticated) body.
+
+    Cheap structural checks come first, so garbage costs no HMAC; nothing of the body is
+    trusted before the tag is verified.
+    """
+    if len(data) > max_datagram_bytes:
+        raise OversizePacket(f"datagram of {len(data)} bytes > {max_datagram_bytes}")
+    if len(data) < OVERHEAD_BYTES + 1:
+        raise MalformedPacket(f"datagram of {len(data)} bytes is shorter than a header")
+    magic, version, kind, fleet, pn, t_sent, body_len, sender_len = HEADER.unpack_from(data, 0)
+    if magic != MAGIC:
+        raise MalformedPacket("bad magic")
+    if version != PROTOCOL_VERSION:
+        raise UnsupportedVersion(f"protocol version {version}, this code speaks {PROTOCOL_VERSION}")
+    if fleet != fleet_id:
+        raise WrongFleet(f"fleet id {fleet}, expected {fleet_id}")
+    if not 1 <= sender_len <= MAX_ID_BYTES:
+        raise MalformedPacket(f"sender id length {sender_len} not in 1..{MAX_ID_BYTES}")
+    expected = OVERHEAD_BYTES + sender_len + body_len
+    if len(data) != expected:
+        raise MalformedPacket(f"datagram is {len(data)} bytes, header says {expected}")
+    end = len(data) - TAG_BYTES
+    view = memoryview(data)
+    if not hmac.compare_digest(tag(key, view[:end]), view[end:]):
+        raise BadTag("HMAC tag does not match")
+    try:
+        packet_kind = PacketKind(kind)
+    except ValueError as exc:
+        raise MalformedPacket(f"unknown packet kind {kind}") from exc
+    if not math.isfinite(t_sent):
+        raise MalformedPacket("t_sent is not finite")
+    sender = decode_id(bytes(view[HEADER.size : HEADER.size + sender_len]), "sender id")
+    header = Header(
+        kind=packet_kind, fleet_id=fleet, packet_number=pn, t_sent=t_sent, sender=sender
+    )
+    return header, view[HEADER.size + sender_len : end]

@@ -1,0 +1,252 @@
+"""The drone-side UDP shell around the sans-I/O codec (companion.protocol).
+
+It owns the socket, the clock and one timer; the codec owns every decision. Each entry point
+does the aioquic three steps: call the core with ``now=clock()``, hand its events out, re-arm
+the single ``loop.call_later`` for ``decoder.get_timer()``. Sending is the socket's
+non-blocking ``sendto``: an error (ENOBUFS, unreachable...) or a full write buffer is counted
+and the message is lost, like any other loss on the air; nothing here retries or blocks.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import socket
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from companion.protocol import (
+    Address,
+    Decoder,
+    Encoder,
+    Event,
+    LocalProtocolError,
+    PacketDropped,
+    Report,
+    Status,
+)
+from utility_specs.message import Message
+
+__all__ = ["Clock", "UdpTransport"]
+
+log = logging.getLogger(__name__)
+
+Clock = Callable[[], float]
+"""Fleet clock: Unix seconds (``time.time`` in production)."""
+
+SEND_COUNTERS = (
+    "datagrams_sent",
+    "bytes_sent",
+    "messages_sent",
+    "send_errors",
+    "send_dropped_buffer_full",
+    "send_not_ready",
+    "events_dropped",
+)
+
+
+class _Protocol(asyncio.DatagramProtocol):
+    def __init__(self, owner: UdpTransport) -> None:
+        self._owner = owner
+
+    def datagram_received(self, data: bytes, addr: Address) -> None:
+        self._owner._on_datagram(data, addr)
+
+    def error_received(self, exc: Exception) -> None:
+        self._owner._on_send_error(exc)
+
+
+class UdpTransport:
+    """One UDP socket speaking the fleet protocol.
+
+    Received events (reports, commands, statuses, reassembled messages, drops) go to
+    ``on_event`` when given, else into the bounded ``events`` queue (oldest dropped and
+    counted when full). ``remote_addr`` is where ``send_*`` go by default (the ground
+    station); a hostname is resolved once at start, never on the send path.
+    """
+
+    def __init__(
+        self,
+        *,
+        encoder: Encoder,
+        decoder: Decoder,
+        remote_addr: tuple[str, int] | None = None,
+        local_addr: tuple[str, int] = ("0.0.0.0", 0),
+        clock: Clock = time.time,
+        on_event: Callable[[Event], None] | None = None,
+        max_queued_events: int = 1000,
+        max_write_buffer_bytes: int = 256 * 1024,
+    ) -> None:
+        self.encoder = encoder
+        self.decoder = decoder
+        self.remote_addr = remote_addr
+        self.local_addr = local_addr
+        self._clock = clock
+        self._on_event = on_event
+        self.events: asyncio.Queue[Event] = asyncio.Queue(maxsize=max_queued_events)
+        self.max_write_buffer_bytes = max_write_buffer_bytes
+        self.counters: dict[str, int] = dict.fromkeys(SEND_COUNTERS, 0)
+        self._transport: asyncio.DatagramTransport | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._timer: asyncio.TimerHandle | None = None
+        self._timer_deadline: float | None = None
+        self._stopped = asyncio.Event()
+        self._started = asyncio.Event()
+
+    # -- lifecycle -----------------------------------------------------------------------
+
+    @property
+    def local_address(self) -> tuple[str, int]:
+        """The bound (host, port); only valid once started."""
+        if self._transport is None:
+            raise RuntimeError("transport not started")
+        sockname = self._transport.get_extra_info("sockname")
+        return (sockname[0], sockname[1])
+
+    async def start(self) -> None:
+        """Bind the socket and resolve the remote address (idempotent)."""
+        if self._transport is not None:
+            return
+        self._loop = asyncio.get_running_loop()
+        if self.remote_addr is not None:
+            self.remote_addr = await self._resolve(self.remote_addr)
+        transport, _ = await self._loop.create_datagram_endpoint(
+            lambda: _Protocol(self), local_addr=self.local_addr
+        )
+        self._transport = transport
+        self._started.set()
+        log.info("protocol transport bound to %s", self.local_address)
+
+    async def wait_started(self) -> None:
+        await self._started.wait()
+
+    async def run(self) -> None:
+        """Serve until ``stop()``; the socket and the timer are released on the way out."""
+        try:
+            await self.start()
+            await self._stopped.wait()
+        finally:
+            self._close()
+
+    def stop(self) -> None:
+        self._stopped.set()
+
+    def _close(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if self._transport is not None:
+            self._transport.close()
+            self._transport = None
+
+    async def _resolve(self, addr: tuple[str, int]) -> tuple[str, int]:
+        assert self._loop is not None
+        infos = await self._loop.getaddrinfo(
+            addr[0], addr[1], family=socket.AF_INET, type=socket.SOCK_DGRAM
+        )
+        host, port = infos[0][4][:2]
+        return (str(host), int(port))
+
+    # -- sending -------------------------------------------------------------------------
+
+    def send_message(self, message: Message, payload: bytes, now: float | None = None) -> int:
+        """Fragment and send one message; returns the datagrams sent (0 if it was dropped).
+
+        ``LocalProtocolError`` (a message the wire cannot carry) propagates: it is the
+        caller's bug, not bad luck on the link.
+        """
+        now = self._clock() if now is None else now
+        datagrams = self.encoder.fragment(message, payload, now)
+        sent = self.send_datagrams(datagrams)
+        if sent:
+            self.counters["messages_sent"] += 1
+        return sent
+
+    def send_status(self, status: Status, now: float | None = None) -> int:
+        now = self._clock() if now is None else now
+        return self.send_datagrams([self.encoder.encode_status(status, now)])
+
+    def send_report(self, report: Report, addr: Address, now: float | None = None) -> int:
+        """Ground-side helper, handy in tests and tools."""
+        now = self._clock() if now is None else now
+        return self.send_datagrams(self.encoder.encode_report(report, now), addr)
+
+    def send_datagrams(self, datagrams: Sequence[bytes], addr: Address | None = None) -> int:
+        """Send all datagrams of one unit (a message is lost whole, never half-queued)."""
+        target = addr if addr is not None else self.remote_addr
+        if target is None:
+            raise LocalProtocolError("no remote address to send to")
+        transport = self._transport
+        if transport is None:  # not bound yet, or already closed: lost like on the air
+            self.counters["send_not_ready"] += 1
+            return 0
+        total = sum(len(d) for d in datagrams)
+        if _write_buffer_size(transport) + total > self.max_write_buffer_bytes:
+            self.counters["send_dropped_buffer_full"] += 1
+            return 0
+        for data in datagrams:
+            transport.sendto(data, target)
+        self.counters["datagrams_sent"] += len(datagrams)
+        self.counters["bytes_sent"] += total
+        return len(datagrams)
+
+    def _on_send_error(self, exc: Exception) -> None:
+        self.counters["send_errors"] += 1
+        log.debug("UDP error: %s", exc)
+
+    # -- receiving -----------------------------------------------------------------------
+
+    def _on_datagram(self, data: bytes, addr: Address) -> None:
+        self.decoder.receive_datagram(data, addr, self._clock())
+        self._process_events()
+        self._arm_timer()
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        deadline = self._timer_deadline
+        self._timer_deadline = None
+        now = self._clock()
+        # The loop's monotonic clock and the fleet clock drift apart slightly; never fire
+        # "early" and re-arm in a tight loop for the difference.
+        self.decoder.handle_timer(max(now, deadline) if deadline is not None else now)
+        self._process_events()
+        self._arm_timer()
+
+    def _arm_timer(self) -> None:
+        deadline = self.decoder.get_timer()
+        if deadline == self._timer_deadline and (deadline is None or self._timer is not None):
+            return
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        self._timer_deadline = deadline
+        if deadline is not None and self._loop is not None:
+            delay = max(0.0, deadline - self._clock())
+            self._timer = self._loop.call_later(delay, self._on_timer)
+
+    def _process_events(self) -> None:
+        while (event := self.decoder.next_event()) is not None:
+            if isinstance(event, PacketDropped):
+                log.debug(
+                    "dropped datagram from %s: %s (%s)", event.addr, event.reason, event.detail
+                )
+            if self._on_event is not None:
+                self._on_event(event)
+                continue
+            if self.events.full():
+                with contextlib.suppress(asyncio.QueueEmpty):
+                    self.events.get_nowait()
+                self.counters["events_dropped"] += 1
+            self.events.put_nowait(event)
+
+    def stats(self) -> dict[str, Any]:
+        """Send counters and the decoder's receive counters, for logs and status reports."""
+        return {"send": dict(self.counters), "receive": dict(self.decoder.counters)}
+
+
+def _write_buffer_size(transport: asyncio.DatagramTransport) -> int:
+    """Bytes asyncio holds because the socket would block (typeshed omits the method)."""
+    size = getattr(transport, "get_write_buffer_size", None)
+    return int(size()) if callable(size) else 0

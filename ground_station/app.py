@@ -1,0 +1,431 @@
+"""The aiohttp application factory: routes, state, the token middleware, cleanup contexts.
+
+``create_app(config)`` wires everything (aiohttp "app factory"); ``web.run_app`` runs it and
+tests import the same factory. The UDP endpoint and the storage are one-``yield`` cleanup
+contexts, WebSockets sit in a ``WeakSet`` closed at shutdown, and one middleware checks the
+control token.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import time
+import weakref
+from collections.abc import AsyncIterator, Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+from aiohttp import WSCloseCode, WSMsgType, web
+
+from ground_station.broadcast import Broadcaster
+from ground_station.config import GroundConfig
+from ground_station.fleet import Alert, FleetView, LatestImage
+from ground_station.keys import (
+    BROADCASTER,
+    CLOCK,
+    CONFIG,
+    FLEET,
+    IMAGE_UTILITY,
+    LATEST_JPEG,
+    LINK,
+    MISSIONS,
+    STORAGE,
+    TOKEN,
+    WEBSOCKETS,
+)
+from ground_station.missions import MissionError, MissionManager, parse_params, parse_when
+from ground_station.receiver import GroundLink
+from ground_station.storage import ImageRow, Storage
+from ground_station.store_service import StorageService
+from ground_station.token import ensure_token, token_matches
+from ground_station.utility import image_utility_from_spec
+
+__all__ = ["STATIC_DIR", "create_app"]
+
+log = logging.getLogger(__name__)
+
+STATIC_DIR = Path(__file__).parent / "static"
+TOKEN_COOKIE = "gs_token"
+Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+
+
+def _json(data: Any, status: int = 200) -> web.Response:
+    return web.json_response(data, status=status, dumps=lambda v: json.dumps(v, default=str))
+
+
+def _given_token(request: web.Request, *, allow_cookie: bool) -> str | None:
+    auth = request.headers.get("Authorization", "")
+    if auth.startswith("Bearer "):
+        return auth[7:].strip()
+    given = request.headers.get("X-GS-Token") or request.query.get("token")
+    if given is None and allow_cookie:
+        # The dashboard page stores the token in a SameSite=Strict cookie so images and the
+        # WebSocket need no token in their URLs (URLs end up in access logs). Control
+        # routes never accept the cookie: they need a header, which a foreign page cannot
+        # add (no CSRF).
+        given = request.cookies.get(TOKEN_COOKIE)
+    return given
+
+
+def _is_control(request: web.Request) -> bool:
+    return request.path.startswith("/api/") and request.method not in ("GET", "HEAD", "OPTIONS")
+
+
+def _is_data_read(request: web.Request) -> bool:
+    return request.path.startswith("/api/") or request.path == "/ws"
+
+
+@web.middleware
+async def token_middleware(request: web.Request, handler: Handler) -> web.StreamResponse:
+    """The single place the control token is checked (control routes; reads unless public)."""
+    app = request.app
+    control = _is_control(request)
+    needs = control or (_is_data_read(request) and not app[CONFIG].public_read)
+    if needs and not token_matches(app[TOKEN], _given_token(request, allow_cookie=not control)):
+        return _json(
+            {"error": "unauthorized", "hint": "send 'Authorization: Bearer <token>'"}, status=401
+        )
+    return await handler(request)
+
+
+# -- pages ---------------------------------------------------------------------------------
+async def index(request: web.Request) -> web.StreamResponse:
+    return web.FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
+
+
+# -- read API ------------------------------------------------------------------------------
+async def api_stats(request: web.Request) -> web.Response:
+    app = request.app
+    now = app[CLOCK]()
+    return _json(
+        {"station": app[CONFIG].station_id, "mission": app[CONFIG].mission}
+        | app[LINK].stats(now=now)
+    )
+
+
+async def api_fleet(request: web.Request) -> web.Response:
+    app = request.app
+    now = app[CLOCK]()
+    snap = app[FLEET].snapshot(now=now)
+    snap["mission"] = app[MISSIONS].state(now=now)
+    snap["config"] = {
+        "station_id": app[CONFIG].station_id,
+        "mission": app[CONFIG].mission,
+        "high_utility": app[CONFIG].high_utility,
+        "alpha": app[CONFIG].alpha,
+    }
+    return _json(snap)
+
+
+async def api_mission(request: web.Request) -> web.Response:
+    app = request.app
+    return _json(app[MISSIONS].state(now=app[CLOCK]()))
+
+
+async def api_missions(request: web.Request) -> web.Response:
+    return _json(await request.app[STORAGE].read(lambda s: s.missions()))
+
+
+def _image_json(row: ImageRow) -> dict[str, Any]:
+    return row.as_json() | {"url": f"/api/images/{row.id}.jpg"}
+
+
+async def api_images(request: web.Request) -> web.Response:
+    """Gallery: highest-utility images of a mission, filterable by drone and object flag."""
+    app = request.app
+    q = request.query
+    mission = q.get("mission", app[CONFIG].mission)
+    drone = q.get("drone") or None
+    obj = q.get("object")
+    object_only = None if obj in (None, "", "any") else obj in ("1", "true", "yes")
+    order = "time" if q.get("order") == "time" else "utility"
+    try:
+        limit = int(q.get("limit", "24"))
+    except ValueError:
+        return _json({"error": "limit must be an integer"}, status=400)
+
+    def query(s: Storage) -> list[ImageRow]:
+        return s.images(mission, sender=drone, object_only=object_only, order=order, limit=limit)
+
+    rows = await app[STORAGE].read(query)
+    return _json({"mission": mission, "images": [_image_json(r) for r in rows]})
+
+
+async def api_image_file(request: web.Request) -> web.StreamResponse:
+    app = request.app
+    try:
+        image_id = int(request.match_info["image_id"])
+    except ValueError:
+        raise web.HTTPNotFound() from None
+    row = await app[STORAGE].read(lambda s: s.image(image_id))
+    if row is None or row.path is None:
+        raise web.HTTPNotFound()
+    root = app[CONFIG].data_dir.resolve()
+    path = (root / row.path).resolve()
+    if not path.is_relative_to(root):
+        raise web.HTTPNotFound()
+    return web.FileResponse(path, headers={"Content-Type": "image/jpeg"})
+
+
+async def api_latest_jpeg(request: web.Request) -> web.Response:
+    payload = request.app[LATEST_JPEG].get(request.match_info["drone"])
+    if payload is None:
+        raise web.HTTPNotFound()
+    return web.Response(
+        body=payload, content_type="image/jpeg", headers={"Cache-Control": "no-store"}
+    )
+
+
+async def api_alerts(request: web.Request) -> web.Response:
+    app = request.app
+    mission = request.query.get("mission", app[CONFIG].mission)
+    stored = await app[STORAGE].read(lambda s: s.alerts(mission))
+    return _json({"alerts": stored})
+
+
+async def api_telemetry(request: web.Request) -> web.Response:
+    app = request.app
+    mission = request.query.get("mission", app[CONFIG].mission)
+    drone = request.query.get("drone") or None
+    rows = await app[STORAGE].read(lambda s: s.telemetry(mission, sender=drone))
+    return _json({"messages": rows})
+
+
+# -- control API ---------------------------------------------------------------------------
+async def _body(request: web.Request) -> dict[str, Any]:
+    if not request.can_read_body:
+        return {}
+    try:
+        body = await request.json()
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise web.HTTPBadRequest(
+            text=json.dumps({"error": "body must be a JSON object"}),
+            content_type="application/json",
+        ) from None
+    if not isinstance(body, dict):
+        raise web.HTTPBadRequest(
+            text=json.dumps({"error": "body must be a JSON object"}),
+            content_type="application/json",
+        )
+    return body
+
+
+def _t_exec(body: dict[str, Any], now: float) -> float:
+    if "t_exec" in body:
+        value = body["t_exec"]
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise MissionError("t_exec: expected a number (fleet clock, Unix seconds)")
+        return float(value)
+    if "delay_s" in body:
+        value = body["delay_s"]
+        if isinstance(value, bool) or not isinstance(value, int | float) or value < 0:
+            raise MissionError("delay_s: expected a number of seconds >= 0")
+        return now + float(value)
+    when = body.get("when")
+    if when is not None and not isinstance(when, str):
+        raise MissionError("when: expected text like 'in 5 s' or 'at 14:00'")
+    return parse_when(when, now=now)
+
+
+async def _issue(request: web.Request, verb: str) -> web.Response:
+    app = request.app
+    now = app[CLOCK]()
+    body = await _body(request)
+    try:
+        t_exec = _t_exec(body, now)
+        args: dict[str, Any] = {}
+        if verb == "params":
+            raw = body.get("params")
+            if isinstance(raw, str):
+                args = parse_params(raw)
+            elif isinstance(raw, dict) and raw:
+                args = dict(raw)
+            else:
+                raise MissionError("params: expected an object or 'NAME=VALUE,...' text")
+        elif isinstance(body.get("args"), dict):
+            args = dict(body["args"])
+        issued = app[MISSIONS].issue(verb, t_exec=t_exec, now=now, args=args)
+    except MissionError as exc:
+        return _json({"error": str(exc)}, status=400)
+    mission = app[CONFIG].mission
+    if verb == "start":
+        await app[STORAGE].call_writer(lambda s: s.mark_mission(mission, now=now, t_start=t_exec))
+    elif verb == "end":
+        await app[STORAGE].call_writer(lambda s: s.mark_mission(mission, now=now, t_end=t_exec))
+    fleet = app[FLEET]
+    fleet.alert(
+        Alert(
+            t=now,
+            level="info",
+            kind="mission",
+            text=f"{issued.command.name} at {time.strftime('%H:%M:%S', time.localtime(t_exec))}"
+            f" sent to {len(app[MISSIONS].drones)} drone(s)",
+        )
+    )
+    link = app[LINK]
+    link.kick()
+    link._flush_alerts()
+    state = app[MISSIONS].state(now=now)
+    app[BROADCASTER].publish("mission", {"mission": state})
+    return _json({"command": issued.as_json(), "mission": state})
+
+
+async def api_start(request: web.Request) -> web.Response:
+    return await _issue(request, "start")
+
+
+async def api_end(request: web.Request) -> web.Response:
+    return await _issue(request, "end")
+
+
+async def api_params(request: web.Request) -> web.Response:
+    return await _issue(request, "params")
+
+
+async def api_reset_reports(request: web.Request) -> web.Response:
+    app = request.app
+    app[MISSIONS].reset_reports()
+    return _json(app[MISSIONS].state(now=app[CLOCK]()))
+
+
+# -- WebSocket -----------------------------------------------------------------------------
+async def websocket(request: web.Request) -> web.WebSocketResponse:
+    """Live updates: a snapshot first, then drone/status/alert/tick/mission events."""
+    app = request.app
+    ws = web.WebSocketResponse(heartbeat=20.0)
+    await ws.prepare(request)
+    app[WEBSOCKETS].add(ws)
+    client = app[BROADCASTER].register()
+    now = app[CLOCK]()
+    snapshot = app[FLEET].snapshot(now=now)
+    snapshot["mission"] = app[MISSIONS].state(now=now)
+    snapshot["config"] = {"high_utility": app[CONFIG].high_utility, "mission": app[CONFIG].mission}
+    await ws.send_str(json.dumps({"kind": "snapshot", **snapshot}, default=str))
+
+    async def writer() -> None:
+        while True:
+            text = await client.queue.get()
+            await ws.send_str(text)
+
+    task = asyncio.create_task(writer(), name="gs-ws-writer")
+    try:
+        async for msg in ws:
+            if msg.type is WSMsgType.TEXT and msg.data == "ping":
+                client.put(json.dumps({"kind": "pong", "t": app[CLOCK]()}))
+            elif msg.type is WSMsgType.ERROR:
+                break
+    finally:
+        app[BROADCASTER].unregister(client)
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError, ConnectionError):
+            await task
+        app[WEBSOCKETS].discard(ws)
+    return ws
+
+
+async def close_websockets(app: web.Application) -> None:
+    sockets = app[WEBSOCKETS]
+    for ws in list(sockets):
+        await ws.close(code=WSCloseCode.GOING_AWAY, message=b"server shutdown")
+
+
+# -- cleanup contexts ----------------------------------------------------------------------
+async def storage_ctx(app: web.Application) -> AsyncIterator[None]:
+    config = app[CONFIG]
+
+    def on_batch(items: Any, result: Any) -> None:
+        link = app.get(LINK)
+        if link is not None:
+            link.on_storage_batch(items, result)
+
+    service = StorageService(
+        config.data_dir, clock=app[CLOCK], fsync=config.fsync, on_batch=on_batch
+    )
+    await service.open()
+    app[STORAGE] = service
+    try:
+        yield
+    finally:
+        await service.close()
+
+
+async def link_ctx(app: web.Application) -> AsyncIterator[None]:
+    """The UDP endpoint; before it opens, tiles are seeded from storage (restart resumes)."""
+    config = app[CONFIG]
+    fleet = app[FLEET]
+    rows = await app[STORAGE].read(lambda s: s.latest_images(config.mission))
+    for row in rows:
+        state = fleet.heard(row.sender, now=row.t_rcv)
+        state.latest_image = LatestImage(
+            image_id=row.id,
+            seq=row.seq,
+            t_gen=row.t_gen,
+            t_rcv=row.t_rcv,
+            size=row.size,
+            utility=row.utility,
+            red=row.red,
+            object=row.object,
+            high=row.utility >= config.high_utility,
+        )
+        if row.path is not None:
+            path = config.data_dir / row.path
+            with contextlib.suppress(OSError):
+                app[LATEST_JPEG][row.sender] = await asyncio.to_thread(path.read_bytes)
+    link = GroundLink(
+        config=config,
+        clock=app[CLOCK],
+        fleet=fleet,
+        missions=app[MISSIONS],
+        storage=app[STORAGE],
+        broadcaster=app[BROADCASTER],
+        image_utility=app[IMAGE_UTILITY],
+        latest_jpeg=app[LATEST_JPEG],
+    )
+    host, port = await link.open()
+    app[LINK] = link
+    log.info("receiving fleet %d on udp://%s:%d", config.fleet_id, host, port)
+    try:
+        yield
+    finally:
+        link.close()
+
+
+def create_app(
+    config: GroundConfig, *, clock: Callable[[], float] = time.time, token: str | None = None
+) -> web.Application:
+    """Build the ground-station app; the token is read or created under ``config.data_dir``."""
+    app = web.Application(middlewares=[token_middleware], client_max_size=1 << 20)
+    app[CONFIG] = config
+    app[CLOCK] = clock
+    app[TOKEN] = token if token is not None else ensure_token(config.token_path)[0]
+    app[FLEET] = FleetView(high_utility=config.high_utility, link_lost_s=config.link_lost_s)
+    app[MISSIONS] = MissionManager(
+        retry_s=config.command_retry_s, first_command_id=int(clock() * 10) % (2**31)
+    )
+    app[BROADCASTER] = Broadcaster(queue_size=config.ws_queue_size)
+    app[IMAGE_UTILITY] = image_utility_from_spec(config.spec, alpha=config.alpha)
+    app[LATEST_JPEG] = {}
+    app[WEBSOCKETS] = weakref.WeakSet()
+    app.cleanup_ctx.append(storage_ctx)
+    app.cleanup_ctx.append(link_ctx)
+    app.on_shutdown.append(close_websockets)
+    app.router.add_get("/", index)
+    app.router.add_static("/static/", STATIC_DIR, append_version=True)
+    app.router.add_get("/ws", websocket)
+    app.router.add_get("/api/stats", api_stats)
+    app.router.add_get("/api/fleet", api_fleet)
+    app.router.add_get("/api/mission", api_mission)
+    app.router.add_get("/api/missions", api_missions)
+    app.router.add_get("/api/images", api_images)
+    app.router.add_get(r"/api/images/{image_id}.jpg", api_image_file)
+    app.router.add_get("/api/drones/{drone}/latest.jpg", api_latest_jpeg)
+    app.router.add_get("/api/alerts", api_alerts)
+    app.router.add_get("/api/telemetry", api_telemetry)
+    app.router.add_post("/api/mission/start", api_start)
+    app.router.add_post("/api/mission/end", api_end)
+    app.router.add_post("/api/mission/params", api_params)
+    app.router.add_post("/api/mission/reports/reset", api_reset_reports)
+    return app

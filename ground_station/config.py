@@ -1,0 +1,183 @@
+"""Ground-station configuration: one frozen dataclass, read from TOML and validated at start.
+
+A wrong file fails with :class:`ConfigError` naming the file, the key and what was expected
+(ARCHITECTURE.md, "Configuration is TOML").
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+__all__ = ["ConfigError", "GroundConfig", "load_config"]
+
+
+class ConfigError(ValueError):
+    """A configuration value that cannot be used; the text names file, key and expectation."""
+
+    def __init__(self, file: str, key: str, expected: str, got: object = None) -> None:
+        self.file = file
+        self.key = key
+        self.expected = expected
+        self.got = got
+        message = f"{file}: key {key!r}: expected {expected}"
+        if got is not None:
+            message += f", got {got!r}"
+        super().__init__(message)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GroundConfig:
+    """Everything the ground station needs; defaults suit a loopback demo."""
+
+    station_id: str = "gs"
+    """Receiver id written into the mission log (``receiver`` field)."""
+    fleet_id: int = 1
+    """Fleet id every datagram must carry (protocol header)."""
+    fleet_key: bytes = b"uav-infodist-demo-fleet-key"
+    """HMAC key shared by the fleet. Prefer ``fleet_key_file`` outside demos."""
+    data_dir: Path = Path("gs-data")
+    """Where the SQLite database, images, mission logs and the control token live."""
+    mission: str = "default"
+    """Name of the current mission (images and log records are grouped by it)."""
+    udp_host: str = "0.0.0.0"
+    udp_port: int = 14600
+    udp_rcvbuf_bytes: int = 16 << 20
+    """Kernel receive buffer asked for (fragments of 100 images/s must not overflow it)."""
+    http_host: str = "127.0.0.1"
+    http_port: int = 8080
+    report_interval_s: float = 0.25
+    """Receiver report period (thesis ch. 6 needs a few samples per second)."""
+    command_retry_s: float = 0.5
+    """How often an unacknowledged mission command is sent again."""
+    link_lost_s: float = 3.0
+    """A drone not heard for this long raises a link-loss alert."""
+    reassembly_timeout_s: float = 2.0
+    max_pending_messages: int = 256
+    """Bound on partially received images held in memory by the decoder."""
+    alpha: float = 10.0
+    """α of eq. 7.1/7.2, weight of red share / object in image utility."""
+    high_utility: float = 3.0
+    """Images at or above this utility weight get a red border (thesis fig. 7.5)."""
+    spec: Path | None = None
+    """Mission spec TOML; when given, image utility follows its ``red_image``/``object_image``."""
+    public_read: bool = False
+    """Whether read-only views (dashboard, /api GETs, WebSocket) are open without the token."""
+    ws_queue_size: int = 64
+    """Per-browser queue of pending updates; the oldest is dropped when full."""
+    clock_tolerance_s: float = 30.0
+    """Datagrams whose t_gen is further than this from our clock are stale."""
+    fsync: bool = True
+    """fsync every image file (and its folder) before it counts as stored."""
+    token_file: Path | None = None
+    """Control token location; default ``data_dir / "token"``."""
+
+    def __post_init__(self) -> None:
+        checks: list[tuple[str, bool, str]] = [
+            ("station_id", bool(self.station_id), "a non-empty string"),
+            ("fleet_id", 0 <= self.fleet_id < 2**32, "an integer in 0..2**32-1"),
+            ("fleet_key", len(self.fleet_key) >= 16, "at least 16 bytes"),
+            ("mission", bool(self.mission) and "/" not in self.mission, "a name without '/'"),
+            ("udp_port", 0 <= self.udp_port < 65536, "a port 0..65535"),
+            ("http_port", 0 <= self.http_port < 65536, "a port 0..65535"),
+            ("udp_rcvbuf_bytes", self.udp_rcvbuf_bytes >= 65536, "an integer >= 65536"),
+            ("report_interval_s", self.report_interval_s > 0, "a number > 0"),
+            ("command_retry_s", self.command_retry_s > 0, "a number > 0"),
+            ("link_lost_s", self.link_lost_s > 0, "a number > 0"),
+            ("reassembly_timeout_s", self.reassembly_timeout_s > 0, "a number > 0"),
+            ("max_pending_messages", self.max_pending_messages > 0, "an integer > 0"),
+            ("alpha", self.alpha >= 0, "a number >= 0"),
+            ("ws_queue_size", self.ws_queue_size > 0, "an integer > 0"),
+            ("clock_tolerance_s", self.clock_tolerance_s > 0, "a number > 0"),
+        ]
+        for key, ok, expected in checks:
+            if not ok:
+                raise ConfigError("<config>", key, expected, getattr(self, key))
+
+    @property
+    def token_path(self) -> Path:
+        return self.token_file if self.token_file is not None else self.data_dir / "token"
+
+    def with_overrides(self, **changes: Any) -> GroundConfig:
+        return replace(self, **changes)
+
+
+_TYPES: dict[str, tuple[type | tuple[type, ...], str]] = {
+    "station_id": (str, "a string"),
+    "fleet_id": (int, "an integer"),
+    "fleet_key": (str, "a string"),
+    "fleet_key_file": (str, "a path string"),
+    "data_dir": (str, "a path string"),
+    "mission": (str, "a string"),
+    "udp_host": (str, "a host string"),
+    "udp_port": (int, "an integer port"),
+    "udp_rcvbuf_bytes": (int, "an integer number of bytes"),
+    "http_host": (str, "a host string"),
+    "http_port": (int, "an integer port"),
+    "report_interval_s": ((int, float), "a number of seconds"),
+    "command_retry_s": ((int, float), "a number of seconds"),
+    "link_lost_s": ((int, float), "a number of seconds"),
+    "reassembly_timeout_s": ((int, float), "a number of seconds"),
+    "max_pending_messages": (int, "an integer"),
+    "alpha": ((int, float), "a number"),
+    "high_utility": ((int, float), "a number"),
+    "spec": (str, "a path string"),
+    "public_read": (bool, "true or false"),
+    "ws_queue_size": (int, "an integer"),
+    "clock_tolerance_s": ((int, float), "a number of seconds"),
+    "fsync": (bool, "true or false"),
+    "token_file": (str, "a path string"),
+}
+
+
+def config_from_mapping(raw: dict[str, Any], *, file: str = "<config>") -> GroundConfig:
+    """Build a config from a parsed TOML table (``[ground_station]`` or top level)."""
+    table = raw.get("ground_station", raw)
+    if not isinstance(table, dict):
+        raise ConfigError(file, "ground_station", "a table")
+    known = {f.name for f in fields(GroundConfig)} | {"fleet_key_file"}
+    base = Path(file).parent if file != "<config>" else Path.cwd()
+    values: dict[str, Any] = {}
+    value: Any
+    for key, value in table.items():
+        if key not in known:
+            raise ConfigError(file, key, f"one of {sorted(known)}", key)
+        want, text = _TYPES[key]
+        # bool is an int subclass: refuse true/false where a number is expected.
+        if not isinstance(value, want) or (isinstance(value, bool) and want is not bool):
+            raise ConfigError(file, key, text, value)
+        if key in ("data_dir", "spec", "token_file"):
+            path = Path(str(value)).expanduser()
+            values[key] = path if path.is_absolute() else base / path
+        elif key == "fleet_key":
+            values[key] = str(value).encode()
+        elif key == "fleet_key_file":
+            path = Path(str(value)).expanduser()
+            path = path if path.is_absolute() else base / path
+            try:
+                values["fleet_key"] = path.read_bytes().strip()
+            except OSError as exc:
+                raise ConfigError(file, key, "a readable key file", str(exc)) from exc
+        elif isinstance(value, int) and not isinstance(value, bool) and want == (int, float):
+            values[key] = float(value)
+        else:
+            values[key] = value
+    try:
+        return GroundConfig(**values)
+    except ConfigError as exc:
+        raise ConfigError(file, exc.key, exc.expected, exc.got) from exc
+
+
+def load_config(path: Path | str) -> GroundConfig:
+    """Read and validate a TOML file; every problem names file, key and expectation."""
+    file = str(path)
+    try:
+        with open(path, "rb") as handle:
+            raw = tomllib.load(handle)
+    except FileNotFoundError as exc:
+        raise ConfigError(file, "<file>", "an existing TOML file") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(file, "<syntax>", f"valid TOML ({exc})") from exc
+    return config_from_mapping(raw, file=file)

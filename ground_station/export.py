@@ -1,0 +1,92 @@
+"""``uav-ground-station export MISSION --out DIR``: images plus a CSV of geotags.
+
+The CSV has one row per stored image with the position and attitude at capture, in the
+column names photogrammetry tools import (OpenDroneMap / Meshroom / Pix4D geotag lists:
+``image``, ``latitude``, ``longitude``, ``altitude``, then ``yaw``, ``pitch``, ``roll``).
+"""
+
+from __future__ import annotations
+
+import csv
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+from ground_station.storage import Storage, safe_name
+
+__all__ = ["ExportResult", "export_mission"]
+
+COLUMNS = [
+    "image",
+    "latitude",
+    "longitude",
+    "altitude",
+    "yaw",
+    "pitch",
+    "roll",
+    "sender",
+    "seq",
+    "t_gen",
+    "t_rcv",
+    "utility",
+    "red",
+    "object",
+    "x_m",
+    "y_m",
+]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ExportResult:
+    images: int
+    missing: int
+    """Indexed images whose file could not be found or copied."""
+    csv_path: Path
+
+
+def export_mission(data_dir: Path, mission: str, out: Path) -> ExportResult:
+    """Copy a mission's images into ``out/images`` and write ``out/geotags.csv``."""
+    storage = Storage(data_dir, readonly=True)
+    try:
+        missions = {m["name"] for m in storage.missions()}
+        if mission not in missions:
+            known = ", ".join(sorted(missions)) or "none"
+            raise KeyError(f"mission {mission!r} not found in {data_dir} (known: {known})")
+        rows = list(storage.iter_images(mission))
+    finally:
+        storage.close()
+    images_dir = out / "images"
+    images_dir.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "geotags.csv"
+    copied = missing = 0
+    with open(csv_path, "w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(COLUMNS)
+        for row in rows:
+            if row.path is None or not (data_dir / row.path).is_file():
+                missing += 1
+                continue
+            name = f"{safe_name(row.sender)}_{row.seq:09d}.jpg"
+            shutil.copy2(data_dir / row.path, images_dir / name)
+            copied += 1
+            writer.writerow(
+                [
+                    f"images/{name}",
+                    row.lat_deg,
+                    row.lon_deg,
+                    row.alt_m,
+                    row.yaw_deg,
+                    row.pitch_deg,
+                    row.roll_deg,
+                    row.sender,
+                    row.seq,
+                    row.t_gen,
+                    row.t_rcv,
+                    row.utility,
+                    row.red,
+                    int(row.object),
+                    row.x_m,
+                    row.y_m,
+                ]
+            )
+    return ExportResult(images=copied, missing=missing, csv_path=csv_path)

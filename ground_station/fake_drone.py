@@ -1,0 +1,270 @@
+"""A minimal drone for tests, benchmarks and demos: real datagrams built with the codec.
+
+It sends images (synthetic JPEGs or raw bytes) and telemetry to a ground station over UDP,
+acknowledges every COMMAND it receives with a STATUS ``ack``, and keeps the reports and
+commands it got so a test can check them. The companion app is the real thing; this is
+the smallest honest peer for the ground station.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Callable, Mapping
+from typing import Any, cast
+
+from companion.protocol import (
+    CommandReceived,
+    Decoder,
+    Encoder,
+    ReportReceived,
+    Status,
+)
+from utility_specs.message import Message
+
+__all__ = ["FakeDrone", "synthetic_jpeg"]
+
+
+def synthetic_jpeg(
+    seq: int, *, red: float, width: int = 320, height: int = 240, label: str = ""
+) -> bytes:
+    """A small JPEG whose red area is ``red`` of the frame (what the dashboard shows)."""
+    import cv2
+    import numpy as np
+
+    frame = np.zeros((height, width, 3), dtype=np.uint8)
+    frame[:] = (70, 110 + seq * 7 % 30, 80)  # fields seen from above, BGR
+    rows = (np.arange(height) // 24 + seq) % 2 == 0
+    frame[rows] = (55, 95, 70)
+    share = min(max(red, 0.0), 1.0)
+    if share > 0:
+        radius = round(math.sqrt(share * width * height / math.pi))
+        center = (width // 2 + (seq * 13) % 40 - 20, height // 2)
+        cv2.circle(frame, center, radius, (30, 30, 225), thickness=-1)
+    cv2.putText(
+        frame,
+        f"{label} #{seq}",
+        (8, height - 12),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        0.7,
+        (255, 255, 255),
+        2,
+    )
+    ok, buf = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, 70])
+    if not ok:  # pragma: no cover - OpenCV always encodes a uint8 frame
+        raise RuntimeError("JPEG encoding failed")
+    return bytes(buf)
+
+
+class FakeDrone(asyncio.DatagramProtocol):
+    """One simulated drone endpoint on 127.0.0.1 (port 0)."""
+
+    def __init__(
+        self,
+        drone_id: str,
+        *,
+        fleet_id: int,
+        key: bytes,
+        ground: tuple[str, int],
+        clock: Callable[[], float] = time.time,
+        auto_ack: bool = True,
+    ) -> None:
+        self.drone_id = drone_id
+        self.ground = ground
+        self.clock = clock
+        self.auto_ack = auto_ack
+        self.encoder = Encoder(fleet_id, drone_id, key)
+        self.decoder = Decoder(fleet_id, key, local_id=drone_id)
+        self.transport: asyncio.DatagramTransport | None = None
+        self.seq = 0
+        self.commands: list[CommandReceived] = []
+        self.reports: list[ReportReceived] = []
+        self.command_event = asyncio.Event()
+        self.report_event = asyncio.Event()
+
+    async def open(self, host: str = "127.0.0.1") -> None:
+        loop = asyncio.get_running_loop()
+        await loop.create_datagram_endpoint(lambda: self, local_addr=(host, 0))
+
+    def close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = cast(asyncio.DatagramTransport, transport)
+
+    def datagram_received(self, data: bytes, addr: tuple[str | Any, int]) -> None:
+        now = self.clock()
+        self.decoder.receive_datagram(data, addr, now)
+        while (event := self.decoder.next_event()) is not None:
+            if isinstance(event, CommandReceived):
+                self.commands.append(event)
+                self.command_event.set()
+                if self.auto_ack:
+                    self.send_status("ack", command_id=event.command.command_id)
+            elif isinstance(event, ReportReceived):
+                self.reports.append(event)
+                self.report_event.set()
+
+    # -- sending --------------------------------------------------------------------------
+    def sendto(self, datagram: bytes) -> None:
+        assert self.transport is not None
+        self.transport.sendto(datagram, self.ground)
+
+    def message(
+        self, msg_type: str, *, size: int, data: Mapping[str, Any], t_gen: float | None = None
+    ) -> Message:
+        self.seq += 1
+        return Message(
+            sender=self.drone_id,
+            seq=self.seq,
+            type=msg_type,
+            t_gen=self.clock() if t_gen is None else t_gen,
+            size=size,
+            data=dict(data),
+        )
+
+    def datagrams_for_image(
+        self, payload: bytes, *, data: Mapping[str, Any], msg_type: str = "image"
+    ) -> list[bytes]:
+        message = self.message(msg_type, size=len(payload), data=data)
+        return self.encoder.fragment(message, payload, self.clock())
+
+    def send_image(
+        self, payload: bytes, *, data: Mapping[str, Any], msg_type: str = "image"
+    ) -> int:
+        """Send one image now; returns its seq."""
+        for datagram in self.datagrams_for_image(payload, data=data, msg_type=msg_type):
+            self.sendto(datagram)
+        return self.seq
+
+    def send_telemetry(self, msg_type: str, data: Mapping[str, Any]) -> int:
+        message = self.message(msg_type, size=0, data=data)
+        for datagram in self.encoder.fragment(message, b"", self.clock()):
+            self.sendto(datagram)
+        return self.seq
+
+    def send_status(
+        self, state: str, *, command_id: int | None = None, info: Mapping[str, Any] | None = None
+    ) -> None:
+        status = Status(state=state, command_id=command_id, info=dict(info or {}))
+        self.sendto(self.encoder.encode_status(status, self.clock()))
+
+    async def wait_command(self, timeout: float = 5.0) -> CommandReceived:
+        async with asyncio.timeout(timeout):
+            while not self.commands:
+                self.command_event.clear()
+                await self.command_event.wait()
+        return self.commands[-1]
+
+    async def wait_report(
+        self, predicate: Callable[[ReportReceived], bool], timeout: float = 5.0
+    ) -> ReportReceived:
+        async with asyncio.timeout(timeout):
+            while True:
+                for report in self.reports:
+                    if predicate(report):
+                        return report
+                self.report_event.clear()
+                await self.report_event.wait()
+
+
+async def fly_demo_fleet(
+    ground: tuple[str, int],
+    *,
+    fleet_id: int,
+    key: bytes,
+    drones: int = 4,
+    duration_s: float = 30.0,
+    images_per_s: float = 2.0,
+    clock: Callable[[], float] = time.time,
+    on_start: Callable[[list[FakeDrone]], None] | None = None,
+) -> list[FakeDrone]:
+    """Drones circling a point 51.1 N 17.0 E: images (one sees red), position, battery,
+    status with link statistics, one STATUSTEXT. For the browser test and demos."""
+    fleet = [
+        FakeDrone(f"uav{i + 1}", fleet_id=fleet_id, key=key, ground=ground, clock=clock)
+        for i in range(drones)
+    ]
+    for drone in fleet:
+        await drone.open()
+    if on_start is not None:
+        on_start(fleet)
+    jpegs = {
+        (i, k): synthetic_jpeg(k, red=(0.45 if i == 1 else 0.02), label=f"uav{i + 1}")
+        for i in range(drones)
+        for k in range(4)
+    }
+    t0 = clock()
+    step = 0
+    fleet[0].send_status(
+        "running", info={"statustext": "PreArm: demo autopilot ready", "severity": 6}
+    )
+    try:
+        while clock() - t0 < duration_s:
+            t = clock() - t0
+            for i, drone in enumerate(fleet):
+                angle = 0.2 * t + 2 * math.pi * i / drones
+                lat = 51.1 + (60 + 15 * i) * math.sin(angle) / 111_320.0
+                lon = 17.0 + (60 + 15 * i) * math.cos(angle) / (111_320.0 * math.cos(0.892))
+                geo = {
+                    "lat": lat,
+                    "lon": lon,
+                    "alt": 40.0 + 5 * i,
+                    "yaw_deg": (math.degrees(angle) + 180.0) % 360.0,
+                }
+                red = 0.45 if i == 1 else 0.02
+                drone.send_image(jpegs[(i, step % 4)], data={"red": red, "object": i == 2, **geo})
+                if step % max(1, round(images_per_s)) == 0:
+                    drone.send_telemetry("position", geo)
+                    drone.send_telemetry(
+                        "battery", {"level": max(0.0, 0.95 - 0.02 * i - t / 3000.0)}
+                    )
+                    drone.send_status(
+                        "running",
+                        info={
+                            "mode": "AUTO" if i != 3 else "GUIDED",
+                            "armed": True,
+                            "gps_fix": 3,
+                            "xi_bytes_per_s": 40_000.0 + 8_000.0 * math.sin(0.3 * t + i),
+                            "delta_s": 0.05 + 0.02 * i,
+                            "loss": 0.01 * i,
+                        },
+                    )
+            step += 1
+            await asyncio.sleep(1.0 / images_per_s)
+    finally:
+        for drone in fleet:
+            drone.close()
+    return fleet
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m ground_station.fake_drone HOST:PORT``: fly a demo fleet at a station."""
+    import argparse
+
+    from ground_station.config import GroundConfig
+
+    parser = argparse.ArgumentParser(description=main.__doc__)
+    parser.add_argument("ground", help="ground station UDP address HOST:PORT")
+    parser.add_argument("--drones", type=int, default=4)
+    parser.add_argument("--duration", type=float, default=60.0)
+    parser.add_argument("--fleet-id", type=int, default=GroundConfig().fleet_id)
+    parser.add_argument("--key", default=GroundConfig().fleet_key.decode())
+    args = parser.parse_args(argv)
+    host, _, port = args.ground.rpartition(":")
+    asyncio.run(
+        fly_demo_fleet(
+            (host or "127.0.0.1", int(port)),
+            fleet_id=args.fleet_id,
+            key=args.key.encode(),
+            drones=args.drones,
+            duration_s=args.duration,
+        )
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,359 @@
+"""Mission manager (thesis sec. 3.3, fig. 3.7): timed fleet commands, acks, reports.
+
+Sans-I/O: time comes in as ``now`` (fleet clock, Unix seconds). A command with a time
+argument ("in 5 s", "+5", "at 14:00") becomes an absolute ``t_exec``; the shell sends it to
+every known drone and sends it again every ``retry_s`` until that drone acknowledges it
+(a STATUS packet naming the command id). Drones that appear while a command is still live
+get it too. Status reports ("done"...) are counted so an operator can wait for them.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+import re
+from collections import Counter
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from companion.protocol.records import Command
+
+__all__ = [
+    "IssuedCommand",
+    "MissionError",
+    "MissionManager",
+    "ShellCommand",
+    "parse_params",
+    "parse_shell_line",
+    "parse_when",
+]
+
+COMMAND_NAMES = {"start": "start", "end": "end", "params": "set_params"}
+"""Operator verbs to the command names on the wire (companion.protocol.records.Command)."""
+
+
+class MissionError(ValueError):
+    """An operator command that cannot be understood; the text says what was expected."""
+
+
+_IN = re.compile(r"^(?:in\s+|\+)?\s*(\d+(?:\.\d+)?)\s*(s|sec|secs|seconds?|m|min|mins|minutes?)?$")
+_AT = re.compile(r"^(?:at\s+|@\s*)?(\d{1,2}):(\d{2})(?::(\d{2}(?:\.\d+)?))?$")
+
+
+def parse_when(text: str | None, *, now: float, tz: dt.tzinfo | None = None) -> float:
+    """Absolute fleet time for ``now``/``in 5 s``/``+5``/``5s``/``in 2 min``/``at 14:00[:30]``.
+
+    ``at HH:MM`` is the next such wall-clock time in ``tz`` (local time when ``None``); if it
+    has already passed today it means tomorrow, like the thesis' "finish a mission at 14:00".
+    """
+    spec = (text or "").strip().lower()
+    if spec in ("", "now", "+0"):
+        return now
+    match = _IN.match(spec)
+    if match:
+        amount = float(match.group(1))
+        unit = match.group(2) or "s"
+        return now + (amount * 60.0 if unit.startswith("m") else amount)
+    match = _AT.match(spec)
+    if match:
+        hour, minute = int(match.group(1)), int(match.group(2))
+        second = float(match.group(3)) if match.group(3) else 0.0
+        if hour > 23 or minute > 59 or second >= 60:
+            raise MissionError(f"time {text!r}: expected HH:MM[:SS] with a valid clock time")
+        local_now = dt.datetime.fromtimestamp(now, tz=tz)
+        target = local_now.replace(
+            hour=hour, minute=minute, second=int(second), microsecond=round(second % 1 * 1e6)
+        )
+        if target.timestamp() < now:
+            target += dt.timedelta(days=1)
+        return target.timestamp()
+    raise MissionError(
+        f"time {text!r}: expected 'now', 'in 5 s', '+5', '5s', 'in 2 min' or 'at 14:00[:SS]'"
+    )
+
+
+def _value(text: str) -> Any:
+    low = text.lower()
+    if low in ("true", "false"):
+        return low == "true"
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        value = float(text)
+    except ValueError:
+        return text.strip("\"'")
+    if not math.isfinite(value):
+        raise MissionError(f"parameter value {text!r}: expected a finite number")
+    return value
+
+
+def parse_params(text: str) -> dict[str, Any]:
+    """``"alpha=10, mcts_iterations=300"`` -> ``{"alpha": 10, "mcts_iterations": 300}``."""
+    params: dict[str, Any] = {}
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        name, sep, raw = part.partition("=")
+        name = name.strip()
+        if not sep or not name or not raw.strip():
+            raise MissionError(f"parameter {part!r}: expected NAME=VALUE, e.g. alpha=10")
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.]*", name):
+            raise MissionError(f"parameter name {name!r}: expected letters, digits, '_' or '.'")
+        params[name] = _value(raw.strip())
+    if not params:
+        raise MissionError("expected at least one NAME=VALUE parameter")
+    return params
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ShellCommand:
+    """One parsed line of the interactive terminal (thesis fig. 3.7)."""
+
+    verb: str
+    """start, end, params, wait_drones, wait_reports, reset_reports, sleep, help, close, quit."""
+    when: str | None = None
+    params: Mapping[str, Any] = field(default_factory=dict)
+    count: int | None = None
+    report: str | None = None
+    seconds: float | None = None
+
+
+HELP = """Available commands:
+  s [TIME]       start mission (TIME: now, +5, in 5 s, at 14:00)
+  e [TIME]       end mission
+  p A=1,B=2 [@ TIME]  set mission parameters on every drone, e.g. p alpha=10,mcts_iterations=300
+  n N            wait for N drones to be heard
+  r [N] [NAME]   wait for N reports named NAME (default: every known drone, 'done')
+  rr             reset all counted reports
+  l N            sleep for N seconds
+  h              display this list
+  c              close the interactive mode
+  q              exit the program"""
+
+
+def parse_shell_line(line: str) -> ShellCommand | None:
+    """Parse a terminal line; ``None`` for an empty line, :class:`MissionError` if unknown."""
+    text = line.strip()
+    if not text:
+        return None
+    verb, _, rest = text.partition(" ")
+    rest = rest.strip()
+    if verb in ("s", "e"):
+        return ShellCommand(verb="start" if verb == "s" else "end", when=rest or None)
+    if verb == "p":
+        params_text, _, when = rest.partition("@")
+        return ShellCommand(
+            verb="params", params=parse_params(params_text), when=when.strip() or None
+        )
+    if verb == "n":
+        if not rest.isdigit():
+            raise MissionError("n: expected the number of drones, e.g. n 4")
+        return ShellCommand(verb="wait_drones", count=int(rest))
+    if verb == "r":
+        count: int | None = None
+        report: str | None = None
+        for arg in rest.split():
+            if arg.isdigit() and count is None:
+                count = int(arg)
+            elif report is None:
+                report = arg
+            else:
+                raise MissionError("r: expected at most a count and a report name, e.g. r 4 done")
+        return ShellCommand(verb="wait_reports", count=count, report=report)
+    if verb == "rr":
+        return ShellCommand(verb="reset_reports")
+    if verb == "l":
+        try:
+            seconds = float(rest)
+        except ValueError:
+            raise MissionError("l: expected a number of seconds, e.g. l 5") from None
+        if not (math.isfinite(seconds) and seconds >= 0):
+            raise MissionError("l: expected a number of seconds >= 0")
+        return ShellCommand(verb="sleep", seconds=seconds)
+    if verb == "h":
+        return ShellCommand(verb="help")
+    if verb == "c":
+        return ShellCommand(verb="close")
+    if verb == "q":
+        return ShellCommand(verb="quit")
+    raise MissionError(f"unknown command {verb!r}; h lists the commands")
+
+
+@dataclass(slots=True, kw_only=True)
+class IssuedCommand:
+    """A command and, per drone, when it was last sent and whether it was acknowledged."""
+
+    command: Command
+    t_issued: float
+    last_sent: dict[str, float] = field(default_factory=dict)
+    acked: dict[str, float] = field(default_factory=dict)
+    states: dict[str, str] = field(default_factory=dict)
+
+    def as_json(self) -> dict[str, Any]:
+        c = self.command
+        return {
+            "command_id": c.command_id,
+            "name": c.name,
+            "t_exec": c.t_exec,
+            "args": dict(c.args),
+            "t_issued": self.t_issued,
+            "sent_to": sorted(self.last_sent),
+            "acked_by": sorted(self.acked),
+            "states": dict(self.states),
+        }
+
+
+class MissionManager:
+    """Fleet commands with absolute execution times, retransmitted until acknowledged.
+
+    Parameters
+    ----------
+    retry_s
+        Time between two sends of an unacknowledged command to the same drone.
+    command_ttl_s
+        How long after ``t_exec`` a command is still sent (to late or newly heard drones).
+    first_command_id
+        Seed of the command ids; pick it from the clock so ids differ across restarts.
+    """
+
+    def __init__(
+        self, *, retry_s: float, command_ttl_s: float = 30.0, first_command_id: int = 1
+    ) -> None:
+        if not retry_s > 0:
+            raise ValueError(f"retry_s must be > 0, got {retry_s}")
+        self.retry_s = retry_s
+        self.command_ttl_s = command_ttl_s
+        self._next_id = max(1, first_command_id % (2**32 - 1))
+        self.drones: dict[str, float] = {}
+        """Known drones -> when first heard."""
+        self.commands: dict[int, IssuedCommand] = {}
+        self.report_counts: Counter[str] = Counter()
+        self.report_drones: dict[str, set[str]] = {}
+        self.last_state: dict[str, str] = {}
+        """Latest unsolicited status per drone."""
+        self.t_start: float | None = None
+        self.t_end: float | None = None
+        self.params: dict[str, Any] = {}
+
+    # -- inputs -------------------------------------------------------------------------
+    def on_drone_heard(self, drone: str, *, now: float) -> bool:
+        """Register a drone; returns True when it is new."""
+        if drone in self.drones:
+            return False
+        self.drones[drone] = now
+        return True
+
+    def issue(
+        self, verb: str, *, t_exec: float, now: float, args: Mapping[str, Any] | None = None
+    ) -> IssuedCommand:
+        """Create a command for every drone (``verb``: start, end or params)."""
+        if verb not in COMMAND_NAMES:
+            raise MissionError(
+                f"unknown mission command {verb!r}; expected {sorted(COMMAND_NAMES)}"
+            )
+        if not math.isfinite(t_exec):
+            raise MissionError("t_exec must be a finite time")
+        if verb == "params" and not args:
+            raise MissionError("params: expected at least one NAME=VALUE parameter")
+        command = Command(
+            command_id=self._take_id(), name=COMMAND_NAMES[verb], t_exec=t_exec, args=args or {}
+        )
+        issued = IssuedCommand(command=command, t_issued=now)
+        self.commands[command.command_id] = issued
+        if verb == "start":
+            self.t_start, self.t_end = t_exec, None
+        elif verb == "end":
+            self.t_end = t_exec
+        else:
+            self.params.update(args or {})
+        # Keep memory bounded: forget commands long past their execution.
+        for cid in [c for c, i in self.commands.items() if not self._live(i, now - 3600.0)]:
+            del self.commands[cid]
+        return issued
+
+    def _take_id(self) -> int:
+        cid = self._next_id
+        self._next_id = cid + 1 if cid + 1 < 2**32 else 1
+        return cid
+
+    def on_status(
+        self, drone: str, *, state: str, command_id: int | None, now: float
+    ) -> IssuedCommand | None:
+        """A STATUS from a drone: an ack (with a command id) and/or a named report."""
+        self.on_drone_heard(drone, now=now)
+        if command_id is not None:
+            issued = self.commands.get(command_id)
+            if issued is not None:
+                issued.acked.setdefault(drone, now)
+                issued.states[drone] = state
+            return issued
+        # An unsolicited status is repeated while it holds; a report is a change of it
+        # (e.g. running -> done), counted once.
+        if self.last_state.get(drone) != state:
+            self.last_state[drone] = state
+            self.on_report(drone, state, now=now)
+        return None
+
+    def on_report(self, drone: str, name: str, *, now: float) -> None:
+        self.report_counts[name] += 1
+        self.report_drones.setdefault(name, set()).add(drone)
+
+    def reset_reports(self) -> None:
+        self.report_counts.clear()
+        self.report_drones.clear()
+
+    # -- outputs ------------------------------------------------------------------------
+    def _live(self, issued: IssuedCommand, now: float) -> bool:
+        return now <= issued.command.t_exec + self.command_ttl_s
+
+    def due(self, *, now: float) -> list[tuple[str, Command]]:
+        """(drone, command) pairs to send now; marks them sent."""
+        out: list[tuple[str, Command]] = []
+        for issued in self.commands.values():
+            if not self._live(issued, now):
+                continue
+            for drone in self.drones:
+                if drone in issued.acked:
+                    continue
+                last = issued.last_sent.get(drone)
+                if last is None or now >= last + self.retry_s:
+                    issued.last_sent[drone] = now
+                    out.append((drone, issued.command))
+        return out
+
+    def get_timer(self) -> float | None:
+        """Next time :meth:`due` has something to resend, or None."""
+        deadline: float | None = None
+        for issued in self.commands.values():
+            expiry = issued.command.t_exec + self.command_ttl_s
+            for drone in self.drones:
+                if drone in issued.acked:
+                    continue
+                last = issued.last_sent.get(drone)
+                t = issued.t_issued if last is None else last + self.retry_s
+                if t <= expiry and (deadline is None or t < deadline):
+                    deadline = t
+        return deadline
+
+    def phase(self, *, now: float) -> str:
+        if self.t_start is None:
+            return "idle"
+        if self.t_end is not None and now >= self.t_end and self.t_end >= self.t_start:
+            return "ended"
+        return "scheduled" if now < self.t_start else "running"
+
+    def state(self, *, now: float) -> dict[str, Any]:
+        return {
+            "phase": self.phase(now=now),
+            "t_start": self.t_start,
+            "t_end": self.t_end,
+            "params": dict(self.params),
+            "drones": sorted(self.drones),
+            "reports": dict(self.report_counts),
+            "report_drones": {k: sorted(v) for k, v in self.report_drones.items()},
+            "commands": [i.as_json() for i in list(self.commands.values())[-20:]],
+        }

@@ -1,0 +1,402 @@
+"""The UDP side of the ground station, on aiohttp's event loop (aioquic-style shell).
+
+Every entry point does the same three steps: call the sans-I/O cores with ``now=clock()``
+(decoder, report scheduler, mission manager), process their events, transmit what they
+want sent, and keep exactly one timer armed for the earliest deadline any of them has.
+Nothing here awaits: storage and dashboard pushes are handed off without blocking.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import socket
+import sys
+from collections import Counter
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from companion.protocol import (
+    Command,
+    Decoder,
+    DecoderLimits,
+    Encoder,
+    LocalProtocolError,
+    MessageExpired,
+    MessageReassembled,
+    PacketDropped,
+    StatusReceived,
+)
+from ground_station.broadcast import Broadcaster
+from ground_station.config import GroundConfig
+from ground_station.fleet import Alert, FleetView
+from ground_station.missions import MissionManager
+from ground_station.reports import ReportScheduler
+from ground_station.storage import BatchResult, StoreItem
+from ground_station.store_service import StorageService
+from ground_station.utility import ImageUtility
+
+__all__ = ["GroundLink"]
+
+log = logging.getLogger(__name__)
+
+MAX_READS_PER_WAKEUP = 512
+"""Datagrams read per wake-up before the loop serves others (timers, HTTP, WebSocket)."""
+RECV_BYTES = 2048
+"""Larger than any valid datagram (1200 bytes), so oversize ones are seen and counted."""
+
+TICK_S = 1.0
+"""Link charts are sampled and link loss checked once a second."""
+
+
+def is_image(message_type: str, payload: bytes) -> bool:
+    """Images carry a payload (JPEG bytes); telemetry travels in the metadata only."""
+    return bool(payload)
+
+
+class GroundLink:
+    """Receives the fleet's datagrams, reports back, and sends mission commands."""
+
+    def __init__(
+        self,
+        *,
+        config: GroundConfig,
+        clock: Callable[[], float],
+        fleet: FleetView,
+        missions: MissionManager,
+        storage: StorageService,
+        broadcaster: Broadcaster,
+        image_utility: ImageUtility,
+        latest_jpeg: dict[str, bytes],
+    ) -> None:
+        self.config = config
+        self.clock = clock
+        self.fleet = fleet
+        self.missions = missions
+        self.storage = storage
+        self.broadcaster = broadcaster
+        self.image_utility = image_utility
+        self.latest_jpeg = latest_jpeg
+        limits = DecoderLimits(
+            reassembly_timeout_s=config.reassembly_timeout_s,
+            max_partials=config.max_pending_messages,
+            max_buffered_bytes=max(8 << 20, config.max_pending_messages * 64 * 1024),
+            max_clock_skew_s=config.clock_tolerance_s,
+        )
+        self.decoder = Decoder(
+            config.fleet_id, config.fleet_key, local_id=config.station_id, limits=limits
+        )
+        now = clock()
+        self.encoder = Encoder(config.fleet_id, config.station_id, config.fleet_key)
+        self.reports = ReportScheduler(interval_s=config.report_interval_s, now=now)
+        self.sock: socket.socket | None = None
+        self.rcvbuf_bytes = 0
+        self.counters: Counter[str] = Counter()
+        self._timer: asyncio.TimerHandle | None = None
+        self._timer_at: float | None = None
+        self._next_tick = now + TICK_S
+        self._last_storage_alert = 0.0
+
+    # -- lifecycle ------------------------------------------------------------------------
+    async def open(self) -> tuple[str, int]:
+        """Bind the UDP socket and start reading it from the event loop."""
+        loop = asyncio.get_running_loop()
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.rcvbuf_bytes = set_receive_buffer(sock, self.config.udp_rcvbuf_bytes)
+        sock.bind((self.config.udp_host, self.config.udp_port))
+        sock.setblocking(False)
+        self.sock = sock
+        # A reader callback that drains every queued datagram per wake-up: one loop
+        # iteration per burst instead of one per datagram (asyncio's datagram transport
+        # reads one), which keeps the kernel buffer empty at thousands of datagrams/s.
+        loop.add_reader(sock.fileno(), self._read_ready)
+        self._arm()
+        return self.local_addr
+
+    @property
+    def local_addr(self) -> tuple[str, int]:
+        assert self.sock is not None
+        host, port = self.sock.getsockname()[:2]
+        return str(host), int(port)
+
+    def close(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if self.sock is not None:
+            asyncio.get_running_loop().remove_reader(self.sock.fileno())
+            self.sock.close()
+            self.sock = None
+
+    def _read_ready(self) -> None:
+        sock = self.sock
+        if sock is None:
+            return
+        now = self.clock()
+        receive = self.decoder.receive_datagram
+        for _ in range(MAX_READS_PER_WAKEUP):
+            try:
+                data, addr = sock.recvfrom(RECV_BYTES)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError as exc:
+                # ICMP port unreachable from a drone that went away: count, keep reading.
+                self.counters["socket_errors"] += 1
+                log.debug("UDP socket error: %s", exc)
+                continue
+            receive(data, addr, now)
+        self._process_events(now)
+        self._arm()
+
+    # -- input --------------------------------------------------------------------------
+    def datagram_received(self, data: bytes, addr: tuple[str | Any, int]) -> None:
+        """One datagram (tests and other transports feed the link through this)."""
+        now = self.clock()
+        self.decoder.receive_datagram(data, addr, now)
+        self._process_events(now)
+        self._arm()
+
+    def _process_events(self, now: float) -> None:
+        while (event := self.decoder.next_event()) is not None:
+            if isinstance(event, MessageReassembled):
+                self._on_message(event, now)
+            elif isinstance(event, StatusReceived):
+                self._on_status(event, now)
+            elif isinstance(event, MessageExpired):
+                reason = "evicted" if event.evicted else "incomplete"
+                self.fleet.on_drop(reason, now=now, drone=event.sender)
+            elif isinstance(event, PacketDropped):
+                if event.reason not in ("duplicate_fragment",):
+                    self.fleet.on_drop(event.reason, now=now)
+            else:
+                # REPORT/COMMAND packets are for drones; a ground station ignores them.
+                self.counters["ignored_" + type(event).__name__] += 1
+        self._flush_alerts()
+
+    def _on_message(self, event: MessageReassembled, now: float) -> None:
+        message = event.message
+        addr = (str(event.addr[0]), int(event.addr[1]))
+        image = is_image(message.type, event.payload)
+        utility = (
+            self.image_utility.weight(message.type, message.data, quality=message.quality)
+            if image
+            else None
+        )
+        if self.missions.on_drone_heard(message.sender, now=now):
+            self.fleet.alert(
+                Alert(t=now, level="info", kind="fleet", drone=message.sender, text="drone joined")
+            )
+        state = self.fleet.on_message(message, now=now, addr=addr, utility=utility)
+        report = message.data.get("report")
+        if isinstance(report, str) and report:
+            self.missions.on_report(message.sender, report, now=now)
+        self.reports.on_message(message, t_rcv=event.t_rcv)
+        if message.t_sent is not None:
+            self.reports.on_datagram(message.sender, t_sent=message.t_sent, t_rcv=event.t_rcv)
+        self.storage.submit(
+            StoreItem(
+                mission=self.config.mission,
+                message=message,
+                payload=event.payload if image else None,
+                utility=utility,
+            )
+        )
+        self.counters["messages"] += 1
+        if image:
+            self.counters["images"] += 1
+            self.latest_jpeg[message.sender] = event.payload
+        self.broadcaster.publish("drone", {"drone": self.fleet.drone_json(state, now=now)})
+
+    def _on_status(self, event: StatusReceived, now: float) -> None:
+        status = event.status
+        addr = (str(event.addr[0]), int(event.addr[1]))
+        if self.missions.on_drone_heard(event.sender, now=now):
+            self.fleet.alert(
+                Alert(t=now, level="info", kind="fleet", drone=event.sender, text="drone joined")
+            )
+        state = self.fleet.heard(event.sender, now=now, addr=addr)
+        self.fleet.apply_data(state, status.info, now=now)
+        self.reports.on_datagram(event.sender, t_sent=event.t_sent, t_rcv=event.t_rcv)
+        self.missions.on_status(
+            event.sender, state=status.state, command_id=status.command_id, now=now
+        )
+        self.counters["statuses"] += 1
+        if status.state == "error":
+            text = str(status.info.get("error", status.info.get("text", "command failed")))
+            self.fleet.alert(
+                Alert(t=now, level="error", kind="mission", drone=event.sender, text=text)
+            )
+        self.broadcaster.publish(
+            "status",
+            {
+                "drone": self.fleet.drone_json(state, now=now),
+                "status": {
+                    "state": status.state,
+                    "command_id": status.command_id,
+                    "info": dict(status.info),
+                },
+                "mission": self.missions.state(now=now),
+            },
+        )
+
+    # -- storage feedback ----------------------------------------------------------------
+    def on_storage_batch(self, items: Sequence[StoreItem], result: BatchResult) -> None:
+        """Called by the storage service after each batch (on the event loop)."""
+        if not result.errors:
+            return
+        now = self.clock()
+        self.counters["storage_errors"] += len(result.errors)
+        # One alert per few seconds: a full disk must be visible but not flood the list.
+        if now - self._last_storage_alert >= 5.0:
+            self._last_storage_alert = now
+            more = f" (+{len(result.errors) - 1} more)" if len(result.errors) > 1 else ""
+            self.fleet.alert(
+                Alert(t=now, level="error", kind="storage", text=result.errors[0] + more)
+            )
+            self._flush_alerts()
+
+    # -- output -------------------------------------------------------------------------
+    def _send(self, datagram: bytes, addr: tuple[str, int]) -> None:
+        if self.sock is None:
+            return
+        try:
+            self.sock.sendto(datagram, addr)
+        except (BlockingIOError, InterruptedError):
+            # Best effort (ARCHITECTURE.md): a full send buffer drops, never blocks the loop.
+            self.counters["send_dropped"] += 1
+            return
+        except OSError as exc:
+            self.counters["send_errors"] += 1
+            log.debug("UDP send to %s failed: %s", addr, exc)
+            return
+        self.counters["datagrams_sent"] += 1
+
+    def _drone_addrs(self) -> list[tuple[str, tuple[str, int]]]:
+        return [(d, s.addr) for d, s in self.fleet.drones.items() if s.addr is not None]
+
+    def send_commands(self, now: float) -> None:
+        pending: list[tuple[str, Command]] = self.missions.due(now=now)
+        addrs = dict(self._drone_addrs())
+        for drone, command in pending:
+            addr = addrs.get(drone)
+            if addr is None:
+                continue
+            try:
+                datagram = self.encoder.encode_command(command, now)
+            except LocalProtocolError as exc:
+                self.fleet.alert(
+                    Alert(t=now, level="error", kind="mission", text=f"command not sent: {exc}")
+                )
+                continue
+            self._send(datagram, addr)
+            self.counters["commands_sent"] += 1
+
+    def _send_report(self, now: float) -> None:
+        report = self.reports.due(now=now)
+        if report is None:
+            return
+        targets = self._drone_addrs()
+        if not targets:
+            return
+        try:
+            datagrams = self.encoder.encode_report(report, now)
+        except LocalProtocolError as exc:  # a bug in our entries, not bad input
+            log.error("report not encodable: %s", exc)
+            return
+        for _drone, addr in targets:
+            for datagram in datagrams:
+                self._send(datagram, addr)
+        self.counters["reports_sent"] += 1
+
+    def _flush_alerts(self) -> None:
+        for alert in self.fleet.take_new_alerts():
+            self.broadcaster.publish(
+                "alert",
+                {
+                    "alert": {
+                        "t": alert.t,
+                        "level": alert.level,
+                        "kind": alert.kind,
+                        "drone": alert.drone,
+                        "text": alert.text,
+                    }
+                },
+            )
+            self.storage.submit_alert(self.config.mission, alert)
+
+    # -- timer ---------------------------------------------------------------------------
+    def _deadline(self) -> float:
+        candidates = [self.reports.get_timer(), self._next_tick]
+        for timer in (self.decoder.get_timer(), self.missions.get_timer()):
+            if timer is not None:
+                candidates.append(timer)
+        return min(candidates)
+
+    def _arm(self) -> None:
+        deadline = self._deadline()
+        if self._timer is not None and self._timer_at == deadline:
+            return
+        if self._timer is not None:
+            self._timer.cancel()
+        loop = asyncio.get_running_loop()
+        self._timer_at = deadline
+        self._timer = loop.call_later(max(0.0, deadline - self.clock()), self._on_timer)
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self._timer_at = None
+        now = self.clock()
+        self.decoder.handle_timer(now)
+        self._process_events(now)
+        self._send_report(now)
+        self.send_commands(now)
+        if now >= self._next_tick:
+            self._next_tick = now + TICK_S
+            point = self.fleet.tick(now=now)
+            self._flush_alerts()
+            self.broadcaster.publish("tick", {"point": point, "stats": self.stats(now=now)})
+        self._arm()
+
+    def kick(self) -> None:
+        """Re-evaluate timers now (after a mission command was issued from the API)."""
+        now = self.clock()
+        self.send_commands(now)
+        self._arm()
+
+    def stats(self, *, now: float) -> dict[str, Any]:
+        return {
+            "t": now,
+            "decoder": dict(self.decoder.counters),
+            "udp_rcvbuf_bytes": self.rcvbuf_bytes,
+            "decoder_partials": self.decoder.partial_count,
+            "decoder_buffered_bytes": self.decoder.buffered_bytes,
+            "drops": dict(self.fleet.drops),
+            "link": dict(self.counters),
+            "storage": self.storage.stats(),
+            "websocket": {
+                "clients": len(self.broadcaster.clients),
+                "published": self.broadcaster.published,
+                "dropped": self.broadcaster.dropped,
+            },
+        }
+
+
+def set_receive_buffer(sock: socket.socket, size: int) -> int:
+    """Ask for a large kernel receive buffer so bursts of fragments are not lost in the
+    kernel while the loop is busy. SO_RCVBUFFORCE (Linux, with CAP_NET_ADMIN) may exceed
+    net.core.rmem_max; otherwise SO_RCVBUF is capped by it. Returns what the kernel granted.
+    """
+    force = getattr(socket, "SO_RCVBUFFORCE", 33 if sys.platform.startswith("linux") else None)
+    granted_before = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    if force is not None:
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, force, size)
+        except OSError:
+            force = None
+    if force is None:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
+    granted = int(sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
+    if granted < min(size, 2 * granted_before):  # pragma: no cover - depends on the host
+        log.warning("UDP receive buffer is %d bytes (asked %d)", granted, size)
+    return granted

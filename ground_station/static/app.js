@@ -1,0 +1,360 @@
+// Ground-station dashboard: plain JS, no libraries, no network beyond this server.
+"use strict";
+
+const PALETTE = ["#4aa3ff", "#3fb950", "#d29922", "#f778ba", "#a371f7", "#56d4dd",
+  "#ff7b72", "#e3b341", "#7ee787", "#79c0ff", "#ffa657", "#d2a8ff"];
+const state = {
+  token: null, drones: new Map(), series: [], alerts: [], drops: {}, mission: null,
+  config: {}, ws: null, dirty: new Set(), frame: false, colors: new Map(), imgTimes: new Map(),
+  clockOffset: 0,
+};
+const $ = (id) => document.getElementById(id);
+
+// -- token ---------------------------------------------------------------------------------
+function initToken() {
+  const url = new URL(location.href);
+  const fromUrl = url.searchParams.get("token");
+  if (fromUrl) {
+    localStorage.setItem("gs-token", fromUrl);
+    url.searchParams.delete("token");
+    history.replaceState(null, "", url.pathname + url.search + url.hash);
+  }
+  state.token = localStorage.getItem("gs-token");
+  // Reads (images, WebSocket) authenticate with this cookie, keeping tokens out of URLs;
+  // control requests send the Authorization header.
+  if (state.token) document.cookie = `gs_token=${encodeURIComponent(state.token)}; path=/; SameSite=Strict`;
+  $("token-save").onclick = () => {
+    localStorage.setItem("gs-token", $("token-input").value.trim());
+    location.reload();
+  };
+}
+function authHeaders() { return state.token ? { Authorization: "Bearer " + state.token } : {}; }
+async function api(path, options = {}) {
+  const res = await fetch(path, { ...options, headers: { ...authHeaders(), ...(options.headers || {}) } });
+  if (res.status === 401) { $("token-box").classList.remove("hidden"); throw new Error("unauthorized: token needed"); }
+  const body = await res.json().catch(() => ({}));
+  if (!res.ok) throw new Error(body.error || res.statusText);
+  return body;
+}
+function toast(text, ms = 4000) {
+  const el = $("toast");
+  el.textContent = text;
+  el.classList.remove("hidden");
+  clearTimeout(toast.timer);
+  toast.timer = setTimeout(() => el.classList.add("hidden"), ms);
+}
+
+// -- formatting ----------------------------------------------------------------------------
+const fmt = {
+  num: (v, d = 1) => (v === null || v === undefined ? "–" : Number(v).toFixed(d)),
+  pct: (v) => (v === null || v === undefined ? "–" : Math.round(v * 100) + " %"),
+  time: (t) => (t ? new Date(t * 1000).toLocaleTimeString() : "–"),
+  age: (s) => (s === null || s === undefined ? "–" : s < 1 ? "now" : s < 60 ? s.toFixed(0) + " s ago" : (s / 60).toFixed(1) + " min ago"),
+  fix: (f) => (f === null || f === undefined ? "–" : ["no GPS", "no fix", "2D", "3D", "DGPS", "RTK float", "RTK fixed"][f] || String(f)),
+};
+function color(drone) {
+  if (!state.colors.has(drone)) state.colors.set(drone, PALETTE[state.colors.size % PALETTE.length]);
+  return state.colors.get(drone);
+}
+function esc(s) { return String(s).replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]); }
+function now() { return Date.now() / 1000 + state.clockOffset; }
+
+// -- live connection -------------------------------------------------------------------------
+function connect(delay = 500) {
+  const proto = location.protocol === "https:" ? "wss:" : "ws:";
+  const ws = new WebSocket(`${proto}//${location.host}/ws`);
+  state.ws = ws;
+  ws.onopen = () => { $("conn").className = "dot on"; delay = 500; };
+  ws.onclose = () => {
+    $("conn").className = "dot off";
+    setTimeout(() => connect(Math.min(delay * 2, 8000)), delay);
+  };
+  ws.onmessage = (ev) => handle(JSON.parse(ev.data));
+}
+function handle(msg) {
+  if (msg.t) state.clockOffset = msg.t - Date.now() / 1000;
+  switch (msg.kind) {
+    case "snapshot":
+      state.drones.clear();
+      for (const d of msg.drones) { state.drones.set(d.drone, d); state.dirty.add(d.drone); }
+      state.series = msg.series || [];
+      state.alerts = (msg.alerts || []).slice().reverse();
+      state.drops = msg.drops || {};
+      state.mission = msg.mission;
+      state.config = msg.config || {};
+      renderAlerts(); renderMission(); renderCharts(); renderDrops(); fillDroneFilter();
+      break;
+    case "drone":
+    case "status":
+      state.drones.set(msg.drone.drone, msg.drone);
+      state.dirty.add(msg.drone.drone);
+      if (msg.mission) { state.mission = msg.mission; renderMission(); }
+      break;
+    case "alert":
+      state.alerts.unshift(msg.alert);
+      state.alerts.length = Math.min(state.alerts.length, 200);
+      renderAlerts();
+      break;
+    case "tick":
+      state.series.push(msg.point);
+      if (state.series.length > 120) state.series.splice(0, state.series.length - 120);
+      state.drops = msg.stats.drops || {};
+      for (const [drone, p] of Object.entries(msg.point.drones || {})) {
+        const d = state.drones.get(drone);
+        if (d) { d.age_s = msg.point.t - d.last_heard; state.dirty.add(drone); }
+      }
+      renderCharts(); renderDrops();
+      break;
+    case "mission":
+      state.mission = msg.mission;
+      renderMission();
+      break;
+  }
+  schedule();
+}
+function schedule() {
+  if (state.frame) return;
+  state.frame = true;
+  requestAnimationFrame(() => {
+    state.frame = false;
+    for (const drone of state.dirty) renderTile(state.drones.get(drone));
+    state.dirty.clear();
+    renderMap();
+    renderSummary();
+  });
+}
+
+// -- tiles -----------------------------------------------------------------------------------
+function tileFor(drone) {
+  let el = document.querySelector(`.tile[data-drone="${CSS.escape(drone)}"]`);
+  if (el) return el;
+  const empty = document.querySelector("#tiles .empty");
+  if (empty) empty.remove();
+  el = document.createElement("article");
+  el.className = "tile";
+  el.dataset.drone = drone;
+  el.innerHTML = `
+    <header><b></b><span class="dot"></span></header>
+    <div class="imgbox"><img alt=""><span class="util"></span></div>
+    <table><tbody>
+      <tr><td>fps</td><td class="v-fps"></td><td>latency</td><td class="v-lat"></td></tr>
+      <tr><td>share</td><td class="v-share"></td><td>battery</td><td class="v-batt"></td></tr>
+      <tr><td>mode</td><td class="v-mode"></td><td>armed</td><td class="v-armed"></td></tr>
+      <tr><td>GPS</td><td class="v-gps"></td><td>heard</td><td class="v-heard"></td></tr>
+    </tbody></table>`;
+  el.querySelector("header b").textContent = drone;
+  el.querySelector("header b").style.color = color(drone);
+  const tiles = $("tiles");
+  const after = [...tiles.children].find((t) => t.dataset.drone > drone);
+  tiles.insertBefore(el, after || null);
+  return el;
+}
+function renderTile(d) {
+  if (!d) return;
+  const el = tileFor(d.drone);
+  const img = d.latest_image;
+  el.classList.toggle("high", !!(img && img.high));
+  el.classList.toggle("lost", !!d.link_lost);
+  el.dataset.images = d.images;
+  el.querySelector("header .dot").className = "dot " + (d.link_lost ? "off" : "on");
+  if (img) {
+    el.dataset.seq = img.seq;
+    const util = el.querySelector(".util");
+    util.textContent = `U ${fmt.num(img.utility, 2)}${img.object ? " · object" : ""}${img.red !== null ? " · red " + fmt.pct(img.red) : ""}`;
+    util.classList.toggle("high", !!img.high);
+    const tag = img.seq + ":" + img.t_rcv;
+    const last = state.imgTimes.get(d.drone) || { tag: null, at: 0 };
+    // At most 5 image reloads per tile per second; the newest wins.
+    if (last.tag !== tag && performance.now() - last.at > 200) {
+      el.querySelector("img").src = `/api/drones/${encodeURIComponent(d.drone)}/latest.jpg?s=${img.seq}`;
+      state.imgTimes.set(d.drone, { tag, at: performance.now() });
+    } else if (last.tag !== tag) {
+      state.dirty.add(d.drone);
+      setTimeout(schedule, 220);
+    }
+  }
+  el.querySelector(".v-fps").textContent = fmt.num(d.fps, 1);
+  el.querySelector(".v-lat").textContent = d.latency_s === null ? "–" : fmt.num(d.latency_s * 1000, 0) + " ms";
+  el.querySelector(".v-share").innerHTML = `<span class="meter"><i style="width:${Math.round((d.goodput_share || 0) * 100)}%"></i></span>${fmt.pct(d.goodput_share)}`;
+  const b = d.battery;
+  el.querySelector(".v-batt").innerHTML = b === null ? "–" : `<span class="meter batt${b < 0.25 ? " low" : ""}"><i style="width:${Math.round(b * 100)}%"></i></span>${fmt.pct(b)}`;
+  el.querySelector(".v-mode").textContent = d.mode || "–";
+  el.querySelector(".v-armed").textContent = d.armed === null ? "–" : d.armed ? "ARMED" : "disarmed";
+  el.querySelector(".v-gps").textContent = fmt.fix(d.gps_fix);
+  el.querySelector(".v-heard").textContent = fmt.age(d.age_s);
+}
+function renderSummary() {
+  const ds = [...state.drones.values()];
+  const lost = ds.filter((d) => d.link_lost).length;
+  $("fleet-summary").textContent = `${ds.length} heard${lost ? `, ${lost} lost` : ""}`;
+}
+
+// -- fleet map -------------------------------------------------------------------------------
+function renderMap() {
+  const svg = $("map");
+  const pts = [...state.drones.values()].filter((d) => d.x_m !== null && d.y_m !== null);
+  let html = "";
+  const W = 300, pad = 30;
+  let span = 20, cx = 0, cy = 0;
+  if (pts.length) {
+    const xs = pts.map((d) => d.x_m), ys = pts.map((d) => d.y_m);
+    const minx = Math.min(...xs), maxx = Math.max(...xs), miny = Math.min(...ys), maxy = Math.max(...ys);
+    span = Math.max(20, maxx - minx, maxy - miny) * 1.15;
+    cx = (minx + maxx) / 2; cy = (miny + maxy) / 2;
+  }
+  const scale = (W - 2 * pad) / span;
+  const sx = (x) => W / 2 + (x - cx) * scale, sy = (y) => W / 2 - (y - cy) * scale;
+  const raw = span / 6, mag = Math.pow(10, Math.floor(Math.log10(raw)));
+  const step = [1, 2, 5, 10].map((k) => k * mag).find((v) => v >= raw);
+  for (let g = Math.ceil((cx - span) / step) * step; g <= cx + span; g += step) {
+    html += `<line x1="${sx(g)}" y1="0" x2="${sx(g)}" y2="${W}" stroke="#1f2a35"/>`;
+  }
+  for (let g = Math.ceil((cy - span) / step) * step; g <= cy + span; g += step) {
+    html += `<line x1="0" y1="${sy(g)}" x2="${W}" y2="${sy(g)}" stroke="#1f2a35"/>`;
+  }
+  html += `<text x="6" y="${W - 8}" fill="#8b98a5" font-size="10">grid ${step} m</text>`;
+  html += `<text x="${W - 14}" y="14" fill="#8b98a5" font-size="11">N</text>`;
+  for (const d of pts) {
+    const x = sx(d.x_m), y = sy(d.y_m), c = color(d.drone);
+    if (d.heading_deg !== null && d.heading_deg !== undefined) {
+      const a = (d.heading_deg * Math.PI) / 180;
+      html += `<line x1="${x}" y1="${y}" x2="${x + 14 * Math.sin(a)}" y2="${y - 14 * Math.cos(a)}" stroke="${c}" stroke-width="2"/>`;
+    }
+    const hi = d.latest_image && d.latest_image.high;
+    html += `<circle cx="${x}" cy="${y}" r="6" fill="${c}" stroke="${hi ? "#ff2d2d" : "#0b1016"}" stroke-width="${hi ? 3 : 1.5}" opacity="${d.link_lost ? 0.4 : 1}"/>`;
+    html += `<text x="${x + 9}" y="${y + 4}" fill="${c}" font-size="11">${esc(d.drone)}${d.alt_m !== null ? " " + fmt.num(d.alt_m, 0) + " m" : ""}</text>`;
+  }
+  if (!pts.length) html += `<text x="${W / 2}" y="${W / 2}" fill="#8b98a5" font-size="12" text-anchor="middle">no positions yet</text>`;
+  svg.innerHTML = html;
+}
+
+// -- charts ----------------------------------------------------------------------------------
+function drawChart(id, lines, { yScale = 1, fixedMax = null } = {}) {
+  const cv = $(id);
+  const dpr = window.devicePixelRatio || 1;
+  const w = cv.clientWidth, h = cv.clientHeight;
+  if (cv.width !== w * dpr) { cv.width = w * dpr; cv.height = h * dpr; }
+  const g = cv.getContext("2d");
+  g.setTransform(dpr, 0, 0, dpr, 0, 0);
+  g.clearRect(0, 0, w, h);
+  const t1 = now(), t0 = t1 - 120;
+  let max = fixedMax || 0;
+  for (const l of lines) for (const [, v] of l.points) if (v !== null && v * yScale > max) max = v * yScale;
+  if (!fixedMax) max = max > 0 ? max * 1.15 : 1;
+  const L = 34, B = 14, T = 8;
+  g.strokeStyle = "#2d3a48"; g.fillStyle = "#8b98a5"; g.font = "10px system-ui"; g.lineWidth = 1;
+  for (let i = 0; i <= 2; i++) {
+    const y = T + (h - B - T) * (1 - i / 2);
+    g.beginPath(); g.moveTo(L, y); g.lineTo(w, y); g.stroke();
+    const v = (max * i) / 2;
+    g.fillText(v >= 100 ? v.toFixed(0) : v >= 1 ? v.toFixed(1) : v >= 0.1 ? v.toFixed(2) : v.toFixed(3), 2, y + 3);
+  }
+  g.fillText("-2 min", L, h - 2); g.fillText("now", w - 22, h - 2);
+  for (const l of lines) {
+    g.strokeStyle = l.color; g.lineWidth = 1.6; g.beginPath();
+    let started = false;
+    for (const [t, v] of l.points) {
+      if (v === null || t < t0) { started = false; continue; }
+      const x = L + ((t - t0) / 120) * (w - L), y = T + (h - B - T) * (1 - Math.min(1, (v * yScale) / max));
+      if (!started) { g.moveTo(x, y); started = true; } else g.lineTo(x, y);
+    }
+    g.stroke();
+  }
+  if (!lines.some((l) => l.points.some(([, v]) => v !== null))) {
+    g.fillStyle = "#8b98a5"; g.fillText("nothing reported yet", w / 2 - 45, h / 2);
+  }
+}
+function perDrone(key) {
+  const drones = new Set();
+  for (const p of state.series) for (const d of Object.keys(p.drones || {})) drones.add(d);
+  return [...drones].sort().map((d) => ({
+    color: color(d),
+    points: state.series.map((p) => [p.t, p.drones && p.drones[d] ? p.drones[d][key] : null]),
+  }));
+}
+function renderCharts() {
+  const fleet = (key) => ({ color: "#e6edf3", points: state.series.map((p) => [p.t, p[key]]) });
+  drawChart("ch-xi", perDrone("xi"), { yScale: 1 / 1000 });
+  drawChart("ch-goodput", [fleet("goodput"), ...perDrone("goodput")], { yScale: 1 / 1000 });
+  drawChart("ch-latency", perDrone("latency"));
+  drawChart("ch-delta", perDrone("delta"));
+  drawChart("ch-loss", perDrone("loss"), { fixedMax: 1 });
+  $("legend").innerHTML = `<span><i style="background:#e6edf3"></i>fleet</span>` +
+    [...state.drones.keys()].sort().map((d) => `<span><i style="background:${color(d)}"></i>${esc(d)}</span>`).join("");
+}
+
+// -- alerts, mission ---------------------------------------------------------------------------
+function renderAlerts() {
+  $("alerts").innerHTML = state.alerts.slice(0, 100).map((a) =>
+    `<li class="${esc(a.level)}"><span class="t">${fmt.time(a.t)}</span>${a.drone ? `<b>${esc(a.drone)}</b> ` : ""}${esc(a.text)}</li>`).join("")
+    || `<li class="muted">no alerts</li>`;
+}
+function renderDrops() {
+  const entries = Object.entries(state.drops || {});
+  $("drops").innerHTML = entries.length
+    ? "drops: " + entries.map(([r, n]) => `<span>${esc(r)} ${n}</span>`).join("")
+    : `<span class="muted">no datagrams dropped</span>`;
+}
+function renderMission() {
+  const m = state.mission;
+  if (!m) return;
+  $("mission-name").textContent = state.config.mission || "–";
+  const badge = $("mission-phase");
+  badge.textContent = m.phase;
+  badge.className = "badge " + m.phase;
+  $("mission-times").textContent = (m.t_start ? "start " + fmt.time(m.t_start) : "") + (m.t_end ? " · end " + fmt.time(m.t_end) : "");
+  const cmds = (m.commands || []).slice(-5).reverse().map((c) =>
+    `<div>#${c.command_id} <b>${esc(c.name)}</b> @ ${fmt.time(c.t_exec)} — acked ${c.acked_by.length}/${Math.max(c.sent_to.length, m.drones.length)}</div>`).join("");
+  const reports = Object.entries(m.reports || {}).map(([k, v]) => `${esc(k)}: ${v}`).join(", ");
+  const params = Object.entries(m.params || {}).map(([k, v]) => `${esc(k)}=${esc(v)}`).join(", ");
+  $("mission-info").innerHTML = `<div>drones known: <b>${m.drones.length}</b></div>` +
+    `<div>reports: ${reports || "–"}</div><div>params: ${params || "–"}</div>` + (cmds || "<div class='muted'>no commands yet</div>");
+}
+
+// -- gallery ------------------------------------------------------------------------------------
+function fillDroneFilter() {
+  const sel = $("g-drone"), have = new Set([...sel.options].map((o) => o.value));
+  for (const d of [...state.drones.keys()].sort()) {
+    if (!have.has(d)) { const o = document.createElement("option"); o.value = d; o.textContent = d; sel.appendChild(o); }
+  }
+}
+async function renderGallery() {
+  fillDroneFilter();
+  const q = new URLSearchParams({ limit: "24", object: $("g-object").value });
+  if ($("g-drone").value) q.set("drone", $("g-drone").value);
+  try {
+    const body = await api("/api/images?" + q);
+    $("gallery").innerHTML = body.images.map((im) => `
+      <figure class="${im.utility >= (state.config.high_utility || 1e9) ? "high" : ""}" data-id="${im.id}">
+        <img loading="lazy" src="${im.url}" alt="${esc(im.sender)} #${im.seq}">
+        <figcaption><b style="color:${color(im.sender)}">${esc(im.sender)}</b> #${im.seq} · U ${fmt.num(im.utility, 2)}${im.object ? " · object" : ""}<br><span class="muted">${fmt.time(im.t_gen)}</span></figcaption>
+      </figure>`).join("") || `<p class="muted">no stored images yet</p>`;
+  } catch (e) { /* token box already shown */ }
+}
+
+// -- mission buttons --------------------------------------------------------------------------
+async function command(path, body, label) {
+  try {
+    const res = await api(path, { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) });
+    state.mission = res.mission; renderMission();
+    const c = res.command;
+    toast(c ? `${label}: command #${c.command_id} at ${fmt.time(c.t_exec)} sent to ${res.mission.drones.length} drone(s)` : label);
+  } catch (e) { toast(`${label} failed: ${e.message}`); }
+}
+function initButtons() {
+  $("btn-start").onclick = () => command("/api/mission/start", { delay_s: Number($("start-delay").value || 0) }, "start mission");
+  $("btn-end").onclick = () => command("/api/mission/end", { delay_s: Number($("start-delay").value || 0) }, "end mission");
+  $("btn-params").onclick = () => command("/api/mission/params", { params: $("params").value }, "set params");
+  $("btn-reset").onclick = () => command("/api/mission/reports/reset", {}, "reports reset");
+  $("g-drone").onchange = renderGallery;
+  $("g-object").onchange = renderGallery;
+  $("g-refresh").onclick = renderGallery;
+}
+
+initToken();
+initButtons();
+connect();
+renderGallery();
+setInterval(renderGallery, 5000);
+setInterval(() => { $("clock").textContent = new Date(now() * 1000).toLocaleTimeString(); }, 500);
+window.addEventListener("resize", renderCharts);

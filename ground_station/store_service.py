@@ -1,0 +1,175 @@
+"""Asyncio shell around :class:`~ground_station.storage.Storage`: writes off the event loop.
+
+One owned single-thread executor does every write (file fsyncs, SQLite transactions, log
+lines) in arrival order, in batches; a second one serves reads on its own WAL connection so
+the dashboard never waits behind an fsync. The receiver only calls :meth:`submit` (no await).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import sqlite3
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any, TypeVar
+
+from ground_station.fleet import Alert
+from ground_station.storage import BatchResult, Storage, StoreItem
+
+__all__ = ["StorageService"]
+
+log = logging.getLogger(__name__)
+T = TypeVar("T")
+
+MAX_BATCH = 256
+
+
+class StorageService:
+    """Queue + writer task + reader; start with :meth:`open`, stop with :meth:`close`."""
+
+    def __init__(
+        self,
+        root: Path,
+        *,
+        clock: Callable[[], float],
+        fsync: bool = True,
+        on_batch: Callable[[Sequence[StoreItem], BatchResult], None] | None = None,
+    ) -> None:
+        self.root = root
+        self.clock = clock
+        self.fsync = fsync
+        self.on_batch = on_batch
+        self._queue: asyncio.Queue[StoreItem | tuple[str, Alert]] = asyncio.Queue()
+        self._write_pool = ThreadPoolExecutor(1, thread_name_prefix="gs-store-write")
+        self._read_pool = ThreadPoolExecutor(1, thread_name_prefix="gs-store-read")
+        self._writer: Storage | None = None
+        self._reader: Storage | None = None
+        self._task: asyncio.Task[None] | None = None
+        self.submitted = 0
+        self.written = 0
+        self.images_stored = 0
+        self.errors = 0
+        self.last_error: str | None = None
+
+    async def open(self) -> None:
+        loop = asyncio.get_running_loop()
+        self._writer = await loop.run_in_executor(
+            self._write_pool, lambda: Storage(self.root, fsync=self.fsync)
+        )
+        self._reader = await loop.run_in_executor(
+            self._read_pool, lambda: Storage(self.root, readonly=True)
+        )
+        self._task = asyncio.create_task(self._run(), name="gs-storage-writer")
+
+    def submit(self, item: StoreItem) -> None:
+        self.submitted += 1
+        self._queue.put_nowait(item)
+
+    def submit_alert(self, mission: str, alert: Alert) -> None:
+        self._queue.put_nowait((mission, alert))
+
+    @property
+    def backlog(self) -> int:
+        return self._queue.qsize()
+
+    async def _run(self) -> None:
+        while True:
+            first = await self._queue.get()
+            await self._write([first, *self._drain()])
+
+    def _drain(self) -> list[StoreItem | tuple[str, Alert]]:
+        batch: list[StoreItem | tuple[str, Alert]] = []
+        while len(batch) < MAX_BATCH - 1:
+            try:
+                batch.append(self._queue.get_nowait())
+            except asyncio.QueueEmpty:
+                break
+        return batch
+
+    async def _write(self, queued: list[StoreItem | tuple[str, Alert]]) -> None:
+        writer = self._writer
+        assert writer is not None
+        loop = asyncio.get_running_loop()
+        now = self.clock()
+        batch = [item for item in queued if isinstance(item, StoreItem)]
+        alerts = [
+            (mission, a.t, a.level, a.kind, a.drone, a.text)
+            for item in queued
+            if isinstance(item, tuple)
+            for mission, a in [item]
+        ]
+
+        def work() -> BatchResult:
+            result = writer.write_batch(batch, now=now) if batch else BatchResult()
+            if alerts:
+                try:
+                    writer.write_alerts(alerts)
+                except (sqlite3.Error, OSError) as exc:
+                    result.errors.append(f"alert not stored: {exc}")
+            return result
+
+        result = await loop.run_in_executor(self._write_pool, work)
+        self.written += len(batch)
+        self.images_stored += result.images_stored
+        if result.errors:
+            self.errors += len(result.errors)
+            self.last_error = result.errors[-1]
+            for text in result.errors[:3]:
+                log.error("storage: %s", text)
+        if self.on_batch is not None:
+            self.on_batch(batch, result)
+
+    async def call_writer(self, fn: Callable[[Storage], T]) -> T:
+        """Run ``fn(storage)`` in the write thread, ordered after queued batches' writes."""
+        assert self._writer is not None
+        writer = self._writer
+        return await asyncio.get_running_loop().run_in_executor(self._write_pool, fn, writer)
+
+    async def read(self, fn: Callable[[Storage], T]) -> T:
+        """Run a query ``fn(storage)`` in the read thread (its own WAL connection)."""
+        assert self._reader is not None
+        reader = self._reader
+        return await asyncio.get_running_loop().run_in_executor(self._read_pool, fn, reader)
+
+    async def flush(self) -> None:
+        """Write everything queued so far (used at shutdown and by tests)."""
+        while self._queue.qsize():
+            batch = self._drain()
+            if batch:
+                await self._write(batch)
+        # Wait for a batch the writer task may be in the middle of.
+        await self.call_writer(lambda _s: None)
+
+    async def close(self) -> None:
+        """Write what is queued, stop the writer task, close both connections."""
+        if self._writer is not None:
+            await self.flush()
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+        loop = asyncio.get_running_loop()
+        if self._writer is not None:
+            closing_now = self.clock()
+            writer = self._writer
+            await loop.run_in_executor(self._write_pool, lambda: writer.close(now=closing_now))
+            self._writer = None
+        if self._reader is not None:
+            await loop.run_in_executor(self._read_pool, self._reader.close)
+            self._reader = None
+        self._write_pool.shutdown(wait=True)
+        self._read_pool.shutdown(wait=True)
+
+    def stats(self) -> dict[str, Any]:
+        return {
+            "submitted": self.submitted,
+            "written": self.written,
+            "images_stored": self.images_stored,
+            "backlog": self.backlog,
+            "errors": self.errors,
+            "last_error": self.last_error,
+        }

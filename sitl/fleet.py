@@ -1,0 +1,1017 @@
+"""``uav-sitl fleet``: a whole simulated fleet on one machine, as the demo and the e2e backbone.
+
+    uav-sitl fleet --drones N --scene SCENE --duration S [--netns] [--link-rate R]
+                   [--background B] [--summary-json FILE] [--out DIR] [--policy mcts|random|...]
+
+Starts one ``uav-sitl vehicle --count N`` process (N MAVLink vehicles flying a survey of the
+scene), N ``uav-companion run`` processes (synthetic camera of the scene, mission spec
+``image_streaming``, the run's fleet key, a goodput constraint) and one ``uav-ground-station
+run``; waits until the ground station has heard every drone, starts the mission through the
+mission manager's API (with the control token), shows a live progress line, and on Ctrl-C,
+SIGTERM or after ``--duration`` stops everything (SIGTERM, wait, SIGKILL; each child in its own
+process group, and with a parent-death signal, so nothing is left behind) and prints a summary:
+per drone images generated/sent/received/stored, mean frame rate and latency, and the fleet's
+total utility from ``uav-utility evaluate`` on the merged companion and ground-station logs.
+
+The launcher is a thin synchronous shell: processes, files and HTTP polls. The numbers come
+from the mission logs (``utility_specs.log`` records) and the ground station's own database.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import ctypes
+import json
+import math
+import os
+import shutil
+import signal
+import socket
+import sqlite3
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from collections import deque
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+from sitl.fleet_config import (
+    DroneSlot,
+    FleetPlan,
+    free_port,
+    mission_spec_path,
+    write_run_configs,
+)
+
+__all__ = [
+    "Background",
+    "BaselineDecider",
+    "FleetError",
+    "FleetNetns",
+    "LogTail",
+    "Processes",
+    "RandomDropAnyVersion",
+    "StationTail",
+    "evaluate_utility",
+    "format_summary",
+    "main",
+    "make_plan",
+    "parse_args",
+    "parse_background",
+    "progress_line",
+    "run",
+    "summarize",
+]
+
+POLICIES = ("mcts", "random", "send_all")
+"""``mcts``: the companion's middleware (ch. 5); ``random``: drop each message with
+``--drop-probability`` (the baseline of thesis fig. 5.7); ``send_all``: no optimisation."""
+WIFI_G_RATE_BIT_S = 6_000_000.0
+"""``--netns`` default link rate: what 802.11g delivers to UDP in practice with several
+stations contending (well below its 54 Mbit/s PHY rate)."""
+
+
+class FleetError(RuntimeError):
+    """The fleet could not be brought up (the text says which process and why)."""
+
+
+# -- command lines -----------------------------------------------------------------------------
+
+
+def _tool(script: str, module: str) -> list[str]:
+    """The console script next to this interpreter, else ``python -m module``."""
+    path = Path(sys.executable).parent / script
+    return [str(path)] if path.exists() else [sys.executable, "-m", module]
+
+
+def parse_args(argv: Sequence[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="uav-sitl fleet",
+        description="Run N simulated drones (vehicle + synthetic camera + uav-companion) and a "
+                    "uav-ground-station on one machine; print a summary at the end.")
+    p.add_argument("--drones", type=int, default=4, help="number of drones (default 4)")
+    p.add_argument("--scene", default="demo", help="scene name (sitl/scenes) or TOML path")
+    p.add_argument("--duration", type=float, default=0.0,
+                   help="seconds of mission after the start; 0 = until Ctrl-C (default)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="run folder (default out/fleet/YYYYmmdd-HHMMSS)")
+    p.add_argument("--summary-json", type=Path, default=None, help="also write the summary here")
+    p.add_argument("--policy", choices=POLICIES, default="mcts",
+                   help="what decides which messages go out (default mcts)")
+    p.add_argument("--drop-probability", type=float, default=0.5,
+                   help="--policy random: probability of dropping each message (default 0.5)")
+    p.add_argument("--constraint", choices=("constant", "adaptive", "aimd"), default=None,
+                   help="goodput constraint (default: constant on loopback, adaptive with "
+                        "--netns)")
+    p.add_argument("--goodput", type=float, default=40_000.0,
+                   help="constant constraint: fleet goodput limit in bytes/s (default 40000)")
+    p.add_argument("--window", type=float, default=2.0,
+                   help="constant constraint: window T in s (default 2)")
+    p.add_argument("--rate", type=float, default=5.0, help="camera frames/s per drone")
+    p.add_argument("--size", default="640x480", help="camera frame size WxH (default 640x480)")
+    p.add_argument("--mcts-iterations", type=int, default=300)
+    p.add_argument("--time-budget", type=float, default=0.05,
+                   help="wall time per middleware decision in s (default 0.05)")
+    p.add_argument("--alpha", type=float, default=None, help="α of eq. 7.1 (default: spec's)")
+    p.add_argument("--spec", default="image_streaming", help="mission spec name or TOML path")
+    p.add_argument("--speedup", type=float, default=1.0, help="vehicle simulation speed-up")
+    p.add_argument("--flavour", choices=("px4", "ardupilot"), default="px4")
+    p.add_argument("--pattern", choices=("survey", "orbit"), default="survey")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--ready-timeout", type=float, default=90.0,
+                   help="seconds to wait for every drone to be heard (default 90)")
+    p.add_argument("--start-delay", type=float, default=1.0,
+                   help="the mission starts this many seconds after the command (default 1)")
+    p.add_argument("--http-port", type=int, default=0,
+                   help="dashboard port (default: a free one)")
+    p.add_argument("--netns", action="store_true",
+                   help="(root) drones in their own network namespace, joined to the ground "
+                        "station's through a shaped link (tc)")
+    p.add_argument("--link-rate", type=float, default=WIFI_G_RATE_BIT_S,
+                   help="--netns: link rate in bit/s (default 6e6, 802.11g-like)")
+    p.add_argument("--background", default=None, metavar="BITS[@T[+D]]",
+                   help="--netns: iperf3 UDP background traffic of BITS bit/s from T s after "
+                        "the start for D s (default from the start, to the end); thesis fig 7.4")
+    p.add_argument("--quiet", action="store_true", help="no live progress line")
+    args = p.parse_args(list(argv))
+    if not 1 <= args.drones <= 64:
+        p.error("--drones must be in 1..64")
+    if args.duration < 0:
+        p.error("--duration must be >= 0")
+    if not 0.0 <= args.drop_probability <= 1.0:
+        p.error("--drop-probability must be in [0, 1]")
+    try:
+        w, h = (int(x) for x in args.size.lower().split("x"))
+    except ValueError:
+        p.error(f"--size: expected WxH, got {args.size!r}")
+    args.width, args.height = w, h
+    if args.background is not None:
+        try:
+            args.background = parse_background(args.background)
+        except ValueError as exc:
+            p.error(f"--background: {exc}")
+        if not args.netns:
+            p.error("--background needs --netns (the traffic must share the shaped link)")
+    if args.constraint is None:
+        args.constraint = "adaptive" if args.netns else "constant"
+    return args
+
+
+@dataclass(frozen=True, slots=True)
+class Background:
+    """iperf3 background traffic: ``rate_bit_s`` from ``start_s`` after the mission start."""
+
+    rate_bit_s: float
+    start_s: float = 0.0
+    duration_s: float | None = None
+
+
+def parse_background(text: str) -> Background:
+    """``2e6``, ``2e6@20`` (from 20 s) or ``2e6@20+15`` (from 20 s for 15 s)."""
+    rate, _, when = text.partition("@")
+    start, _, length = when.partition("+")
+    try:
+        bg = Background(float(rate), float(start) if start else 0.0,
+                        float(length) if length else None)
+    except ValueError:
+        raise ValueError(f"expected BITS[@START_S[+DURATION_S]], got {text!r}") from None
+    if bg.rate_bit_s <= 0 or bg.start_s < 0 or (bg.duration_s is not None
+                                                  and bg.duration_s <= 0):
+        raise ValueError(f"rates and durations must be > 0, got {text!r}")
+    return bg
+
+
+# -- processes ---------------------------------------------------------------------------------
+
+
+def _die_with_parent() -> None:
+    """In the child before exec: SIGTERM us if the launcher dies (Linux PR_SET_PDEATHSIG)."""
+    with contextlib.suppress(Exception):
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)
+
+
+@dataclass(slots=True)
+class Child:
+    name: str
+    proc: subprocess.Popen[bytes]
+    log_path: Path
+    log: IO[bytes]
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def tail(self, n_bytes: int = 2000) -> str:
+        with contextlib.suppress(OSError):
+            self.log.flush()
+            data = self.log_path.read_bytes()[-n_bytes:]
+            return data.decode("utf-8", "replace")
+        return ""
+
+
+@dataclass(slots=True)
+class Processes:
+    """Every child of the launcher, each in its own session (process group)."""
+
+    logs_dir: Path
+    children: list[Child] = field(default_factory=list)
+
+    def start(self, name: str, argv: Sequence[str], *, env: dict[str, str] | None = None
+              ) -> Child:
+        log_path = self.logs_dir / f"{name}.log"
+        log = open(log_path, "ab")  # noqa: SIM115 - closed in stop()
+        try:
+            proc = subprocess.Popen(list(argv), stdin=subprocess.DEVNULL, stdout=log,
+                                    stderr=subprocess.STDOUT, start_new_session=True,
+                                    preexec_fn=_die_with_parent, env=env)
+        except OSError as exc:
+            log.close()
+            raise FleetError(f"{name}: cannot start {argv[0]}: {exc}") from None
+        child = Child(name, proc, log_path, log)
+        self.children.append(child)
+        return child
+
+    def stop(self, children: Iterable[Child], *, timeout_s: float = 10.0) -> None:
+        """SIGTERM each child's process group, wait up to ``timeout_s``, then SIGKILL."""
+        children = list(children)
+        for child in children:
+            _signal_group(child.proc, signal.SIGTERM)
+        deadline = time.monotonic() + timeout_s
+        for child in children:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                child.proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+        for child in children:
+            _signal_group(child.proc, signal.SIGKILL)  # stragglers and their children
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                child.proc.wait(timeout=5.0)
+            child.log.close()
+
+    def stop_all(self, *, timeout_s: float = 10.0) -> None:
+        self.stop(self.children, timeout_s=timeout_s)
+
+
+def _signal_group(proc: subprocess.Popen[bytes], sig: int) -> None:
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(proc.pid, sig)  # pgid == pid: start_new_session=True
+
+
+# -- the ground station's API ------------------------------------------------------------------
+
+
+@dataclass(slots=True)
+class GroundStationApi:
+    base_url: str
+    token: str
+    opener: Callable[..., Any] = urllib.request.urlopen
+
+    def _call(self, method: str, path: str, body: dict[str, Any] | None = None,
+              timeout_s: float = 3.0) -> Any:
+        data = None if body is None else json.dumps(body).encode()
+        request = urllib.request.Request(
+            self.base_url + path, data=data, method=method,
+            headers={"Authorization": f"Bearer {self.token}",
+                     "Content-Type": "application/json"})
+        with self.opener(request, timeout=timeout_s) as response:
+            return json.loads(response.read().decode())
+
+    def get(self, path: str) -> Any:
+        return self._call("GET", path)
+
+    def post(self, path: str, body: dict[str, Any]) -> Any:
+        return self._call("POST", path, body)
+
+
+# -- live counters from the companions' mission logs -------------------------------------------
+
+
+@dataclass(slots=True)
+class LogTail:
+    """Counts image records of a growing companion log (complete lines only)."""
+
+    path: Path
+    generated: int = 0
+    sent: int = 0
+    _offset: int = 0
+
+    def poll(self) -> None:
+        try:
+            with self.path.open("rb") as f:
+                f.seek(self._offset)
+                chunk = f.read()
+        except OSError:
+            return
+        end = chunk.rfind(b"\n") + 1
+        self._offset += end
+        for line in chunk[:end].splitlines():
+            if b'"type":"image"' not in line:
+                continue
+            self.generated += 1
+            if b'"t_sent":null' not in line:
+                self.sent += 1
+
+
+@dataclass(slots=True)
+class StationTail:
+    """Per sender, images the station logged as received, and their recent arrivals."""
+
+    path: Path
+    window_s: float = 5.0
+    received: dict[str, int] = field(default_factory=dict)
+    recent: dict[str, deque[tuple[float, float]]] = field(default_factory=dict)
+    """sender -> (t_rcv, latency) of the images of the last ``window_s``."""
+    _offset: int = 0
+
+    def poll(self) -> None:
+        try:
+            with self.path.open("rb") as f:
+                f.seek(self._offset)
+                chunk = f.read()
+        except OSError:
+            return
+        end = chunk.rfind(b"\n") + 1
+        self._offset += end
+        for line in chunk[:end].splitlines():
+            if b'"type": "image"' not in line and b'"type":"image"' not in line:
+                continue
+            with contextlib.suppress(ValueError, KeyError, TypeError):
+                r = json.loads(line)
+                if r.get("type") != "image" or r.get("t_rcv") is None:
+                    continue
+                sender = str(r["sender"])
+                self.received[sender] = self.received.get(sender, 0) + 1
+                self.recent.setdefault(sender, deque()).append(
+                    (float(r["t_rcv"]), float(r["t_rcv"]) - float(r["t_gen"])))
+
+    def rate(self, sender: str, now: float) -> tuple[float, float | None]:
+        """Images/s received over the last ``window_s`` and their mean latency (s)."""
+        q = self.recent.get(sender, deque())
+        while q and q[0][0] < now - self.window_s:
+            q.popleft()
+        latency = sum(x for _, x in q) / len(q) if q else None
+        return len(q) / self.window_s, latency
+
+
+def progress_line(elapsed_s: float, drones: Sequence[DroneSlot], tails: dict[str, LogTail],
+                  station: StationTail, now: float) -> str:
+    """``[  12 s] drone1 g60 s20 r19 3.8/s 41ms | ...``: images generated, sent (companion
+    log), received (station log), received frame rate and latency over the last seconds."""
+    parts = []
+    for slot in drones:
+        tail = tails[slot.drone_id]
+        fps, latency = station.rate(slot.drone_id, now)
+        lat = "-" if latency is None else f"{1000 * latency:.0f}ms"
+        parts.append(f"{slot.drone_id} g{tail.generated} s{tail.sent} "
+                     f"r{station.received.get(slot.drone_id, 0)} {fps:.1f}/s {lat}")
+    return f"[{elapsed_s:5.0f} s] " + " | ".join(parts)
+
+
+# -- summary -----------------------------------------------------------------------------------
+
+
+def _records(path: Path) -> list[dict[str, Any]]:
+    out = []
+    with contextlib.suppress(OSError), path.open(encoding="utf-8") as f:
+        for line in f:
+            with contextlib.suppress(json.JSONDecodeError):
+                record = json.loads(line)
+                if isinstance(record, dict) and "sender" in record:
+                    out.append(record)
+    return out
+
+
+def _stored_images(db_path: Path, mission: str) -> dict[str, dict[str, int]]:
+    """Per sender: image rows of the mission and how many have their file on disk."""
+    out: dict[str, dict[str, int]] = {}
+    if not db_path.exists():
+        return out
+    con = sqlite3.connect(f"file:{db_path}?mode=ro", uri=True, timeout=10.0)
+    try:
+        # type = 'image': the station also files telemetry payloads in this table.
+        rows = con.execute("SELECT sender, path FROM images WHERE mission = ? AND type = 'image'",
+                           (mission,))
+        for sender, path in rows:
+            entry = out.setdefault(sender, {"rows": 0, "files": 0})
+            entry["rows"] += 1
+            if path and (db_path.parent / path).is_file():  # relative to the data dir, or absolute
+                entry["files"] += 1
+    finally:
+        con.close()
+    return out
+
+
+def _best_size(record: dict[str, Any]) -> int:
+    """Bytes of a message in its best version (what sending everything would cost)."""
+    versions = record.get("versions") or []
+    return int(versions[0]["size"]) if versions else int(record.get("size", 0))
+
+
+def _mean_size(record: dict[str, Any]) -> float:
+    """Mean bytes over a message's versions (what a uniformly random version costs)."""
+    versions = record.get("versions") or []
+    if not versions:
+        return float(record.get("size", 0))
+    return sum(int(v["size"]) for v in versions) / len(versions)
+
+
+def evaluate_utility(logs: Sequence[Path], *, spec: Path, t_start: float, t_end: float
+                     ) -> dict[str, Any]:
+    """The fleet's total utility (eq. 4.1/4.2) by ``uav-utility evaluate`` on merged logs."""
+    argv = [*_tool("uav-utility", "utility_specs.cli"), "evaluate", *map(str, logs),
+            "--spec", str(spec), "--json", "--ignore-unknown-types",
+            "--t-start", repr(t_start), "--t-end", repr(t_end)]
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=300, check=False)
+    if proc.returncode != 0:
+        return {"error": (proc.stderr or proc.stdout).strip()[-2000:], "command": argv}
+    result: dict[str, Any] = json.loads(proc.stdout)
+    result["command"] = " ".join(argv)
+    return result
+
+
+def summarize(plan: FleetPlan, *, t_start: float, t_end: float, policy: str,
+              utility: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Per drone: images generated/sent (companion log), received (station log), stored
+    (station database + files), mean received frame rate and latency in the mission window."""
+    window = max(t_end - t_start, 1e-9)
+    received: dict[str, list[dict[str, Any]]] = {}
+    bytes_received = 0
+    for r in _records(plan.gs_log_path):
+        if r.get("t_rcv") is None:
+            continue
+        if t_start <= r["t_gen"] <= t_end:
+            bytes_received += int(r.get("size", 0))
+        if r.get("type") == "image":
+            received.setdefault(r["sender"], []).append(r)
+    bytes_generated = 0
+    bytes_generated_mean = 0.0
+    stored = _stored_images(plan.gs_db_path, plan.mission)
+    drones: dict[str, Any] = {}
+    for slot in plan.drones:
+        records = [r for r in _records(slot.log_path) if t_start <= r["t_gen"] <= t_end]
+        bytes_generated += sum(_best_size(r) for r in records)
+        bytes_generated_mean += sum(_mean_size(r) for r in records)
+        in_window = [r for r in records if r.get("type") == "image"]
+        sent = [r for r in in_window if r.get("t_sent") is not None]
+        got_all = received.get(slot.drone_id, [])
+        got = [r for r in got_all if t_start <= r["t_gen"] <= t_end]
+        latencies = sorted(r["t_rcv"] - r["t_gen"] for r in got)
+        drones[slot.drone_id] = {
+            "generated": len(in_window),
+            "sent": len(sent),
+            "received": len(got),
+            "received_total": len(got_all),
+            "stored": stored.get(slot.drone_id, {}).get("rows", 0),
+            "stored_files": stored.get(slot.drone_id, {}).get("files", 0),
+            "bytes_received": sum(int(r.get("size", 0)) for r in got),
+            "fps_generated": len(in_window) / window,
+            "fps": len(got) / window,
+            "latency_mean_s": sum(latencies) / len(latencies) if latencies else None,
+            "latency_p95_s": latencies[min(len(latencies) - 1, int(0.95 * len(latencies)))]
+            if latencies else None,
+            "mean_red": (sum(float(r["data"].get("red") or 0.0) for r in in_window)
+                         / len(in_window)) if in_window else None,
+            "log": str(slot.log_path),
+        }
+    total_bytes = sum(r.get("size", 0) for rs in received.values() for r in rs
+                      if t_start <= r["t_gen"] <= t_end)
+    return {
+        "policy": policy,
+        "t_start": t_start,
+        "t_end": t_end,
+        "duration_s": window,
+        "drones": drones,
+        "image_bytes_received": total_bytes,
+        "bytes_received": bytes_received,
+        "bytes_generated": bytes_generated,
+        "bytes_generated_mean_version": bytes_generated_mean,
+        "utility": utility,
+        "run_dir": str(plan.run_dir),
+        "data": {
+            "ground_station_db": str(plan.gs_db_path),
+            "ground_station_log": str(plan.gs_log_path),
+            "images": str(plan.gs_data_dir / "missions" / plan.mission / "images"),
+            "companion_logs": [str(s.log_path) for s in plan.drones],
+            "process_logs": str(plan.logs_dir),
+        },
+    }
+
+
+def format_summary(summary: dict[str, Any]) -> str:
+    lines = [f"fleet summary ({summary['policy']}, {summary['duration_s']:.1f} s of mission)",
+             f"{'drone':<10} {'generated':>9} {'sent':>6} {'received':>8} {'stored':>6} "
+             f"{'fps':>6} {'latency':>9} {'red':>6}"]
+    for name, d in summary["drones"].items():
+        lat = "-" if d["latency_mean_s"] is None else f"{1000 * d['latency_mean_s']:.0f} ms"
+        red = "-" if d["mean_red"] is None else f"{d['mean_red']:.3f}"
+        lines.append(f"{name:<10} {d['generated']:>9} {d['sent']:>6} {d['received']:>8} "
+                     f"{d['stored']:>6} {d['fps']:>6.2f} {lat:>9} {red:>6}")
+    utility = summary.get("utility") or {}
+    if "total" in utility:
+        per_type = ", ".join(f"{k} {v:.2f}" for k, v in utility.get("per_type", {}).items())
+        lines.append(f"total utility {utility['total']:.3f} ({per_type})")
+    elif utility:
+        lines.append(f"utility: not evaluated: {utility.get('error')}")
+    data = summary["data"]
+    lines.append(f"data: {summary['run_dir']}")
+    lines.append(f"  images   {data['images']}")
+    lines.append(f"  database {data['ground_station_db']}")
+    lines.append(f"  logs     {data['ground_station_log']} + drones/*/mission_log.jsonl")
+    return "\n".join(lines)
+
+
+# -- network namespaces (--netns) --------------------------------------------------------------
+
+CLONE_NEWNET = 0x40000000
+
+
+def _enter_netns(name: str) -> None:
+    """Move the calling thread (only) into network namespace ``name`` (setns(2))."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    fd = os.open(f"/var/run/netns/{name}", os.O_RDONLY)
+    try:
+        if libc.setns(fd, CLONE_NEWNET) != 0:
+            err = ctypes.get_errno()
+            raise OSError(err, f"setns({name}): {os.strerror(err)}")
+    finally:
+        os.close(fd)
+
+
+class _NsForwarder:
+    """TCP 127.0.0.1:port here -> 127.0.0.1:port inside a namespace (the dashboard and API).
+
+    Each connection is served by a thread that first enters the namespace, so the socket it
+    opens lives there; the accepted socket stays in ours.
+    """
+
+    def __init__(self, ns: str, target_port: int) -> None:
+        import threading
+
+        self.ns = ns
+        self.target_port = target_port
+        self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            self.listener.bind(("127.0.0.1", target_port))
+        except OSError:
+            self.listener.bind(("127.0.0.1", 0))
+        self.listener.listen(16)
+        self.port = int(self.listener.getsockname()[1])
+        self._closed = False
+        threading.Thread(target=self._accept, name="ns-forward", daemon=True).start()
+
+    def _accept(self) -> None:
+        import threading
+
+        while not self._closed:
+            try:
+                conn, _ = self.listener.accept()
+            except OSError:
+                return
+            threading.Thread(target=self._pipe, args=(conn,), daemon=True).start()
+
+    def _pipe(self, conn: socket.socket) -> None:
+        import select
+
+        try:
+            _enter_netns(self.ns)
+            upstream = socket.create_connection(("127.0.0.1", self.target_port), timeout=5)
+        except OSError:
+            conn.close()
+            return
+        with conn, upstream:
+            pair = {conn: upstream, upstream: conn}
+            while not self._closed:
+                readable, _, _ = select.select(list(pair), [], [], 1.0)
+                for sock in readable:
+                    data = sock.recv(65536)
+                    if not data:
+                        return
+                    pair[sock].sendall(data)
+
+    def close(self) -> None:
+        self._closed = True
+        self.listener.close()
+
+
+class FleetNetns:
+    """``--netns``: the drones (vehicles and companions) in one namespace, the ground station
+    in another, joined by the shaped veth link of :class:`sitl.linkemu.NetnsLink` (``tc tbf``
+    rate and queue); all drones share that one bottleneck, like one radio channel. Optional
+    ``iperf3`` background traffic over the same link, on at a given time (thesis fig. 7.4).
+    """
+
+    def __init__(self, *, rate_bit_s: float) -> None:
+        from sitl.linkemu import NetnsLink
+
+        self.link = NetnsLink(rate_bit_per_s=rate_bit_s,
+                              queue_limit_bytes=max(15_000, int(rate_bit_s / 8 * 0.05)))
+        self._forwarder: _NsForwarder | None = None
+        self._background: Any = None
+        self._plan: tuple[Background, float] | None = None
+        self._bg_on = False
+
+    def open(self) -> None:
+        from sitl.linkemu import cleanup_stale
+
+        cleanup_stale()
+        self.link.open()
+
+    def wrap_drone(self, argv: Sequence[str]) -> list[str]:
+        return ["ip", "netns", "exec", self.link.ns_sender, *argv]
+
+    def wrap_gs(self, argv: Sequence[str]) -> list[str]:
+        return ["ip", "netns", "exec", self.link.ns_receiver, *argv]
+
+    def forward_http(self, port: int) -> str:
+        self._forwarder = _NsForwarder(self.link.ns_receiver, port)
+        return f"http://127.0.0.1:{self._forwarder.port}"
+
+    def schedule_background(self, background: Background, t_start: float) -> None:
+        from sitl.linkemu import Iperf3Background
+
+        self._background = Iperf3Background(self.link)
+        self._background.start_server()
+        self._plan = (background, t_start)
+
+    def tick(self, now: float) -> None:
+        """Switch the background traffic on/off at its times (called about once a second)."""
+        if self._plan is None or self._background is None:
+            return
+        bg, t_start = self._plan
+        t_on = t_start + bg.start_s
+        t_off = math.inf if bg.duration_s is None else t_on + bg.duration_s
+        if not self._bg_on and t_on <= now < t_off:
+            self._background.start(rate_bit_per_s=bg.rate_bit_s,
+                                   duration_s=min(t_off - now, 24 * 3600.0))
+            self._bg_on = True
+        elif self._bg_on and now >= t_off:
+            self._background.stop()
+            self._plan = None
+
+    def close(self) -> None:
+        if self._forwarder is not None:
+            self._forwarder.close()
+        if self._background is not None:
+            self._background.stop()
+        self.link.close()
+
+
+# -- the run -----------------------------------------------------------------------------------
+
+
+class _Stop:
+    """Set by SIGINT/SIGTERM; the launcher polls it between short sleeps."""
+
+    def __init__(self) -> None:
+        self.reason: str | None = None
+
+    def __call__(self, signum: int, frame: object) -> None:
+        self.reason = signal.Signals(signum).name
+
+    def sleep(self, seconds: float) -> bool:
+        """Sleep unless stopped; True when a stop was asked."""
+        deadline = time.monotonic() + seconds
+        while self.reason is None and time.monotonic() < deadline:
+            time.sleep(min(0.1, max(0.0, deadline - time.monotonic())))
+        return self.reason is not None
+
+
+def _scene_arg(scene: str) -> str:
+    from sitl.scenes import load_scene
+
+    path = Path(scene)
+    if path.suffix == ".toml" or path.exists():
+        scene = str(path.resolve())
+    load_scene(scene)  # fail early with the scene's own error
+    return scene
+
+
+def make_plan(args: argparse.Namespace, run_dir: Path, *, netns: bool = False) -> FleetPlan:
+    """Ports, files and budgets of a run (loopback, or the namespaces' addresses)."""
+    from sitl.linkemu import RECEIVER_ADDR
+    drones = tuple(
+        DroneSlot(index=i, drone_id=f"drone{i + 1}", system_id=i + 1,
+                  mavlink_port=free_port(), folder=run_dir / "drones" / f"drone{i + 1}")
+        for i in range(args.drones))
+    params: dict[str, Any] = {}
+    if args.constraint == "constant":
+        params = {"limit_bytes_per_s": float(args.goodput), "window_s": float(args.window)}
+    return FleetPlan(
+        run_dir=run_dir, drones=drones, scene=_scene_arg(args.scene),
+        spec_path=mission_spec_path(args.spec), gs_udp_port=free_port(),
+        gs_http_port=args.http_port or free_port(kind=socket.SOCK_STREAM),
+        gs_host=RECEIVER_ADDR if netns else "127.0.0.1",
+        gs_bind_host="0.0.0.0" if netns else "127.0.0.1",
+        drone_listen_host="0.0.0.0" if netns else "127.0.0.1",
+        camera_rate_hz=args.rate, camera_width=args.width, camera_height=args.height,
+        mcts_iterations=args.mcts_iterations, time_budget_s=args.time_budget,
+        constraint=args.constraint, constraint_params=params, alpha=args.alpha, seed=args.seed)
+
+
+def _wait(stop: _Stop, what: str, timeout_s: float, ready: Callable[[], bool],
+          watch: Sequence[Child]) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not ready():
+        for child in watch:
+            if not child.alive():
+                raise FleetError(f"{child.name} exited ({child.proc.returncode}) while waiting "
+                                 f"for {what}; its log ({child.log_path}) ends with:\n"
+                                 f"{child.tail()}")
+        if time.monotonic() > deadline:
+            raise FleetError(f"timed out after {timeout_s:g} s waiting for {what}")
+        if stop.sleep(0.2):
+            raise FleetError(f"stopped ({stop.reason}) while waiting for {what}")
+
+
+def _try(call: Callable[[], Any]) -> Any:
+    try:
+        return call()
+    except (OSError, urllib.error.URLError, ValueError):
+        return None
+
+
+def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
+    run_dir = (args.out or Path("out") / "fleet" / time.strftime("%Y%m%d-%H%M%S")).resolve()
+    netns = None
+    if args.netns:
+        netns = FleetNetns(rate_bit_s=args.link_rate)
+    plan = make_plan(args, run_dir, netns=netns is not None)
+    write_run_configs(plan)
+    from ground_station.token import ensure_token
+
+    token, _ = ensure_token(plan.gs_data_dir / "token")
+    procs = Processes(plan.logs_dir)
+    stop = _Stop()
+    previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    tty = out.isatty() and not args.quiet
+    t_start = t_end = None
+    companions: list[Child] = []
+    vehicles: list[Child] = []
+    station: list[Child] = []
+    failure: str | None = None
+    base_url = f"http://127.0.0.1:{plan.gs_http_port}"
+    try:
+        if netns is not None:
+            netns.open()
+        wrap = netns.wrap_drone if netns else (lambda argv: list(argv))
+        wrap_gs = netns.wrap_gs if netns else (lambda argv: list(argv))
+        if netns is not None:
+            base_url = netns.forward_http(plan.gs_http_port)
+        api = GroundStationApi(base_url, token)
+        print(f"run folder: {run_dir}", file=out)
+        print(f"dashboard:  {base_url}/?token={token}", file=out)
+        print(f"token:      {token}   (also: uav-ground-station token --data-dir "
+              f"{plan.gs_data_dir})", file=out)
+        out.flush()
+
+        station.append(procs.start("ground_station", wrap_gs(
+            [*_tool("uav-ground-station", "ground_station.cli"), "run",
+             "--config", str(plan.gs_config_path)])))
+        ready_file = run_dir / "vehicles.json"
+        vargv = [*_tool("uav-sitl", "sitl.cli"), "vehicle", "--count", str(args.drones),
+                 "--port", "0", "--host", plan.drone_bind_host, "--scene", plan.scene,
+                 "--pattern", args.pattern, "--autostart", "--speedup", str(args.speedup),
+                 "--flavour", args.flavour, "--seed", str(args.seed),
+                 "--ready-file", str(ready_file)]
+        for slot in plan.drones:
+            vargv += ["--out", f"{plan.drone_bind_host}:{slot.mavlink_port}"]
+        vehicles.append(procs.start("vehicles", wrap(vargv)))
+        _wait(stop, "the vehicles", 30.0, ready_file.exists, vehicles)
+        _wait(stop, "the ground station's API", 30.0,
+              lambda: _try(lambda: api.get("/api/stats")) is not None, station)
+        for slot in plan.drones:
+            companions.append(procs.start(slot.drone_id, wrap(
+                _companion_argv(slot, args.policy, args.drop_probability))))
+        print(f"waiting for {args.drones} drone(s) to be heard...", file=out)
+        out.flush()
+
+        def all_heard() -> bool:
+            fleet = _try(lambda: api.get("/api/fleet")) or {}
+            heard = {d.get("drone") for d in fleet.get("drones", [])}
+            return all(s.drone_id in heard for s in plan.drones)
+
+        _wait(stop, f"{args.drones} drones to be heard", args.ready_timeout, all_heard,
+              [*station, *vehicles, *companions])
+        t_exec = time.time() + args.start_delay
+        if _try(lambda: api.post("/api/mission/start", {"t_exec": t_exec})) is None:
+            raise FleetError(f"the ground station did not take the start command; see "
+                             f"{station[0].log_path}")
+        t_start = t_exec
+        print(f"mission started at {time.strftime('%H:%M:%S', time.localtime(t_start))} "
+              f"({args.policy}); {'Ctrl-C to stop' if args.duration == 0 else ''}"
+              f"{'' if args.duration == 0 else f'running {args.duration:g} s'}", file=out)
+        out.flush()
+        if netns is not None and args.background is not None:
+            netns.schedule_background(args.background, t_start)
+        tails = {s.drone_id: LogTail(s.log_path) for s in plan.drones}
+        station_tail = StationTail(plan.gs_log_path)
+        last_plain = 0.0
+        while True:
+            now = time.time()
+            if netns is not None:
+                netns.tick(now)
+            if args.duration and now >= t_start + args.duration:
+                break
+            dead = [c for c in (*station, *vehicles, *companions) if not c.alive()]
+            if dead:
+                failure = (f"{dead[0].name} exited ({dead[0].proc.returncode}); its log "
+                           f"({dead[0].log_path}) ends with:\n{dead[0].tail()}")
+                break
+            for tail in tails.values():
+                tail.poll()
+            station_tail.poll()
+            line = progress_line(max(0.0, now - t_start), plan.drones, tails, station_tail, now)
+            if tty:
+                width = shutil.get_terminal_size((160, 20)).columns
+                out.write("\r" + line[: width - 1].ljust(width - 1))
+                out.flush()
+            elif not args.quiet and now - last_plain >= 10.0:
+                print(line, file=out)
+                out.flush()
+                last_plain = now
+            if stop.sleep(1.0):
+                break
+        t_end = time.time()
+        if tty:
+            out.write("\n")
+        _try(lambda: api.post("/api/mission/end", {"t_exec": t_end}))
+    except FleetError as exc:
+        failure = str(exc)
+    finally:
+        print("stopping: companions, vehicles, ground station...", file=out)
+        out.flush()
+        procs.stop(companions, timeout_s=15.0)
+        procs.stop(vehicles, timeout_s=5.0)
+        time.sleep(0.5)  # the last datagrams reach the station before it stops
+        procs.stop(station, timeout_s=15.0)
+        procs.stop_all(timeout_s=5.0)
+        if netns is not None:
+            netns.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    if t_start is None or t_end is None or t_end <= t_start:
+        print(f"uav-sitl fleet: {failure or 'stopped before the mission started'}",
+              file=sys.stderr)
+        return 1
+    utility = evaluate_utility([plan.gs_log_path, *(s.log_path for s in plan.drones)],
+                               spec=plan.spec_path, t_start=t_start, t_end=t_end)
+    summary = summarize(plan, t_start=t_start, t_end=t_end, policy=args.policy, utility=utility)
+    summary["drop_probability"] = args.drop_probability if args.policy == "random" else None
+    summary["constraint"] = {"name": plan.constraint, **dict(plan.constraint_params)}
+    summary["exit_codes"] = {c.name: c.proc.returncode for c in procs.children}
+    summary["failure"] = failure
+    summary["dashboard"] = f"{base_url}/"
+    text = json.dumps(_finite(summary), indent=2, sort_keys=True, allow_nan=False)
+    (run_dir / "summary.json").write_text(text + "\n", encoding="utf-8")
+    if args.summary_json is not None:
+        args.summary_json.parent.mkdir(parents=True, exist_ok=True)
+        args.summary_json.write_text(text + "\n", encoding="utf-8")
+    print(format_summary(summary), file=out)
+    if failure:
+        print(f"uav-sitl fleet: {failure}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _finite(value: Any) -> Any:
+    """JSON-safe copy: NaN and infinities become null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+def _companion_argv(slot: DroneSlot, policy: str, drop_probability: float) -> list[str]:
+    if policy == "mcts":
+        return [*_tool("uav-companion", "companion.cli"), "--log-format", "text", "run",
+                "--config", str(slot.config_path)]
+    return [*_tool("uav-sitl", "sitl.cli"), "fleet", BASELINE_COMMAND,
+            "--config", str(slot.config_path), "--policy", policy,
+            "--drop-probability", repr(drop_probability)]
+
+
+# -- baseline companions (until uav-companion has a policy key) --------------------------------
+
+BASELINE_COMMAND = "baseline-companion"
+
+
+class RandomDropAnyVersion:
+    """Drop each message with probability ``p``, else send one of its versions picked
+    uniformly (the random baseline of thesis fig. 5.7, given the same versions to choose
+    from as the optimiser, which also keeps the delivered volume less lumpy)."""
+
+    def __init__(self, p: float, *, rng: Any) -> None:
+        if not 0.0 <= p <= 1.0:
+            raise ValueError(f"drop probability must be in [0, 1], got {p}")
+        self.p = p
+        self.rng = rng
+
+    def decide(self, message: Any, now: float) -> Any:
+        from companion.middleware.middleware import Decision
+
+        if self.rng.random() < self.p:
+            return Decision(send=False, reason="random-drop")
+        version = int(self.rng.integers(len(message.versions))) if message.versions else None
+        return Decision(send=True, version=version, reason="random-send")
+
+
+class BaselineDecider:
+    """A baseline policy (``companion.middleware.baselines``) as the companion app's decider.
+
+    ``status`` messages (a few hundred bytes every few seconds) always go, so the station
+    hears every drone however much the policy drops; this favours the baseline slightly in
+    the utility comparison, never the optimiser.
+    """
+
+    def __init__(self, policy: Any) -> None:
+        self.policy = policy
+
+    def decide(self, message: Any, now: float) -> Any:
+        if message.type == "status":
+            from companion.middleware.middleware import Decision
+
+            return Decision(send=True, version=None, reason="baseline-status")
+        return self.policy.decide(message, now)
+
+    def on_report(self, event: Any, now: float) -> None:
+        return None
+
+    def set_params(self, params: Any, now: float) -> None:
+        raise ValueError("a baseline policy has no live parameters")
+
+    def get_timer(self) -> float | None:
+        return None
+
+    def handle_timer(self, now: float) -> None:
+        return None
+
+
+def _baseline_companion(argv: Sequence[str]) -> int:
+    """``uav-companion run`` with a baseline policy instead of the middleware (same app,
+    transport, camera and mission log), so runs differ only in the decisions."""
+    import asyncio
+
+    import numpy as np
+
+    from companion.app import AppSetupError, CompanionApp, build_transport_factory, check_setup
+    from companion.cli import configure_logging
+    from companion.config import ConfigError, load_config
+    from companion.middleware.baselines import SendAll
+
+    p = argparse.ArgumentParser(prog=f"uav-sitl fleet {BASELINE_COMMAND}")
+    p.add_argument("--config", required=True)
+    p.add_argument("--policy", choices=("random", "send_all"), required=True)
+    p.add_argument("--drop-probability", type=float, default=0.5)
+    args = p.parse_args(list(argv))
+    os.environ.setdefault("MAVLINK20", "1")
+    configure_logging("info", "text")
+    try:
+        config = load_config(args.config)
+        check_setup(config)
+    except (ConfigError, AppSetupError) as exc:
+        print(f"configuration error: {exc}", file=sys.stderr)
+        return 2
+    seed = config.middleware.get("seed")
+    rng = np.random.default_rng(seed if isinstance(seed, int) else None)
+    policy = (RandomDropAnyVersion(args.drop_probability, rng=rng) if args.policy == "random"
+              else SendAll())
+
+    async def main_async() -> int:
+        app = CompanionApp(config, decider=BaselineDecider(policy),
+                           transport_factory=build_transport_factory(config, clock=time.time),
+                           clock=time.time)
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(sig, app.stop)
+        await app.run()
+        return 0
+
+    return asyncio.run(main_async())
+
+
+def main(argv: list[str]) -> int:
+    if argv and argv[0] == BASELINE_COMMAND:
+        return _baseline_companion(argv[1:])
+    args = parse_args(argv)
+    if args.netns:
+        from sitl.linkemu import missing_requirements
+
+        reason = missing_requirements()
+        if reason is not None:
+            print(f"uav-sitl fleet: --netns: {reason}", file=sys.stderr)
+            return 2
+    try:
+        return run(args)
+    except FleetError as exc:
+        print(f"uav-sitl fleet: {exc}", file=sys.stderr)
+        return 1
+    except (ValueError, OSError) as exc:  # scene errors, unwritable run folder...
+        print(f"uav-sitl fleet: {exc}", file=sys.stderr)
+        return 2
+

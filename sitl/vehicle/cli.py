@@ -1,0 +1,225 @@
+"""``uav-sitl vehicle``: run N simulated MAVLink vehicles on UDP until stopped.
+
+Prints one ``READY {json}`` line per vehicle once its socket is bound (with the real port,
+so ``--port 0`` works for tests and launchers), then serves until SIGINT/SIGTERM or
+``--duration``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import os
+import signal
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from sitl.geo import Enu, GeoPoint, geo_from_enu
+
+if TYPE_CHECKING:  # pymavlink is imported only after MAVLINK20 is set in main()
+    from sitl.vehicle.core import VehicleConfig
+    from sitl.vehicle.mission import MissionItem
+
+__all__ = ["build_configs", "main", "parse_args"]
+
+
+def _home(text: str) -> GeoPoint:
+    try:
+        parts = [float(x) for x in text.split(",")]
+        if len(parts) not in (2, 3):
+            raise ValueError
+        return GeoPoint(lat_deg=parts[0], lon_deg=parts[1],
+                        alt_m=parts[2] if len(parts) == 3 else 0.0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LAT,LON[,ALT], got {text!r}") from None
+
+
+def _addr(text: str) -> tuple[str, int]:
+    host, _, port = text.rpartition(":")
+    try:
+        return (host or "127.0.0.1", int(port))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}") from None
+
+
+def _param(text: str) -> tuple[str, float]:
+    name, _, value = text.partition("=")
+    try:
+        return name.strip(), float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}") from None
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="uav-sitl vehicle",
+        description="Simulated multicopters speaking MAVLink 2 on UDP (PX4- or ArduPilot-like)."
+                    " Clients send to HOST:PORT; the vehicle answers the address it heard"
+                    " from (and --out).")
+    p.add_argument("--port", type=int, default=14550,
+                   help="UDP port of the first vehicle; vehicle i uses PORT+i (0: any free)")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
+    p.add_argument("--count", type=int, default=1, help="number of vehicles (default 1)")
+    p.add_argument("--sysid", type=int, default=1, help="system id of the first vehicle")
+    p.add_argument("--flavour", choices=("px4", "ardupilot"), default="px4")
+    p.add_argument("--speedup", type=float, default=1.0,
+                   help="simulated seconds per wall second (default 1)")
+    p.add_argument("--home", type=_home, default=None,
+                   help="LAT,LON[,ALT] of home (default: the scene's home)")
+    p.add_argument("--scene", default="demo",
+                   help="scene name or TOML path: home, area and targets for patterns")
+    p.add_argument("--pattern", nargs="+", metavar=("KIND", "FILE"), default=None,
+                   help="preload a mission: survey | orbit | waypoints FILE")
+    p.add_argument("--alt", type=float, default=None, help="pattern altitude (m above home)")
+    p.add_argument("--spacing", type=float, default=None, help="survey leg spacing (m)")
+    p.add_argument("--radius", type=float, default=20.0, help="orbit radius (m)")
+    p.add_argument("--speed", type=float, default=5.0, help="pattern cruise speed (m/s)")
+    p.add_argument("--autostart", action="store_true",
+                   help="arm and start the preloaded mission right away")
+    p.add_argument("--out", type=_addr, action="append", default=None,
+                   help="also send to HOST:PORT (one per vehicle; repeat or give once for"
+                        " PORT+i)")
+    p.add_argument("--param", type=_param, action="append", default=[],
+                   help="NAME=VALUE parameter override (repeatable)")
+    p.add_argument("--wind", type=float, nargs=2, metavar=("SPEED", "FROM_DEG"),
+                   default=None, help="mean wind speed (m/s) and direction it blows from")
+    p.add_argument("--duration", type=float, default=None, help="stop after S wall seconds")
+    p.add_argument("--seed", type=int, default=0, help="seed of the GPS noise")
+    p.add_argument("--ready-file", type=Path, default=None,
+                   help="write the list of READY records as JSON here once all are bound")
+    args = p.parse_args(argv)
+    if args.count < 1 or args.count > 250:
+        p.error("--count must be in 1..250")
+    if args.pattern:
+        kind = args.pattern[0]
+        if kind not in ("survey", "orbit", "waypoints"):
+            p.error("--pattern must be survey, orbit or waypoints FILE")
+        if kind == "waypoints" and len(args.pattern) != 2:
+            p.error("--pattern waypoints needs a FILE")
+        if kind != "waypoints" and len(args.pattern) != 1:
+            p.error(f"--pattern {kind} takes no file")
+    return args
+
+
+def build_configs(args: argparse.Namespace) -> list[VehicleConfig]:
+    """One VehicleConfig per vehicle: homes 4 m apart eastwards, patterns split the area."""
+    from sitl.scenes import load_scene
+    from sitl.vehicle.core import VehicleConfig
+    from sitl.vehicle.flavour import FLAVOURS
+    from sitl.vehicle.patterns import load_waypoints, orbit, survey
+
+    scene = load_scene(args.scene)
+    origin = args.home or scene.home
+    flavour = FLAVOURS[args.flavour]
+    alt = args.alt or scene.default_alt_m
+    params = dict(args.param)
+    if args.wind:
+        params.setdefault("SIM_WIND_SPD", args.wind[0])
+        params.setdefault("SIM_WIND_DIR", args.wind[1])
+    ap = flavour.name == "ardupilot"
+    configs = []
+    for i in range(args.count):
+        g = geo_from_enu(Enu(east_m=4.0 * i, north_m=0.0), origin)
+        home = GeoPoint(lat_deg=g.lat_deg, lon_deg=g.lon_deg, alt_m=origin.alt_m)
+        mission: list[MissionItem] = []
+        if args.pattern:
+            kind = args.pattern[0]
+            if kind == "survey":
+                strip = scene.width_m / args.count
+                center = (-scene.width_m / 2 + strip * (i + 0.5), 0.0)
+                spacing = args.spacing or max(5.0, 0.8 * 2 * alt * 0.7)  # ~80% of footprint
+                # Pattern coordinates are scene-local; this vehicle's home is 4 m * i east.
+                mission = survey(origin, center_en_m=center, width_m=max(strip - spacing, 1.0),
+                                 height_m=scene.height_m * 0.9, spacing_m=spacing, alt_m=alt,
+                                 speed_m_s=args.speed, item0_is_home=ap)
+            elif kind == "orbit":
+                tgt = scene.targets[0] if scene.targets else None
+                center = (tgt.east_m, tgt.north_m) if tgt else (0.0, 0.0)
+                mission = orbit(origin, center_en_m=center, radius_m=args.radius, alt_m=alt,
+                                start_deg=360.0 * i / args.count, speed_m_s=args.speed,
+                                item0_is_home=ap)
+            else:
+                mission = load_waypoints(Path(args.pattern[1]), home=home, default_alt_m=alt,
+                                         item0_is_home=ap)
+        configs.append(VehicleConfig(system_id=args.sysid + i, flavour=flavour, home=home,
+                                     params=params, mission=tuple(mission),
+                                     seed=args.seed + i))
+    return configs
+
+
+async def _serve(args: argparse.Namespace) -> int:
+    from sitl.vehicle.flavour import Mode
+    from sitl.vehicle.shell import start_vehicles
+
+    configs = build_configs(args)
+    ports = [0 if args.port == 0 else args.port + i for i in range(args.count)]
+    outs = None
+    if args.out:
+        if len(args.out) == 1:
+            host, port = args.out[0]
+            outs = [(host, port + i) for i in range(args.count)]
+        elif len(args.out) == args.count:
+            outs = list(args.out)
+        else:
+            print("uav-sitl vehicle: give --out once or once per vehicle", file=sys.stderr)
+            return 2
+    endpoints = await start_vehicles(configs, host=args.host, ports=ports,
+                                     speedup=args.speedup, outs=outs)
+    records = []
+    for ep, cfg in zip(endpoints, configs, strict=True):
+        if args.autostart and cfg.mission:
+            ep.core.fc.arm()
+            ep.core.fc.set_mode(Mode.MISSION)
+        rec = {"sysid": cfg.system_id, "host": ep.address[0], "port": ep.address[1],
+               "flavour": cfg.flavour.name, "home": [cfg.home.lat_deg, cfg.home.lon_deg,
+                                                     cfg.home.alt_m],
+               "mission_items": len(cfg.mission), "speedup": args.speedup}
+        records.append(rec)
+        print("READY " + json.dumps(rec), flush=True)
+    if args.ready_file:
+        tmp = args.ready_file.with_suffix(".tmp")
+        tmp.write_text(json.dumps(records))
+        os.replace(tmp, args.ready_file)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop.set)
+    try:
+        if args.duration is not None:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), args.duration)
+        else:
+            await stop.wait()
+    finally:
+        for ep in endpoints:
+            ep.close()
+    bad = {k: v for ep in endpoints for k, v in ep.core.counters.items()}
+    if bad:
+        print("counters: " + json.dumps(bad, sort_keys=True), file=sys.stderr)
+    return 0
+
+
+def main(argv: list[str]) -> int:
+    os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported anywhere
+    args = parse_args(argv)
+    from sitl.scenes import SceneError
+    from sitl.vehicle.patterns import PatternError
+
+    try:
+        return asyncio.run(_serve(args))
+    except (SceneError, PatternError) as exc:
+        print(f"uav-sitl vehicle: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"uav-sitl vehicle: cannot bind: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

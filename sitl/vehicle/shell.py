@@ -1,0 +1,156 @@
+"""The asyncio shell around :class:`~sitl.vehicle.core.VehicleCore`: one UDP socket per vehicle.
+
+aioquic-shaped: every entry point calls the core with ``now`` from a :class:`SimClock`, then
+``transmit()`` sends what the core produced and re-arms exactly one timer. The vehicle sends
+to every peer heard in the last ``peer_ttl_s`` wall seconds (at least the last one heard) and
+to a fixed ``out`` address if configured.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import cast
+
+from sitl.vehicle.core import VehicleConfig, VehicleCore
+
+__all__ = ["SimClock", "VehicleEndpoint", "VehicleProtocol", "start_vehicles"]
+
+Addr = tuple[str, int]
+
+
+class SimClock:
+    """Vehicle time in simulated seconds since boot: loop time scaled by ``speedup``."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, speedup: float = 1.0) -> None:
+        if not speedup > 0.0:
+            raise ValueError(f"speedup must be > 0, got {speedup}")
+        self._loop = loop
+        self.speedup = speedup
+        self._t0 = loop.time()
+
+    @property
+    def loop(self) -> asyncio.AbstractEventLoop:
+        return self._loop
+
+    def __call__(self) -> float:
+        return (self._loop.time() - self._t0) * self.speedup
+
+    def wall_delay(self, sim_deadline: float) -> float:
+        """Wall seconds until the simulated deadline (never negative)."""
+        return max(0.0, (sim_deadline - self()) / self.speedup)
+
+
+class VehicleProtocol(asyncio.DatagramProtocol):
+    """Feeds datagrams and timers into one core and sends its output."""
+
+    def __init__(self, core: VehicleCore, clock: SimClock, *, out: Addr | None = None,
+                 peer_ttl_s: float = 10.0, max_peers: int = 8) -> None:
+        self.core = core
+        self.clock = clock
+        self.out = out
+        self.peer_ttl_s = peer_ttl_s
+        self.max_peers = max_peers
+        self.peers: dict[Addr, float] = {}
+        self.transport: asyncio.DatagramTransport | None = None
+        self._timer: asyncio.TimerHandle | None = None
+        self.send_errors = 0
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = cast(asyncio.DatagramTransport, transport)
+        self.transmit()
+
+    def datagram_received(self, data: bytes, addr: tuple[str | int, ...]) -> None:
+        peer = (str(addr[0]), int(addr[1]))
+        now_wall = self.clock.loop.time()
+        self.peers.pop(peer, None)
+        self.peers[peer] = now_wall  # most recent last
+        while len(self.peers) > self.max_peers:
+            self.peers.pop(next(iter(self.peers)))
+        self.core.receive_datagram(data, peer, self.clock())
+        self.transmit()
+
+    def error_received(self, exc: Exception) -> None:
+        # ICMP port unreachable from a client that went away: count, keep serving.
+        self.send_errors += 1
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+
+    def destinations(self) -> list[Addr]:
+        now_wall = self.clock.loop.time()
+        recent = [a for a, t in self.peers.items() if now_wall - t <= self.peer_ttl_s]
+        if not recent and self.peers:
+            recent = [next(reversed(self.peers))]
+        if self.out is not None and self.out not in recent:
+            recent.append(self.out)
+        return recent
+
+    def transmit(self) -> None:
+        if self.transport is None or self.transport.is_closing():
+            return
+        frames = self.core.datagrams_to_send()
+        if frames:
+            dests = self.destinations()
+            for frame in frames:
+                for dest in dests:
+                    self.transport.sendto(frame, dest)
+        if self._timer is not None:
+            self._timer.cancel()
+        delay = self.clock.wall_delay(self.core.get_timer())
+        self._timer = self.clock.loop.call_later(delay, self._on_timer)
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self.core.handle_timer(self.clock())
+        self.transmit()
+
+
+@dataclass(slots=True)
+class VehicleEndpoint:
+    """A running vehicle: its core, protocol and bound address."""
+
+    core: VehicleCore
+    protocol: VehicleProtocol
+    transport: asyncio.DatagramTransport
+    address: Addr
+
+    def close(self) -> None:
+        self.transport.close()
+
+
+async def start_vehicles(
+    configs: Sequence[VehicleConfig],
+    *,
+    host: str = "127.0.0.1",
+    ports: Sequence[int],
+    speedup: float = 1.0,
+    outs: Sequence[Addr | None] | None = None,
+) -> list[VehicleEndpoint]:
+    """Bind one UDP endpoint per config (port 0 picks a free port) on the running loop.
+
+    All vehicles share one :class:`SimClock`, so they fly in the same simulated time.
+    """
+    if len(ports) != len(configs):
+        raise ValueError("one port per vehicle config is needed")
+    loop = asyncio.get_running_loop()
+    clock = SimClock(loop, speedup)
+    endpoints: list[VehicleEndpoint] = []
+    try:
+        for i, (config, port) in enumerate(zip(configs, ports, strict=True)):
+            core = VehicleCore(replace(config, speedup=speedup), now=clock())
+            out = outs[i] if outs is not None else None
+            protocol = VehicleProtocol(core, clock, out=out)
+            transport, _ = await loop.create_datagram_endpoint(
+                lambda p=protocol: p, local_addr=(host, port))  # type: ignore[misc]
+            sock_addr = transport.get_extra_info("sockname")
+            endpoints.append(VehicleEndpoint(core=core, protocol=protocol, transport=transport,
+                                             address=(str(sock_addr[0]), int(sock_addr[1]))))
+    except BaseException:
+        for ep in endpoints:
+            ep.close()
+        raise
+    return endpoints

@@ -1,0 +1,131 @@
+"""Headless Chromium (Debian package) drives the dashboard against a live test fleet.
+
+Screenshots go to artifacts/browser/ (gitignored).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ground_station.app import create_app
+from ground_station.config import GroundConfig
+from ground_station.fake_drone import FakeDrone, fly_demo_fleet
+from ground_station.keys import LINK
+
+CHROMIUM = Path("/usr/bin/chromium")
+ARTIFACTS = Path(__file__).resolve().parents[2] / "artifacts" / "browser"
+LAUNCH_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+KEY = b"browser-test-fleet-key-0000000"
+TOKEN = "browser-test-token-0123456789"
+
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(
+        not CHROMIUM.exists(), reason="needs Debian chromium: apt-get install chromium"
+    ),
+]
+
+
+async def test_dashboard_live_tiles_and_start_mission(
+    tmp_path: Path, aiohttp_server: Callable[..., Any]
+) -> None:
+    playwright_api = pytest.importorskip("playwright.async_api")
+    config = GroundConfig(
+        fleet_id=21,
+        fleet_key=KEY,
+        data_dir=tmp_path / "gs",
+        mission="browser",
+        udp_host="127.0.0.1",
+        udp_port=0,
+        report_interval_s=0.25,
+        command_retry_s=0.3,
+        fsync=False,
+    )
+    server = await aiohttp_server(create_app(config, token=TOKEN))
+    ground = server.app[LINK].local_addr
+    fleet: list[FakeDrone] = []
+    flying = asyncio.create_task(
+        fly_demo_fleet(
+            ground,
+            fleet_id=21,
+            key=KEY,
+            drones=4,
+            duration_s=60.0,
+            images_per_s=3.0,
+            on_start=fleet.extend,
+        )
+    )
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    errors: list[str] = []
+    try:
+        async with playwright_api.async_playwright() as pw:
+            browser = await pw.chromium.launch_persistent_context(
+                str(tmp_path / "chromium-profile"),
+                executable_path=str(CHROMIUM),
+                args=LAUNCH_ARGS,
+                headless=True,
+                viewport={"width": 1400, "height": 1000},
+            )
+            page = browser.pages[0] if browser.pages else await browser.new_page()
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            await page.goto(f"http://127.0.0.1:{server.port}/?token={TOKEN}")
+            # tiles appear and keep updating from the live sender
+            tile = page.locator('.tile[data-drone="uav2"]')
+            await tile.wait_for(timeout=15_000)
+            first = int(await tile.get_attribute("data-images") or 0)
+            await page.wait_for_function(
+                """n => Number(document.querySelector('.tile[data-drone="uav2"]')
+                        .dataset.images) >= n + 3""",
+                arg=first,
+                timeout=15_000,
+            )
+            assert await page.locator(".tile").count() == 4
+            # uav2 sees red (1 + 10·0.45 = 5.5 >= 3): red border; uav1 does not
+            assert "high" in (await tile.get_attribute("class") or "")
+            uav1_class = await page.locator('.tile[data-drone="uav1"]').get_attribute("class")
+            assert "high" not in (uav1_class or "")
+            await page.wait_for_function(
+                "document.querySelector('#map').querySelectorAll('circle').length === 4",
+                timeout=10_000,
+            )
+            await page.wait_for_selector("#gallery figure", timeout=15_000)
+            await page.screenshot(path=str(ARTIFACTS / "dashboard_live.png"), full_page=True)
+
+            # start mission: the COMMAND reaches every drone, which acks it
+            await page.fill("#start-delay", "5")
+            clicked = time.time()
+            await page.click("#btn-start")
+            commands = await asyncio.gather(*(d.wait_command(timeout=10) for d in fleet))
+            for received in commands:
+                assert received.command.name == "start"
+                assert clicked + 4.0 < received.command.t_exec < time.time() + 5.0
+            await page.wait_for_selector("#toast:not(.hidden)", timeout=5_000)
+            assert "start mission: command #" in await page.inner_text("#toast")
+            await page.wait_for_function(
+                "document.querySelector('#mission-info').innerText.includes('acked 4/4')",
+                timeout=10_000,
+            )
+            assert await page.inner_text("#mission-phase") == "scheduled"
+            await page.screenshot(path=str(ARTIFACTS / "dashboard_mission.png"), full_page=True)
+            await browser.close()
+    finally:
+        flying.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await flying
+    assert errors == []

@@ -1,0 +1,300 @@
+"""The app with fake decider and transport: pipeline, decision log, commands, live params."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import json
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from companion_fake_vehicle import FakeVehicle
+
+from companion.app import CompanionApp
+from companion.config import BudgetConfig, parse_config
+from companion.protocol import Command, CommandReceived, Status
+from utility_specs.log import read_log
+from utility_specs.message import Message
+
+
+@dataclass(frozen=True)
+class FakeDecision:
+    send: bool
+    version: int | None
+    reason: str
+    score: float = 0.0
+
+
+class FakeDecider:
+    """Sends images with red >= threshold in their half version, all telemetry."""
+
+    def __init__(self, *, delay_s: float = 0.0) -> None:
+        self.threshold = 0.2
+        self.delay_s = delay_s
+        self.decided: list[Message] = []
+        self.reports: list[Any] = []
+        self.params: list[Mapping[str, Any]] = []
+
+    def decide(self, message: Message, now: float) -> FakeDecision:
+        time.sleep(self.delay_s)
+        self.decided.append(message)
+        if message.type != "image":
+            return FakeDecision(True, None, "telemetry", 1.0)
+        if message.data["red"] >= self.threshold:
+            return FakeDecision(True, 1, "red enough", 2.0)
+        return FakeDecision(False, None, "not red", 0.0)
+
+    def on_report(self, event: Any, now: float) -> None:
+        self.reports.append(event)
+
+    def set_params(self, params: Mapping[str, Any], now: float) -> None:
+        self.params.append(dict(params))
+        if "threshold" in params:
+            self.threshold = float(params["threshold"])
+
+    def get_timer(self) -> float | None:
+        return None
+
+    def handle_timer(self, now: float) -> None:
+        pass
+
+
+class FakeTransport:
+    def __init__(self, on_event: Any) -> None:
+        self.on_event = on_event
+        self.sent: list[tuple[Message, bytes]] = []
+        self.statuses: list[Status] = []
+        self._stop = asyncio.Event()
+
+    async def run(self) -> None:
+        await self._stop.wait()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def send_message(self, message: Message, payload: bytes, now: float) -> int:
+        self.sent.append((message, payload))
+        return 1
+
+    def send_status(self, status: Status, now: float) -> int:
+        self.statuses.append(status)
+        return 1
+
+
+class RedThenPlain:
+    """Frames alternate: a quarter red, plain grey."""
+
+    description = "alternating"
+
+    def __init__(self) -> None:
+        self.i = 0
+
+    def read(self, *, timeout_s: float) -> np.ndarray:
+        self.i += 1
+        image = np.full((120, 160, 3), 128, np.uint8)
+        if self.i % 2:
+            image[0:60, 0:80] = (0, 0, 255)
+        return image
+
+    def close(self) -> None:
+        pass
+
+
+def _config(vehicle: FakeVehicle, tmp_path: Path, **camera: Any) -> Any:
+    return parse_config({
+        "drone": {"id": "d1"},
+        "mavlink": {"url": f"udpout:127.0.0.1:{vehicle.port}", "heartbeat_timeout_s": 2.0},
+        "camera": {"source": "unused", "width": 160, "height": 120, "rate_hz": 20.0,
+                   **camera},
+        "scoring": {"red_share": {"scale": 1.0}},
+        "mission": {"log": str(tmp_path / "mission.jsonl")},
+        "telemetry": {"position_rate_hz": 5.0, "battery_period_s": 0.2,
+                      "status_period_s": 0.5},
+    })
+
+
+def _make(config: Any, decider: FakeDecider, **kw: Any) -> tuple[CompanionApp, list[Any]]:
+    transports: list[FakeTransport] = []
+
+    def factory(on_event: Any) -> FakeTransport:
+        transports.append(FakeTransport(on_event))
+        return transports[-1]
+
+    app = CompanionApp(config, decider=decider, transport_factory=factory, clock=time.time,
+                       frame_source=RedThenPlain(), **kw)
+    return app, transports
+
+
+async def _until(predicate: Any, timeout_s: float = 5.0) -> None:
+    async with asyncio.timeout(timeout_s):
+        while not predicate():
+            await asyncio.sleep(0.02)
+
+
+async def test_pipeline_sends_what_the_decider_chooses_and_logs_why(
+        vehicle: FakeVehicle, tmp_path: Path) -> None:
+    decider = FakeDecider()
+    app, transports = _make(_config(vehicle, tmp_path), decider)
+    task = asyncio.create_task(app.run())
+    try:
+        await _until(lambda: {"image", "position", "battery", "status"} <= set(app.sent_by_type))
+        await _until(lambda: app.counters["dropped"] >= 2)
+    finally:
+        app.stop()
+        await asyncio.wait_for(task, 10)
+    sent = transports[0].sent
+    images = [(m, p) for m, p in sent if m.type == "image"]
+    assert images and all(m.version == 1 and m.data["red"] == 0.25 for m, _ in images)
+    assert all(m.size == m.versions[1].size == len(p) for m, p in images)
+    assert all(m.t_sent is not None and m.t_sent >= m.t_gen for m, _ in sent)
+    position = next(m for m, _ in sent if m.type == "position")
+    assert position.data["lat_deg"] == pytest.approx(50.0615, abs=1e-3)
+    battery = next(m for m, p in sent if m.type == "battery")
+    assert battery.data["level"] == 0.87
+    assert all(len(p) == m.size for m, p in sent if m.type != "image")
+    seqs = [m.seq for m in decider.decided]
+    assert len(set(seqs)) == len(seqs)  # one sequence space per drone
+
+    lines = [json.loads(x) for x in (tmp_path / "mission.jsonl").read_text().splitlines()]
+    decisions = [r for r in lines if "decision" in r]
+    assert {r["decision"]["reason"] for r in decisions} >= {"red enough", "not red", "telemetry"}
+    dropped = [r for r in decisions if not r["decision"]["send"]]
+    assert all(r["t_sent"] is None and r["t_rcv"] is None for r in dropped)
+    log = read_log(tmp_path / "mission.jsonl")  # the model's reader accepts it
+    assert len(log.messages) == len(decisions)
+
+
+async def test_commands_run_at_their_instant_once(vehicle: FakeVehicle, tmp_path: Path) -> None:
+    decider = FakeDecider()
+    app, transports = _make(_config(vehicle, tmp_path, enabled=False), decider)
+    task = asyncio.create_task(app.run())
+    try:
+        await _until(lambda: bool(transports))
+        transport = transports[0]
+        t_exec = time.time() + 0.3
+        end = Command(command_id=5, name="end", t_exec=t_exec)
+        event = CommandReceived(command=end, sender="gs", t_sent=time.time(),
+                                t_rcv=time.time(), addr=("127.0.0.1", 1))
+        transport.on_event(event)
+        transport.on_event(event)  # the ground station retries until acknowledged
+        assert [s.state for s in transport.statuses] == ["ack", "ack"]
+        assert app.mission_state == "running"
+        await _until(lambda: app.mission_state == "ended")
+        assert time.time() >= t_exec
+        await _until(lambda: any(s.state == "done" for s in transport.statuses))
+        assert app.counters["commands"] == 1
+
+        params = Command(command_id=6, name="set_params", t_exec=0.0,
+                         args={"threshold": 0.9, "time_budget_s": 0.2})
+        transport.on_event(CommandReceived(command=params, sender="gs", t_sent=0.0, t_rcv=0.0,
+                                           addr=("127.0.0.1", 1)))
+        await _until(lambda: decider.params == [{"threshold": 0.9, "time_budget_s": 0.2}])
+        assert app.config.budgets.time_budget_s == 0.2
+
+        other = Command(command_id=7, name="end", t_exec=0.0, target="d2")
+        transport.on_event(CommandReceived(command=other, sender="gs", t_sent=0.0, t_rcv=0.0,
+                                           addr=("127.0.0.1", 1)))
+        bad = Command(command_id=8, name="self_destruct", t_exec=0.0)
+        transport.on_event(CommandReceived(command=bad, sender="gs", t_sent=0.0, t_rcv=0.0,
+                                           addr=("127.0.0.1", 1)))
+        await _until(lambda: any(s.state == "error" for s in transport.statuses))
+        error = next(s for s in transport.statuses if s.state == "error")
+        assert error.command_id == 8 and "unknown command" in error.info["error"]
+        assert all(s.command_id != 7 for s in transport.statuses)
+    finally:
+        app.stop()
+        await asyncio.wait_for(task, 10)
+
+
+async def test_waiting_for_start_sends_only_status_until_start(
+        vehicle: FakeVehicle, tmp_path: Path) -> None:
+    decider = FakeDecider()
+    config = _config(vehicle, tmp_path)
+    config = dataclasses.replace(config, mission=dataclasses.replace(config.mission,
+                                                                     wait_for_start=True))
+    app, transports = _make(config, decider)
+    assert app.mission_state == "idle"
+    task = asyncio.create_task(app.run())
+    try:
+        await _until(lambda: app.counters["not_running"] >= 3 and "status" in app.sent_by_type)
+        assert {m.type for m, _ in transports[0].sent} == {"status"}
+        assert transports[0].sent[-1][0].data["mission"] == "idle"
+        start = Command(command_id=1, name="start", t_exec=time.time())
+        transports[0].on_event(CommandReceived(command=start, sender="gs", t_sent=0.0,
+                                               t_rcv=0.0, addr=("127.0.0.1", 1)))
+        await _until(lambda: "image" in app.sent_by_type)
+        await _until(lambda: any(m.type == "status" and m.data["mission"] == "running"
+                                 for m, _ in transports[0].sent))
+    finally:
+        app.stop()
+        await asyncio.wait_for(task, 10)
+
+
+async def test_slow_decisions_are_bounded_and_counted(
+        vehicle: FakeVehicle, tmp_path: Path) -> None:
+    config = _config(vehicle, tmp_path, enabled=False)
+    config = dataclasses.replace(config, budgets=BudgetConfig(time_budget_s=0.05))
+    decider = FakeDecider(delay_s=0.5)
+    app, _ = _make(config, decider)
+    task = asyncio.create_task(app.run())
+    try:
+        await _until(lambda: app.counters["decide_timeouts"] >= 1, 8)
+    finally:
+        app.stop()
+        await asyncio.wait_for(task, 10)
+    records = [json.loads(x) for x in (tmp_path / "mission.jsonl").read_text().splitlines()]
+    assert any(r.get("decision", {}).get("reason") == "decision timeout" for r in records)
+
+
+async def test_reports_go_to_the_decider(vehicle: FakeVehicle, tmp_path: Path) -> None:
+    from companion.protocol import Report, ReportReceived
+
+    decider = FakeDecider()
+    app, transports = _make(_config(vehicle, tmp_path, enabled=False), decider)
+    task = asyncio.create_task(app.run())
+    try:
+        await _until(lambda: bool(transports))
+        event = ReportReceived(report=Report(), reporter="gs", report_number=1, part_index=0,
+                               part_count=1, t_sent=time.time(), t_rcv=time.time(),
+                               addr=("127.0.0.1", 1))
+        transports[0].on_event(event)
+        await _until(lambda: decider.reports == [event])
+    finally:
+        app.stop()
+        await asyncio.wait_for(task, 10)
+
+
+def test_mission_log_skips_records_json_cannot_carry(tmp_path: Path) -> None:
+    from companion.app import MissionLogWriter
+
+    writer = MissionLogWriter(tmp_path / "m.jsonl")
+    assert writer.write({"state": {"agent": "d1", "t": 1.0}}) is True
+    assert writer.write({"state": {"agent": "d1", "t": float("nan")}}) is False
+    writer.close()
+    assert (tmp_path / "m.jsonl").read_text() == '{"state":{"agent":"d1","t":1.0}}\n'
+
+
+async def test_status_carries_statustext_fix_and_constraint(
+        vehicle: FakeVehicle, tmp_path: Path) -> None:
+    from companion.middleware.constraint import ConstantConstraint
+    from companion.telemetry import StatusTextSample
+
+    decider = FakeDecider()
+    decider.constraint = ConstantConstraint(limit_bytes_per_s=1234.0)  # type: ignore[attr-defined]
+    app, transports = _make(_config(vehicle, tmp_path, enabled=False), decider)
+    task = asyncio.create_task(app.run())
+    try:
+        await _until(lambda: app.telemetry.snapshot().gps_fix_type is not None)
+        app.telemetry.apply(StatusTextSample(t=time.time(), severity=2, text="PreArm: GPS"))
+        await _until(lambda: any("statustext" in m.data for m, _ in transports[0].sent))
+    finally:
+        app.stop()
+        await asyncio.wait_for(task, 10)
+    status = next(m for m, _ in transports[0].sent if "statustext" in m.data)
+    assert (status.data["statustext"], status.data["severity"]) == ("PreArm: GPS", 2)
+    assert status.data["xi_bytes_per_s"] == 1234.0 and status.data["fix_type"] == 3

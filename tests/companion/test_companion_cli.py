@@ -1,0 +1,127 @@
+"""``uav-companion`` as a real subprocess: check, install-service, configuration errors."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from companion_fake_vehicle import FakeVehicle
+
+from companion.service import UNIT_NAME, install_service, unit_text
+
+SCRIPT = Path(sys.executable).parent / "uav-companion"
+COMMAND = [str(SCRIPT)] if SCRIPT.exists() else [sys.executable, "-m", "companion.cli"]
+
+
+def _cli(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*COMMAND, "--log-format", "text", *args], capture_output=True,
+                          text=True, timeout=timeout, check=False)
+
+
+def _config(tmp_path: Path, url: str, camera: str) -> Path:
+    path = tmp_path / "companion.toml"
+    path.write_text(f'[drone]\nid = "d1"\n[mavlink]\nurl = "{url}"\n'
+                    f'[camera]\nsource = "{camera}"\n[constraint]\nname = "constant"\n'
+                    'params = { limit_bytes_per_s = 20000.0 }\n')
+    return path
+
+
+@pytest.fixture
+def frames(tmp_path: Path) -> Path:
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "a.png"), np.zeros((240, 320, 3), np.uint8))
+    return folder
+
+
+def test_check_reports_vehicle_and_camera(vehicle: FakeVehicle, tmp_path: Path,
+                                          frames: Path) -> None:
+    config = _config(tmp_path, f"udpout:127.0.0.1:{vehicle.port}", str(frames))
+    result = _cli("check", "--config", str(config), "--timeout", "10")
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    assert "ardupilot autopilot" in out and "mode STABILIZE" in out
+    assert "position 50.06" in out and "battery 12.30 V, 87 %" in out
+    assert f"camera: folder:{frames}: frame 320x240" in out
+    assert "mission spec: utility_specs/missions/image_streaming.toml" in out
+    assert out.rstrip().endswith("check: ok")
+
+
+def test_check_without_vehicle_fails_with_reason(tmp_path: Path, frames: Path) -> None:
+    config = _config(tmp_path, "udpout:127.0.0.1:9", str(frames))
+    result = _cli("check", "--config", str(config), "--timeout", "1", "--skip-camera")
+    assert result.returncode == 1
+    assert "no autopilot HEARTBEAT within 1 s" in result.stdout
+
+
+def test_bad_config_exits_2_naming_file_and_key(tmp_path: Path) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text('[drone]\nid = "d1"\n[camera]\nrate_hz = 0\n')
+    result = _cli("check", "--config", str(path))
+    assert result.returncode == 2
+    assert f"{path}: camera.rate_hz: expected a number > 0, got 0" in result.stderr
+
+
+def test_bad_constraint_is_caught_by_check(tmp_path: Path) -> None:
+    path = tmp_path / "c.toml"
+    path.write_text('[drone]\nid = "d1"\n[constraint]\nname = "magic"\n')
+    result = _cli("check", "--config", str(path), "--skip-mavlink", "--skip-camera")
+    assert result.returncode == 2
+    assert "constraint" in result.stderr and "magic" in result.stderr
+
+
+def test_install_service_dry_run_and_unit_dir(tmp_path: Path) -> None:
+    config = tmp_path / "companion.toml"
+    config.write_text('[drone]\nid = "d1"\n')
+    dry = _cli("install-service", "--config", str(config), "--dry-run")
+    assert dry.returncode == 0
+    assert "Restart=on-failure" in dry.stdout and f"run --config {config}" in dry.stdout
+    assert "# would run: systemctl enable --now uav-companion.service" in dry.stdout
+    unit_dir = tmp_path / "units"
+    written = _cli("install-service", "--config", str(config), "--unit-dir", str(unit_dir),
+                   "--no-enable")
+    assert written.returncode == 0, written.stderr
+    text = (unit_dir / UNIT_NAME).read_text()
+    assert "Restart=on-failure" in text and "WantedBy=multi-user.target" in text
+
+
+def test_install_service_enables_through_systemctl(tmp_path: Path) -> None:
+    calls: list[tuple[str, ...]] = []
+
+    def runner(argv: object) -> int:
+        calls.append(tuple(argv))  # type: ignore[arg-type]
+        return 0
+
+    result = install_service(config_path=tmp_path / "c.toml", unit_dir=tmp_path, runner=runner)
+    assert result.written and calls == [("systemctl", "daemon-reload"),
+                                        ("systemctl", "enable", "--now", UNIT_NAME)]
+    with pytest.raises(RuntimeError, match="daemon-reload failed with exit status 1"):
+        install_service(config_path=tmp_path / "c.toml", unit_dir=tmp_path,
+                        runner=lambda argv: 1)
+
+
+def test_unit_text_quotes_paths_and_sets_user() -> None:
+    text = unit_text(config_path=Path("/etc/my dir/c.toml"), exec_argv=["/usr/bin/uav-companion"],
+                     user="pi")
+    assert "ExecStart=/usr/bin/uav-companion run --config '/etc/my dir/c.toml'" in text
+    assert "User=pi" in text and "SupplementaryGroups=dialout video" in text
+
+
+def test_structured_logs_are_one_json_object_per_line(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+    import logging
+
+    from companion.cli import configure_logging
+
+    configure_logging("info", "json")
+    logging.getLogger("companion.test").info("link %s", "lost", extra={"event": "link"})
+    record = json.loads(capsys.readouterr().err.strip().splitlines()[-1])
+    assert record["msg"] == "link lost" and record["event"] == "link"
+    assert record["level"] == "info" and record["logger"] == "companion.test"
+    logging.getLogger().handlers.clear()
+    logging.getLogger().setLevel(logging.WARNING)

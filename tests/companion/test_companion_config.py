@@ -1,0 +1,96 @@
+"""Configuration: the example parses; every error names file, key and expected value."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from companion.config import DEMO_FLEET_KEY, ConfigError, load_config, parse_config
+
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "companion.toml"
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "config.toml"
+    path.write_text(text)
+    return path
+
+
+def test_example_config_is_valid_and_complete() -> None:
+    config = load_config(EXAMPLE)
+    assert config.drone_id == "drone1"
+    assert config.mavlink.url == "udpin:0.0.0.0:14550"
+    assert config.mavlink.stream_rates_hz["ATTITUDE"] == 10.0
+    assert config.camera.width == 640 and config.camera.rate_hz == 5.0
+    assert config.camera.versions == ("full", "half", "quarter")
+    assert config.scoring.scorers == ("red_share",)
+    assert config.scoring.red_share.upper2 == (179, 255, 255)
+    assert config.budgets.mcts_iterations == 300
+    assert config.constraint.name == "adaptive"
+    assert config.ground_station.fleet_key == DEMO_FLEET_KEY
+
+
+def test_minimal_config_takes_defaults() -> None:
+    config = parse_config({"drone": {"id": "d7"}})
+    assert config.drone_id == "d7" and config.camera.source == "synthetic"
+    assert config.mission.spec == "builtin:image_streaming"
+
+
+@pytest.mark.parametrize(
+    ("text", "key", "expected"),
+    [
+        ("[drone]\n", "drone.id", "a non-empty string"),
+        ('[drone]\nid = "d"\n[camera]\nrate_hz = -1\n', "camera.rate_hz", "a number > 0"),
+        ('[drone]\nid = "d"\n[camera]\nwidth = "wide"\n', "camera.width", "an integer in"),
+        ('[drone]\nid = "d"\n[camera]\nfps = 3\n', "camera.fps", "one of"),
+        ('[drone]\nid = "d"\n[camera]\nversions = ["huge"]\n', "camera.versions",
+         "a non-empty list of full | half | quarter"),
+        ('[drone]\nid = "d"\n[scoring]\nscorers = ["yolo"]\n', "scoring.scorers", "a list of"),
+        ('[drone]\nid = "d"\n[scoring.red_share]\nlower1 = [0, 300, 0]\n',
+         "scoring.red_share.lower1", "[H 0..179"),
+        ('[drone]\nid = "d"\n[mavlink]\nstream_rates_hz = { FOO = 1 }\n',
+         "mavlink.stream_rates_hz", "a table of message names"),
+        ('[drone]\nid = "d"\n[ground_station]\nport = 70000\n', "ground_station.port",
+         "an integer in 1..65535"),
+        ('[drone]\nid = "d"\n[ground_station]\nfleet_key = "short"\n',
+         "ground_station.fleet_key", "at least 16 bytes"),
+        ('[drone]\nid = "d"\n[budgets]\nmcts_iterations = true\n', "budgets.mcts_iterations",
+         "an integer"),
+        ('[drone]\nid = "d"\n[telemetry]\nposition_rate_hz = -2\n',
+         "telemetry.position_rate_hz", "a number >= 0"),
+        ('[drone]\nid = "d"\n[colour]\nx = 1\n', "colour", "one of"),
+    ],
+)
+def test_errors_name_file_key_and_expectation(tmp_path: Path, text: str, key: str,
+                                              expected: str) -> None:
+    path = _write(tmp_path, text)
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: {key}: expected ")
+    assert expected in message
+
+
+def test_missing_file_and_bad_toml(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="no such configuration file"):
+        load_config(tmp_path / "absent.toml")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_config(_write(tmp_path, "[drone\n"))
+
+
+def test_relative_paths_and_key_file(tmp_path: Path) -> None:
+    (tmp_path / "fleet.key").write_bytes(b"0123456789abcdef-secret\n")
+    path = _write(tmp_path, '[drone]\nid = "d"\n[mission]\nspec = "spec.toml"\n'
+                            'log = "logs/m.jsonl"\n[ground_station]\n'
+                            'fleet_key_file = "fleet.key"\n')
+    config = load_config(path)
+    assert config.mission.spec == str(tmp_path / "spec.toml")
+    assert config.mission.log == str(tmp_path / "logs" / "m.jsonl")
+    assert config.ground_station.fleet_key == b"0123456789abcdef-secret"
+
+
+def test_unreadable_key_file(tmp_path: Path) -> None:
+    path = _write(tmp_path, '[drone]\nid = "d"\n[ground_station]\nfleet_key_file = "nokey"\n')
+    with pytest.raises(ConfigError, match=r"ground_station.fleet_key_file: expected a readable"):
+        load_config(path)

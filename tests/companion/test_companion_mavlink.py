@@ -1,0 +1,192 @@
+"""The MAVLink thread against a loopback vehicle: streams, commands, loss and reconnect."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterator
+
+import pytest
+from companion_fake_vehicle import FakeVehicle
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from companion.mavlink import (
+    ArmCommand,
+    CommandError,
+    MavlinkReader,
+    MavlinkSettings,
+    ParamReadCommand,
+    SetModeCommand,
+)
+from companion.telemetry import HeartbeatSample, LinkStateSample, Sample, TelemetryState
+
+
+class Recorder:
+    """Collects samples posted from the reader thread into a TelemetryState."""
+
+    def __init__(self) -> None:
+        self.state = TelemetryState()
+        self.samples: list[Sample] = []
+        self.lock = threading.Lock()
+
+    def post(self, sample: Sample) -> None:
+        with self.lock:
+            self.samples.append(sample)
+            self.state.apply(sample)
+
+    def wait(self, predicate: Callable[[], bool], timeout_s: float = 5.0) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with self.lock:
+                if predicate():
+                    return True
+            time.sleep(0.02)
+        return False
+
+
+@pytest.fixture
+def recorder() -> Recorder:
+    return Recorder()
+
+
+def _reader(port: int, recorder: Recorder, **kw: float) -> MavlinkReader:
+    settings = MavlinkSettings(url=f"udpout:127.0.0.1:{port}", heartbeat_timeout_s=1.0,
+                               reconnect_delay_s=0.1, recv_timeout_s=0.1,
+                               stream_ack_timeout_s=0.5, **kw)
+    return MavlinkReader(settings, clock=time.time, post=recorder.post)
+
+
+@pytest.fixture
+def started() -> Iterator[list[MavlinkReader]]:
+    readers: list[MavlinkReader] = []
+    yield readers
+    for r in readers:
+        r.stop()
+        r.join(5)
+
+
+def test_ardupilot_streams_only_after_set_message_interval(
+        vehicle: FakeVehicle, recorder: Recorder, started: list[MavlinkReader]) -> None:
+    reader = _reader(vehicle.port, recorder)
+    started.append(reader)
+    reader.start()
+    assert recorder.wait(lambda: recorder.state.snapshot().lat_deg is not None)
+    snap = recorder.state.snapshot()
+    assert snap.connected and snap.autopilot == "ardupilot" and snap.mode == "STABILIZE"
+    assert snap.battery_v == pytest.approx(12.3) and snap.battery_remaining == 0.87
+    assert snap.roll_rad == pytest.approx(0.1) and snap.satellites == 12
+    assert vehicle.data_stream_requests == 0  # SET_MESSAGE_INTERVAL was accepted
+    assert reader.counters["stream_requests"] == 1 and reader.counters["stream_fallbacks"] == 0
+    assert vehicle.rates_hz[mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT] == pytest.approx(5.0)
+
+
+def test_own_heartbeat_is_an_onboard_controller(
+        vehicle: FakeVehicle, recorder: Recorder, started: list[MavlinkReader]) -> None:
+    seen: list[mav.MAVLink_message] = []
+    original = vehicle.handle
+    vehicle.handle = lambda msg: (seen.append(msg), original(msg))  # type: ignore[method-assign]
+    reader = _reader(vehicle.port, recorder)
+    started.append(reader)
+    reader.start()
+    assert recorder.wait(lambda: any(m.get_type() == "HEARTBEAT" for m in seen))
+    hb = next(m for m in seen if m.get_type() == "HEARTBEAT")
+    assert hb.type == mav.MAV_TYPE_ONBOARD_CONTROLLER
+    assert hb.autopilot == mav.MAV_AUTOPILOT_INVALID
+    assert hb.get_srcComponent() == mav.MAV_COMP_ID_ONBOARD_COMPUTER
+
+
+def test_falls_back_to_request_data_stream() -> None:
+    vehicle = FakeVehicle(autopilot="ardupilot", accept_message_interval=False).start()
+    recorder = Recorder()
+    reader = _reader(vehicle.port, recorder)
+    try:
+        reader.start()
+        assert recorder.wait(lambda: recorder.state.snapshot().lat_deg is not None)
+        assert vehicle.data_stream_requests == 1
+        assert reader.counters["stream_fallbacks"] == 1
+    finally:
+        reader.stop()
+        reader.join(5)
+        vehicle.stop()
+
+
+def test_mode_change_is_confirmed_by_heartbeat(
+        vehicle: FakeVehicle, recorder: Recorder, started: list[MavlinkReader]) -> None:
+    reader = _reader(vehicle.port, recorder)
+    started.append(reader)
+    reader.start()
+    assert recorder.wait(lambda: recorder.state.snapshot().connected)
+    assert reader.submit(SetModeCommand(mode="GUIDED")).result(5) == "GUIDED"
+    with recorder.lock:
+        modes = [s.mode for s in recorder.samples if isinstance(s, HeartbeatSample)]
+    assert modes[-1] == "GUIDED"
+    with pytest.raises(CommandError, match="unknown"):
+        reader.submit(SetModeCommand(mode="WARP")).result(5)
+
+
+def test_mode_change_not_shown_in_heartbeat_times_out(
+        vehicle: FakeVehicle, recorder: Recorder, started: list[MavlinkReader]) -> None:
+    vehicle.command = lambda msg: vehicle.ack(msg.command, 0)  # type: ignore[method-assign]
+    reader = _reader(vehicle.port, recorder)
+    started.append(reader)
+    reader.start()
+    assert recorder.wait(lambda: recorder.state.snapshot().connected)
+    with pytest.raises(CommandError, match="not confirmed by HEARTBEAT"):
+        reader.submit(SetModeCommand(mode="LOITER", timeout_s=0.5)).result(5)
+
+
+def test_arm_refused_in_rtl_is_reported(
+        vehicle: FakeVehicle, recorder: Recorder, started: list[MavlinkReader]) -> None:
+    reader = _reader(vehicle.port, recorder)
+    started.append(reader)
+    reader.start()
+    assert recorder.wait(lambda: recorder.state.snapshot().connected)
+    reader.submit(SetModeCommand(mode="RTL")).result(5)
+    with pytest.raises(CommandError, match="refused"):
+        reader.submit(ArmCommand(arm=True)).result(5)
+    reader.submit(SetModeCommand(mode="GUIDED")).result(5)
+    assert reader.submit(ArmCommand(arm=True)).result(5) is True
+
+
+def test_px4_streams_unasked_and_int_params_decode(
+        px4_vehicle: FakeVehicle, recorder: Recorder, started: list[MavlinkReader]) -> None:
+    reader = _reader(px4_vehicle.port, recorder)
+    started.append(reader)
+    reader.start()
+    assert recorder.wait(lambda: recorder.state.snapshot().lat_deg is not None)
+    assert recorder.state.snapshot().autopilot == "px4"
+    assert reader.submit(ParamReadCommand(name="MAV_SYS_ID")).result(5) == 1
+    assert recorder.state.snapshot().params["MAV_SYS_ID"] == 1
+
+
+def test_heartbeat_loss_and_reconnect_without_restart(
+        recorder: Recorder, started: list[MavlinkReader]) -> None:
+    vehicle = FakeVehicle(autopilot="ardupilot").start()
+    port = vehicle.port
+    reader = _reader(port, recorder)
+    started.append(reader)
+    reader.start()
+    assert recorder.wait(lambda: recorder.state.snapshot().lat_deg is not None)
+    vehicle.stop()
+    assert recorder.wait(lambda: not recorder.state.snapshot().connected, 5)
+    with recorder.lock:
+        lost = [s for s in recorder.samples if isinstance(s, LinkStateSample)][-1]
+    assert "no HEARTBEAT" in lost.reason
+    back = FakeVehicle(port=port, autopilot="ardupilot").start()
+    try:
+        assert recorder.wait(lambda: recorder.state.snapshot().connected, 8)
+        assert recorder.wait(lambda: back.rates_hz != {}, 5)  # streams requested again
+        snap = recorder.state.snapshot()
+        assert snap.reconnects == 1
+        assert reader.counters["heartbeat_losses"] == 1 and reader.counters["connects"] >= 2
+    finally:
+        back.stop()
+
+
+def test_commands_fail_cleanly_without_a_vehicle(
+        recorder: Recorder, started: list[MavlinkReader]) -> None:
+    reader = _reader(9, recorder)  # discard port: nobody answers
+    started.append(reader)
+    reader.start()
+    with pytest.raises(CommandError, match="no autopilot connected"):
+        reader.submit(ArmCommand(arm=True)).result(5)

@@ -1,0 +1,102 @@
+"""Forecast (ch. 5.1): period with gaps, circular phase, no double counting; latency stats."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from companion.middleware.forecast import LatencyEstimator, StreamForecaster
+from tests.middleware.conftest import T0, msg
+
+
+def test_period_survives_dropped_messages() -> None:
+    f = StreamForecaster()
+    for k in (0, 1, 2, 5, 6, 9, 13, 14):  # most gaps are multiples of the period
+        f.observe(msg("a", k, "battery", T0 + 0.5 * k))
+    assert f.period(("a", "battery")) == pytest.approx(0.5, rel=1e-9)
+
+
+def test_phase_average_wraps_around() -> None:
+    """Phases 0.98 and 0.02 of a 1 s period average to ~0.0, not to 0.5."""
+    f = StreamForecaster()
+    for k, jitter in enumerate([-0.02, 0.02, -0.02, 0.02, -0.02, 0.02]):
+        f.observe(msg("a", k, "battery", 100.0 + k + jitter))
+    predicted = f.predict(("a", "battery"), t_from=105.1, t_to=106.6)
+    assert len(predicted) == 1
+    assert predicted[0] == pytest.approx(106.0, abs=0.05)  # a linear mean would say 105.5
+
+
+def test_known_message_is_never_forecast_again() -> None:
+    f = StreamForecaster()
+    for k in range(4):
+        f.observe(msg("a", k, "battery", T0 + k))
+    predicted = f.predict(("a", "battery"), t_from=T0 + 2.5, t_to=T0 + 6.2)
+    assert predicted == pytest.approx([T0 + 4, T0 + 5, T0 + 6])
+    # the newest known message (T0 + 3) is not predicted even when the range covers it
+    assert f.predict(("a", "battery"), t_from=T0 + 2.9, t_to=T0 + 3.1) == []
+
+
+def test_forecast_carries_last_data_and_mean_size() -> None:
+    f = StreamForecaster()
+    f.observe(msg("a", 0, "linear", T0, size=100, red=0.1))
+    f.observe(msg("a", 1, "linear", T0 + 1, size=300, red=0.7))
+    out = f.forecast(("a", "linear"), t_from=T0 + 1, t_to=T0 + 3)
+    assert [m.t_gen for m in out] == pytest.approx([T0 + 2, T0 + 3])
+    assert all(m.data["red"] == 0.7 and m.size == 200 for m in out)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    period=st.floats(0.1, 5.0),
+    phase=st.floats(0.0, 1.0),
+    drop=st.lists(st.booleans(), min_size=12, max_size=12),
+)
+def test_period_estimate_property(period: float, phase: float, drop: list[bool]) -> None:
+    f = StreamForecaster()
+    kept = [k for k, d in enumerate(drop) if not d or k in (0, 1)]
+    for k in kept:
+        f.observe(msg("a", k, "battery", 50.0 + phase * period + k * period))
+    assert f.period(("a", "battery")) == pytest.approx(period, rel=1e-6)
+
+
+def test_latency_is_robust_to_one_outlier() -> None:
+    est = LatencyEstimator(default_s=0.05)
+    assert est.mean_s == 0.05
+    for _ in range(40):
+        est.update(0.1)
+    est.update(5.0)
+    assert est.mean_s < 0.25
+    assert est.high_s == pytest.approx(0.1)
+    est.update(math.nan)
+    assert len(est) == 41
+
+
+def test_sequence_numbers_tell_a_sparse_fast_stream_from_a_slow_one() -> None:
+    """Every third message of a 1 s stream arrives: seq gaps of 3 say the period is 1 s."""
+    f = StreamForecaster()
+    for k in range(0, 15, 3):
+        f.observe(msg("a", k, "battery", T0 + k))
+    assert f.period(("a", "battery")) == pytest.approx(1.0)
+    g = StreamForecaster()  # the same gaps from a sender with two streams: no seq shortcut
+    g.observe(msg("a", 100, "linear", T0))
+    for k in range(0, 15, 3):
+        g.observe(msg("a", k, "battery", T0 + k))
+    assert g.period(("a", "battery")) == pytest.approx(3.0)
+
+
+def test_a_stream_heard_once_repeats_at_the_fleet_period() -> None:
+    f = StreamForecaster()
+    for k in range(4):
+        f.observe(msg("a", k, "battery", T0 + 0.5 * k))
+    f.observe(msg("b", 0, "battery", T0 + 1.2))
+    f.refresh()
+    assert f.predict(("b", "battery"), t_from=T0 + 1.2, t_to=T0 + 2.3) == pytest.approx(
+        [T0 + 1.7, T0 + 2.2]
+    )
+    off = StreamForecaster(assume_fleet_period=False)
+    off.observe(msg("b", 0, "battery", T0 + 1.2))
+    off.refresh()
+    assert off.predict(("b", "battery"), t_from=T0, t_to=T0 + 9) == []
