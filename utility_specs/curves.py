@@ -204,6 +204,10 @@ class Shape(ABC):
     def phi_integral_array(self, xa: FloatArray, xb: FloatArray) -> FloatArray:
         """:meth:`phi_integral` over arrays of intervals (xa <= xb elementwise)."""
 
+    @abstractmethod
+    def phi_array(self, x: FloatArray) -> FloatArray:
+        """:meth:`phi` over an array of ages."""
+
     def critical(self, s1: float, g1: float, s2: float, g2: float) -> tuple[float, ...]:
         return ()
 

@@ -215,6 +215,9 @@ class _Quadratic(Shape):
         v = 1.0 - self.c * x * x
         return v if v > 0.0 else 0.0
 
+    def phi_array(self, x: FloatArray) -> FloatArray:
+        return np.maximum(1.0 - self.c * x * x, 0.0)
+
     def phi_integral(self, xa: float, xb: float) -> float:
         xb = min(xb, self.x_zero)
         if xb <= xa:
@@ -262,6 +265,10 @@ class _Exponential(Shape):
 
     def phi(self, x: float) -> float:
         return math.exp(-self.rate * x)
+
+    def phi_array(self, x: FloatArray) -> FloatArray:
+        result: FloatArray = np.exp(-self.rate * x)
+        return result
 
     def phi_integral(self, xa: float, xb: float) -> float:
         return (math.exp(-self.rate * xa) - math.exp(-self.rate * xb)) / self.rate
@@ -419,6 +426,12 @@ class _CappedLog(Shape):
         if x >= self.x_zero:
             return 0.0
         return self.l - self.k * math.log2(x)
+
+    def phi_array(self, x: FloatArray) -> FloatArray:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            logarithmic = self.l - self.k * np.log2(np.maximum(x, self.x_cap))
+        result: FloatArray = np.clip(logarithmic, 0.0, 1.0)
+        return result
 
     def phi_integral(self, xa: float, xb: float) -> float:
         total = 0.0

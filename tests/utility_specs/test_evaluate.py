@@ -203,3 +203,26 @@ def test_localization_total_matches_the_literal_definition() -> None:
     assert exact == pytest.approx(reference, abs=0.02)
     # with full coverage the sum of shares is 1 wherever the map covers the view
     assert exact == pytest.approx(9.5, abs=1e-9)
+
+
+def test_vectorised_shape_envelope_agrees_with_the_general_sweep() -> None:
+    """Two independent paths of eq. 4.5 on a long red-image stream with mixed scales."""
+    import sys
+
+    core = sys.modules["utility_specs.evaluate"]
+    rng = np.random.default_rng(5)
+    fn = RedImage(alpha=10.0, S=0.1, f_max=5.0, f_1=2.5)
+    messages = []
+    t = 0.0
+    for seq in range(400):
+        t += float(rng.uniform(0.1, 0.6))
+        messages.append(msg(t, t + float(rng.exponential(0.2)), seq=seq,
+                            red=float(rng.choice([0.0, 0.01, 0.2, 0.5, 1.0]))))
+    occs = [o for m in messages for o in core.occurrences([m])]
+    for o in occs:
+        o.curve = fn.curve(o.m)
+    t_end = t + 5.0
+    vectorised = core._max(occs, 0.0, t_end)
+    sweep = core._max_with_versions(sorted(occs, key=lambda o: o.start), 0.0, t_end)
+    assert vectorised == pytest.approx(sweep, rel=1e-12)
+    assert vectorised > 0
