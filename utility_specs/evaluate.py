@@ -16,8 +16,9 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
 
-from utility_specs.curves import Curve, Shape, ShapeCurve, StepCurve
+from utility_specs.curves import Curve, FloatArray, Shape, ShapeCurve, StepCurve
 from utility_specs.errors import MessageError
 from utility_specs.functions import UtilityFunction
 from utility_specs.message import Message, StateHistory
@@ -344,15 +345,52 @@ def _max_shapes(occs: Sequence[_Occurrence], shape: Shape, t0: float, t1: float)
     lead_at_hi = s_lead * shape.phi_array(hi_arr - g_lead)
     challengers = valid & (at_lo > (lead_at_hi * (1.0 + 1e-12) + 1e-12)[:, None])
     challengers[rows, leader] = False
+    hard = np.flatnonzero(challengers.any(axis=1))
+    if hard.size:
+        challengers[hard] &= _may_overtake(
+            shape, lo_arr[hard], hi_arr[hard], g_cand[hard], s_cand[hard],
+            g_lead[hard], s_lead[hard],
+        )
     simple = ~challengers.any(axis=1)
     total = float(np.sum(
         s_lead[simple]
         * shape.phi_integral_array(lo_arr[simple] - g_lead[simple], hi_arr[simple] - g_lead[simple])
     ))
-    for hard in np.flatnonzero(~simple):
-        lo, hi, cands = pieces[int(hard)]
+    for row in np.flatnonzero(~simple).tolist():
+        lo, hi, cands = pieces[row]
         total += _envelope_integral([occs[j] for j in cands], lo, hi)
     return total
+
+
+def _may_overtake(
+    shape: Shape,
+    lo: FloatArray,
+    hi: FloatArray,
+    g: FloatArray,
+    s: FloatArray,
+    g_lead: FloatArray,
+    s_lead: FloatArray,
+) -> NDArray[np.bool_]:
+    """Whether each candidate rises above its piece's leader somewhere in [lo, hi].
+
+    Between the knots of both curves and their critical point the difference is monotone, so
+    its maximum over the piece is at one of those points: checking them is exact.
+    """
+    lo2, hi2 = lo[:, None], hi[:, None]
+    gl, sl = g_lead[:, None], s_lead[:, None]
+    points = [np.broadcast_to(lo2, g.shape), np.broadcast_to(hi2, g.shape)]
+    for x in shape.x_knots:
+        points += [g + x, np.broadcast_to(gl + x, g.shape)]
+    critical = shape.critical_array(
+        np.broadcast_to(sl, g.shape), np.broadcast_to(gl, g.shape), s, g
+    )
+    if critical is not None:
+        points.append(np.where(np.isnan(critical), lo2, critical))
+    t = np.clip(np.stack(points, axis=-1), lo2[..., None], hi2[..., None])
+    leader_values = sl[..., None] * shape.phi_array(t - gl[..., None])
+    gap = s[..., None] * shape.phi_array(t - g[..., None]) - leader_values
+    above: NDArray[np.bool_] = gap > 1e-12 * (1.0 + np.abs(leader_values))
+    return np.asarray(above.any(axis=-1), dtype=np.bool_)
 
 
 def _max_with_versions(occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
