@@ -406,11 +406,14 @@ class CompanionApp:
         return seq
 
     async def submit_telemetry(self, type_name: str, data: Mapping[str, Any]) -> bool:
+        """Telemetry travels in the first fragment's metadata alone: no payload to carry.
+
+        Its size for the constraint and the model is that metadata's encoded size.
+        """
         now = self.clock()
         message = Message(sender=self.config.drone_id, seq=self.next_seq(), type=type_name,
-                          t_gen=now, size=len(payload := _json_payload(data)),
-                          data=dict(data))
-        return await self.submit(message, (payload,))
+                          t_gen=now, size=len(_json_payload(data)), data=dict(data))
+        return await self.submit(message, (b"",))
 
     async def submit(self, message: Message, payloads: Sequence[bytes]) -> bool:
         """Ask the decider about ``message``; send the chosen version. True if sent."""
@@ -668,7 +671,9 @@ def create_app(config: CompanionConfig, *, clock: Clock,
                         frame_source=frame_source, mavlink_connect=mavlink_connect)
 
 
-MIDDLEWARE_KEYS = ("c", "horizon_s", "default_latency_s", "max_items", "chunk_iterations")
+MIDDLEWARE_KEYS = (
+    "c", "horizon_s", "tail_s", "default_latency_s", "max_items", "chunk_iterations",
+)
 """``[middleware]`` keys passed to ``MiddlewareConfig``; ``alpha`` and ``seed`` are ours."""
 
 

@@ -306,30 +306,50 @@ def _max_shapes(occs: Sequence[_Occurrence], shape: Shape, t0: float, t1: float)
     n = len(occs)
     gens = [o.m.t_gen for o in occs]
     scales = [o.curve.scale for o in occs]  # type: ignore[union-attr]
-    expiries = [o.curve.expiry for o in occs]  # type: ignore[union-attr]
-    pieces: list[tuple[float, float, list[int]]] = []
+    x_zero = shape.x_zero
+    pieces_lo: list[float] = []
+    pieces_hi: list[float] = []
+    flat: list[int] = []
+    sizes: list[int] = []
+    # The staircase, oldest first: generation times rise and scales fall along it.
     stair: list[int] = []
     for i in range(n):
         g, s = gens[i], scales[i]
-        if s > 0 and not any(gens[j] >= g and scales[j] >= s for j in stair):
-            stair = [j for j in stair if not (g >= gens[j] and s >= scales[j])]
-            stair.append(i)
-        lo = max(occs[i].start, t0)
-        hi = min(occs[i + 1].start if i + 1 < n else t1, t1)
+        if s > 0:
+            if not stair or g >= gens[stair[-1]]:
+                while stair and scales[stair[-1]] <= s:
+                    stair.pop()
+                if not stair or scales[stair[-1]] > s:
+                    stair.append(i)
+            elif not any(gens[j] >= g and scales[j] >= s for j in stair):
+                # received out of generation order: insert where it belongs
+                stair = [j for j in stair if not (g >= gens[j] and s >= scales[j])]
+                stair.append(i)
+                stair.sort(key=gens.__getitem__)
+        lo = occs[i].start if occs[i].start > t0 else t0
+        hi = occs[i + 1].start if i + 1 < n else t1
+        if hi > t1:
+            hi = t1
         if hi <= lo:
             continue
-        stair = [j for j in stair if expiries[j] > lo]
+        while stair and gens[stair[0]] + x_zero <= lo:
+            stair.pop(0)
         if stair:
-            pieces.append((lo, hi, list(stair)))
-    if not pieces:
+            pieces_lo.append(lo)
+            pieces_hi.append(hi)
+            flat.extend(stair)
+            sizes.append(len(stair))
+    if not sizes:
         return 0.0
-    width = max(len(c) for _, _, c in pieces)
-    count = len(pieces)
-    lo_arr = np.fromiter((p[0] for p in pieces), np.float64, count)
-    hi_arr = np.fromiter((p[1] for p in pieces), np.float64, count)
+    count = len(sizes)
+    width = max(sizes)
+    lo_arr = np.asarray(pieces_lo, dtype=np.float64)
+    hi_arr = np.asarray(pieces_hi, dtype=np.float64)
+    size_arr = np.asarray(sizes, dtype=np.int64)
     index = np.full((count, width), -1, dtype=np.int64)
-    for row, (_, _, cands) in enumerate(pieces):
-        index[row, : len(cands)] = cands
+    row_of = np.repeat(np.arange(count), size_arr)
+    col_of = np.arange(len(flat)) - np.repeat(np.cumsum(size_arr) - size_arr, size_arr)
+    index[row_of, col_of] = flat
     valid = index >= 0
     g_all = np.asarray(gens, dtype=np.float64)
     s_all = np.asarray(scales, dtype=np.float64)
@@ -357,8 +377,8 @@ def _max_shapes(occs: Sequence[_Occurrence], shape: Shape, t0: float, t1: float)
         * shape.phi_integral_array(lo_arr[simple] - g_lead[simple], hi_arr[simple] - g_lead[simple])
     ))
     for row in np.flatnonzero(~simple).tolist():
-        lo, hi, cands = pieces[row]
-        total += _envelope_integral([occs[j] for j in cands], lo, hi)
+        cands = index[row][valid[row]].tolist()
+        total += _envelope_integral([occs[j] for j in cands], pieces_lo[row], pieces_hi[row])
     return total
 
 

@@ -13,10 +13,26 @@ from dataclasses import dataclass
 
 from companion.middleware.forecast import LatencyEstimator, StreamForecaster
 from companion.middleware.incremental import FixedItem, PlanItem, stream_of
+from utility_specs.errors import UtilitySpecsError
 from utility_specs.message import Message
 from utility_specs.spec import MissionSpec
 
-__all__ = ["FleetKnowledge", "PlanningView"]
+__all__ = ["FleetKnowledge", "PlanningView", "usable"]
+
+
+def usable(spec: MissionSpec, message: Message) -> bool:
+    """The message's type is in the spec and its utility can be read from its data (a
+    message that cannot be valued must not become the data every forecast repeats)."""
+    info = spec.types.get(message.type)
+    if info is None:
+        return False
+    try:
+        info.utility.curve(message)
+    except NotImplementedError:  # state-dependent: valued against the receiver's state
+        return True
+    except UtilitySpecsError:
+        return False
+    return True
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -67,7 +83,7 @@ class FleetKnowledge:
         """Learn deliveries (own or other agents'); returns how many were new."""
         new = 0
         for m in messages:
-            if m.t_rcv is None or m.type not in self.spec.types or m.key in self._seen:
+            if m.t_rcv is None or m.key in self._seen or not usable(self.spec, m):
                 continue
             new += 1
             self._seen.add(m.key)

@@ -202,17 +202,27 @@ class MCTS:
         )
 
 
-def rollout_threshold(problem: Problem) -> float:
+def rollout_threshold(problem: Problem, *, chain: bool = False) -> float:
     """Utility per byte the default policy asks for: the density at which the items of the
-    horizon, densest first, fill the window budget over the horizon's span."""
+    horizon, densest first, fill the window budget over the horizon's span.
+
+    Items are valued after their stream's base (what each adds alone). With ``chain`` an item
+    is valued after the previous item of its stream instead (what it adds when the stream is
+    sent densely). Measured: chain helps on short 4-agent missions (94.6 against 94.0 % of
+    the offline optimum) and hurts the 10-agent mostly-low scenario (e.g. 83.9 against
+    87.9 % at 83 % drops), so the default is off.
+    """
     if problem.n == 0:
         return 0.0
     dens: list[tuple[float, int]] = []
     for i in range(problem.n):
+        s = int(problem.stream[i])
+        q = int(problem.pos[i])
+        slot = 1 + (q - 1) * problem.max_versions if chain and s >= 0 and q > 0 else 0
         best = 0.0
         for o in range(1, int(problem.nopt[i])):
             size = max(1, int(problem.size[i, o]))
-            best = max(best, float(problem.gain[i, o, 0]) / size)
+            best = max(best, float(problem.gain[i, o, slot]) / size)
         dens.append((best, max(1, int(problem.size[i, 1]))))
     span = float(problem.send_t[-1] - problem.send_t[0])
     capacity = problem.budget_bytes * max(1.0, span / problem.window_s)

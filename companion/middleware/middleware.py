@@ -24,7 +24,7 @@ import numpy as np
 
 from companion.middleware.constraint import GoodputConstraint
 from companion.middleware.incremental import Problem, build_problem, option_message
-from companion.middleware.knowledge import FleetKnowledge
+from companion.middleware.knowledge import FleetKnowledge, usable
 from companion.middleware.mcts import MCTS, greedy_option
 from utility_specs.errors import UtilitySpecsError
 from utility_specs.message import Message, Version
@@ -136,6 +136,9 @@ class Middleware:
         if message.type not in self.spec.types:
             self.counters["unknown_type"] += 1
             return Decision(send=False, reason="unknown-type")
+        if not usable(self.spec, message):
+            self.counters["bad_message"] += 1
+            return Decision(send=False, reason="bad-message: its utility cannot be read")
         self.knowledge.on_generated(message)
         window_s = self.constraint.window_s
         view = self.knowledge.view(

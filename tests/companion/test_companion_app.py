@@ -156,7 +156,13 @@ async def test_pipeline_sends_what_the_decider_chooses_and_logs_why(
     assert position.data["lat_deg"] == pytest.approx(50.0615, abs=1e-3)
     battery = next(m for m, p in sent if m.type == "battery")
     assert battery.data["level"] == 0.87
-    assert all(len(p) == m.size for m, p in sent if m.type != "image")
+    # telemetry rides in the metadata only; its size is that metadata's encoded size
+    telemetry = [(m, p) for m, p in sent if m.type != "image"]
+    assert telemetry and all(p == b"" for _, p in telemetry)
+    assert all(
+        m.size == len(json.dumps(dict(m.data), separators=(",", ":"), sort_keys=True).encode())
+        for m, _ in telemetry
+    )
     seqs = [m.seq for m in decider.decided]
     assert len(set(seqs)) == len(seqs)  # one sequence space per drone
 

@@ -291,9 +291,8 @@ def test_red_drone_prioritised_and_optimiser_beats_random() -> None:
           f"{mcts['utility']['total']:.2f} {mcts['utility']['per_type']}")
     assert red["drone3"] > 0.2 and seconds >= 10.0
     others = [v for k, v in fps.items() if k != "drone3"]
-    # Clearly faster than the others together, and faster than each one of them.
-    assert fps["drone3"] > 1.5 * sum(others) / len(others), fps
-    assert fps["drone3"] > max(others), fps
+    # "Clearly higher than the others": 1.5 times each one of them, not just their mean.
+    assert fps["drone3"] > 1.5 * max(others), fps
     _station_stored_what_it_received(mcts)
 
     # Random dropping (random version when sent) with the probability that delivers the same

@@ -190,3 +190,21 @@ def test_property_kept_nodes_never_violate_the_window(seed: int, n: int, budget:
     for node in range(1, search.tree.n_nodes):
         if not search.tree.dead[node]:
             assert problem.feasible(_path(search, node) + [0] * (problem.n - _depth(search, node)))
+
+
+def test_compiled_and_plain_python_kernels_agree(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Without numba the same kernel runs as Python: same tree, same decision."""
+    messages = [msg(s, k, "battery", T0 + 0.37 * k + (0.1 if s == "b" else 0))
+                for k in range(6) for s in ("a", "b")]
+    problem = problem_of(SPEC, messages, horizon_end=T0 + 6, budget_bytes=300, window_s=1.0)
+    compiled = MCTS(problem, max_nodes=300)
+    compiled.run(300)
+    if not _kernel.JIT:
+        pytest.skip("numba not installed: only the Python kernel exists")
+    for name in ("_mix", "_score", "_rollout", "_backprop", "_kill", "_abs_utility",
+                 "_hash_find", "search"):
+        monkeypatch.setattr(_kernel, name, getattr(_kernel, name).py_func)
+    plain = MCTS(problem, max_nodes=300)
+    plain.run(300)
+    assert plain.result() == compiled.result()
+    assert np.array_equal(plain.tree.visits, compiled.tree.visits)

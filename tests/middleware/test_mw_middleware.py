@@ -23,6 +23,7 @@ from companion.middleware import (
 )
 from sitl.netsim import ChannelConfig, SimAgent, StreamConfig, simulate
 from tests.middleware.conftest import T0, msg, small_spec
+from utility_specs.message import Message
 
 SPEC = small_spec()
 ROOT = Path(__file__).resolve().parents[2]
@@ -162,3 +163,16 @@ def test_report_entries_keep_the_carried_quality() -> None:
     base = mw.knowledge.base_message(msg("b", 4, "image", T0 + 1))
     assert base is not None and base[0].quality == 0.25 and base[1] == T0 + 0.1
     assert mw.counters["delivered"] == 1
+
+
+def test_bad_data_is_counted_and_does_not_poison_the_forecast() -> None:
+    mw = _mw()
+    bad = Message(sender="a", seq=0, type="battery", t_gen=T0, size=10, data={})  # no level
+    d = mw.decide(bad, T0)
+    assert not d.send and d.reason.startswith("bad-message")
+    assert mw.counters["bad_message"] == 1
+    mw.on_delivered([Message(sender="b", seq=0, type="battery", t_gen=T0, t_rcv=T0 + 0.1,
+                             receiver="ground", data={"level": "x"})], T0 + 0.1)
+    assert mw.counters["delivered"] == 0
+    for k in range(1, 4):  # good messages afterwards are decided normally
+        assert mw.decide(msg("a", k, "battery", T0 + k), T0 + k).reason == "mcts"
