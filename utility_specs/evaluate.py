@@ -12,7 +12,7 @@ import bisect
 import itertools
 import math
 from collections import defaultdict
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -178,6 +178,11 @@ def evaluate_stream(
         ]
     if fn.state_dependent:
         return _piecewise_constant(info, fn, occs, t_start, t_end, history)
+    if info.aggregation == "max" and all(o.until == math.inf for o in occs):
+        occs = sorted(occs, key=lambda o: o.start)
+        family = fn.shape_scales([o.m for o in occs])
+        if family is not None:
+            return _max_shape_family(fn, occs, family[0], family[1], t_start, t_end)
     for o in occs:
         o.curve = fn.curve(o.m)
     if info.aggregation == "sum":
@@ -238,25 +243,54 @@ def _newest_leads(occs: Sequence[_Occurrence]) -> bool:
 
 
 def _max_newest_leads(occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
-    """Eq. 4.5 when the newest generated message leads: one vectorised pass.
-
-    Between two receptions the envelope is the received message with the latest t_gen.
-    """
+    """Eq. 4.5 when the newest generated message leads, for curves already built."""
     first = occs[0].curve
-    starts = np.fromiter((o.start for o in occs), np.float64, len(occs))
-    gens = np.fromiter((o.m.t_gen for o in occs), np.float64, len(occs))
-    order = np.argsort(starts, kind="stable")
-    starts, gens = starts[order], gens[order]
-    leader_gen = np.maximum.accumulate(gens)
-    ends = np.append(starts[1:], t1)
-    a = np.clip(starts, t0, t1)
-    b = np.clip(ends, t0, t1)
+    starts = [o.start for o in occs]
+    gens = [o.m.t_gen for o in occs]
     if isinstance(first, StepCurve):
-        return float(np.sum(np.maximum(b - a, 0.0)))
+        ordered = np.sort(np.asarray(starts, dtype=np.float64))
+        ends = np.append(ordered[1:], t1)
+        return float(np.sum(np.maximum(np.clip(ends, t0, t1) - np.clip(ordered, t0, t1), 0.0)))
     assert isinstance(first, ShapeCurve)
+    return first.scale * _newest_leads_integral(first.shape, starts, gens, t0, t1)
+
+
+def _newest_leads_integral(
+    shape: Shape, starts: Sequence[float], gens: Sequence[float], t0: float, t1: float
+) -> float:
+    """∫ φ(t - newest t_gen received so far) over [t0, t1]: one vectorised pass.
+
+    Between two receptions the envelope of equally scaled curves is the received message
+    with the latest generation time.
+    """
+    start_arr = np.asarray(starts, dtype=np.float64)
+    gen_arr = np.asarray(gens, dtype=np.float64)
+    order = np.argsort(start_arr, kind="stable")
+    start_arr, gen_arr = start_arr[order], gen_arr[order]
+    leader_gen = np.maximum.accumulate(gen_arr)
+    ends = np.append(start_arr[1:], t1)
+    a = np.clip(start_arr, t0, t1)
+    b = np.clip(ends, t0, t1)
     xa = a - leader_gen
     xb = np.maximum(b - leader_gen, xa)
-    return first.scale * float(np.sum(first.shape.phi_integral_array(xa, xb)))
+    return float(np.sum(shape.phi_integral_array(xa, xb)))
+
+
+def _max_shape_family(
+    fn: UtilityFunction,
+    occs: Sequence[_Occurrence],
+    shape: Shape,
+    scales: Sequence[float],
+    t0: float,
+    t1: float,
+) -> float:
+    """Eq. 4.5 for scale(m)·φ(t - t_gen) streams (``occs`` sorted by reception)."""
+    if min(scales) == max(scales):
+        if scales[0] <= 0:
+            return 0.0
+        gens = [o.m.t_gen for o in occs]
+        return scales[0] * _newest_leads_integral(shape, [o.start for o in occs], gens, t0, t1)
+    return _max_shapes(occs, shape, t0, t1, scales=scales, make_curve=fn.curve)
 
 
 def _max(occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
@@ -294,7 +328,15 @@ def _max(occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
     return total
 
 
-def _max_shapes(occs: Sequence[_Occurrence], shape: Shape, t0: float, t1: float) -> float:
+def _max_shapes(
+    occs: Sequence[_Occurrence],
+    shape: Shape,
+    t0: float,
+    t1: float,
+    *,
+    scales: Sequence[float] | None = None,
+    make_curve: Callable[[Message], Curve] | None = None,
+) -> float:
     """:func:`_max` for one shape with per-message scales (the video family), mostly in numpy.
 
     Between two receptions the candidates are a short staircase (each older one has a
@@ -305,7 +347,8 @@ def _max_shapes(occs: Sequence[_Occurrence], shape: Shape, t0: float, t1: float)
     """
     n = len(occs)
     gens = [o.m.t_gen for o in occs]
-    scales = [o.curve.scale for o in occs]  # type: ignore[union-attr]
+    if scales is None:
+        scales = [o.curve.scale for o in occs]  # type: ignore[union-attr]
     x_zero = shape.x_zero
     pieces_lo: list[float] = []
     pieces_hi: list[float] = []
@@ -377,8 +420,12 @@ def _max_shapes(occs: Sequence[_Occurrence], shape: Shape, t0: float, t1: float)
         * shape.phi_integral_array(lo_arr[simple] - g_lead[simple], hi_arr[simple] - g_lead[simple])
     ))
     for row in np.flatnonzero(~simple).tolist():
-        cands = index[row][valid[row]].tolist()
-        total += _envelope_integral([occs[j] for j in cands], pieces_lo[row], pieces_hi[row])
+        chosen = [occs[j] for j in index[row][valid[row]].tolist()]
+        for o in chosen:
+            if o.curve is None:
+                assert make_curve is not None
+                o.curve = make_curve(o.m)
+        total += _envelope_integral(chosen, pieces_lo[row], pieces_hi[row])
     return total
 
 
