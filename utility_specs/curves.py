@@ -77,11 +77,10 @@ class Curve(ABC):
         # ``self`` ends, it cannot rise above it in between.
         if other_lo <= (self.value(hi) if self_hi is None else self_hi):
             return None
-        splits = sorted(
-            p
-            for p in (*self.knots(), *other.knots(), *self.critical_points(other))
-            if lo < p < hi
-        )
+        splits = [
+            p for p in (*self.knots(), *other.knots(), *self.critical_points(other)) if lo < p < hi
+        ]
+        splits.sort()
         previous = lo
         for t in (*splits, hi):
             if self._gap(other, t) > 0:
@@ -98,14 +97,14 @@ class Curve(ABC):
 
         Regula falsi with the Illinois modification keeps the bracket and converges
         superlinearly on these smooth, monotone segments. A crossing misplaced by δ moves
-        the integral by O(δ²·slope), so a nanosecond bracket is exact for every purpose
-        (and finer than a Unix timestamp's float resolution).
+        the integral by O(δ²·slope), so a microsecond bracket (1e-12 of utility for
+        slopes up to 1/s) is exact for every purpose.
         """
         g_left, g_right = self._gap(other, left), self._gap(other, right)
         side = 0
         for _ in range(200):
             width = right - left
-            if width <= max(1e-9, 4e-16 * abs(right)):
+            if width <= max(1e-6, 4e-16 * abs(right)):
                 break
             t = right - g_right * width / (g_right - g_left)
             if not left < t < right:

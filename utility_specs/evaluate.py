@@ -37,6 +37,9 @@ StreamKey = tuple[str, str, str | None]
 """(receiver, type, sender); sender is None when the type is not aggregated per sender."""
 
 _EMPTY_HISTORY = StateHistory()
+_VECTORISE_FROM = 48
+"""Streams this long go through numpy; on shorter ones its call overhead costs more than it
+saves (the optimiser evaluates many two- and three-message streams)."""
 _MAX_SWITCHES = 1_000_000
 
 
@@ -178,7 +181,11 @@ def evaluate_stream(
         ]
     if fn.state_dependent:
         return _piecewise_constant(info, fn, occs, t_start, t_end, history)
-    if info.aggregation == "max" and all(o.until == math.inf for o in occs):
+    if (
+        info.aggregation == "max"
+        and len(occs) >= _VECTORISE_FROM
+        and all(o.until == math.inf for o in occs)
+    ):
         occs = sorted(occs, key=lambda o: o.start)
         family = fn.shape_scales([o.m for o in occs])
         if family is not None:
@@ -300,13 +307,14 @@ def _max(occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
     admitted if a candidate stays above it until it expires (or the mission ends), and it
     evicts the candidates it stays above, so the set stays small.
     """
-    if _newest_leads(occs):
+    long = len(occs) >= _VECTORISE_FROM
+    if long and _newest_leads(occs):
         return _max_newest_leads(occs, t0, t1)
     occs = sorted(occs, key=lambda o: o.start)
     if any(o.until != math.inf for o in occs):
         return _max_with_versions(occs, t0, t1)
     first = occs[0].curve
-    if isinstance(first, ShapeCurve) and all(
+    if long and isinstance(first, ShapeCurve) and all(
         isinstance(o.curve, ShapeCurve) and o.curve.shape is first.shape for o in occs
     ):
         return _max_shapes(occs, first.shape, t0, t1)
