@@ -108,18 +108,20 @@ def evaluate(
     states = states or {}
     types = spec.types
     streams: dict[StreamKey, list[Message]] = defaultdict(list)
+    per_sender = {name: info.per_sender for name, info in types.items()}
     for m in messages:
-        info = types.get(m.type)
-        if info is None:
+        split = per_sender.get(m.type)
+        if split is None:
             if ignore_unknown_types:
                 continue
             raise MessageError(
                 f"message {m.sender}/{m.seq} has type {m.type!r}, which spec {spec.name!r} "
                 f"does not define (types: {', '.join(types)})"
             )
-        if m.receiver is None or m.t_rcv is None or m.t_rcv > t_end:
+        t_rcv = m.t_rcv
+        if t_rcv is None or t_rcv > t_end or m.receiver is None:
             continue
-        streams[(m.receiver, m.type, m.sender if info.per_sender else None)].append(m)
+        streams[(m.receiver, m.type, m.sender if split else None)].append(m)
 
     per_stream: dict[StreamKey, float] = {}
     per_type: dict[str, float] = dict.fromkeys(spec.types, 0.0)
@@ -147,11 +149,9 @@ def evaluate(
 
 def _timeline(stream: list[Message]) -> list[_Occurrence]:
     """Occurrences of a stream's messages; copies of one message collapse by eq. 4.33."""
-    counts: dict[tuple[str, int], int] = defaultdict(int)
-    for m in stream:
-        counts[(m.sender, m.seq)] += 1
-    if len(counts) == len(stream):
-        return [_Occurrence(m, m.t_rcv, math.inf) for m in stream]  # type: ignore[arg-type]
+    if len({(m.sender, m.seq) for m in stream}) == len(stream):
+        inf = math.inf
+        return [_Occurrence(m, m.t_rcv, inf) for m in stream]  # type: ignore[arg-type]
     groups: dict[tuple[str, int], list[Message]] = defaultdict(list)
     for m in stream:
         groups[(m.sender, m.seq)].append(m)
@@ -595,7 +595,9 @@ def _piecewise_constant(
         dirty = now_state is not state
         state = now_state
         if dirty:
-            live = {k: (o, fn.value(o.m, middle, state)) for k, (o, _) in live.items()}
+            entries = list(live.values())
+            values = fn.values([o.m for o, _ in entries], middle, state)
+            live = {id(o): (o, v) for (o, _), v in zip(entries, values, strict=True)}
         if middle >= next_until:
             live = {k: v for k, v in live.items() if middle < v[0].until}
             next_until = min((v[0].until for v in live.values()), default=math.inf)

@@ -86,6 +86,8 @@ def _field(m: Message, name: str) -> Any:
 
 def _float_field(m: Message, name: str, default: float | None = None) -> float:
     value = m.data.get(name, default) if default is not None else _field(m, name)
+    if type(value) is float and -INF < value < INF:  # the common case, checked cheaply
+        return value
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise MessageError(
             f"message {m.sender}/{m.seq}: data field {name!r} must be a finite number, "
@@ -119,6 +121,13 @@ class UtilityFunction(ABC):
     def integral(self, m: Message, a: float, b: float) -> float:
         """Exact integral of :meth:`value` over [a, b] (``a >= m.t_rcv``)."""
         return self.curve(m).integral(a, b)
+
+    def values(
+        self, messages: Sequence[Message], t: float, state: Mapping[str, Any] = EMPTY_STATE
+    ) -> list[float]:
+        """:meth:`value` of several messages at one instant and state."""
+        value = self.value
+        return [value(m, t, state) for m in messages]
 
     def knots(self, m: Message) -> tuple[float, ...]:
         return self.curve(m).knots()
@@ -368,6 +377,16 @@ class Localization(UtilityFunction):
         if self._observed[0] != id(raw) or self._observed[1] is None:
             self._observed = (id(raw), (raw, parse(raw, m)))
         return self._observed[1][1]
+
+    def values(
+        self, messages: Sequence[Message], t: float, state: Mapping[str, Any] = EMPTY_STATE
+    ) -> list[float]:
+        observed_raw = state.get("observed_cells")
+        if messages and observed_raw and all(self.NEW_CELLS in m.data for m in messages):
+            observed = self._parsed_observation(observed_raw, messages[0], _cells)
+            share = 1.0 / len(observed)
+            return [len(m.data[self.NEW_CELLS] & observed) * share for m in messages]
+        return super().values(messages, t, state)
 
     def value(self, m: Message, t: float, state: Mapping[str, Any] = EMPTY_STATE) -> float:
         if self.NEW_CELLS in m.data:
