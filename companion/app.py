@@ -281,7 +281,8 @@ class CompanionApp:
                                      else config.mission.log)
         self._scorer = scorer or make_scorer(config.scoring.scorers,
                                              red=config.scoring.red_share,
-                                             aruco=config.scoring.aruco)
+                                             aruco=config.scoring.aruco,
+                                             hog=config.scoring.hog_people)
         self._commands_seen: set[int] = set()
         self._timers: list[asyncio.TimerHandle] = []
         self._decider_timer: asyncio.TimerHandle | None = None
@@ -651,7 +652,7 @@ def check_setup(config: CompanionConfig) -> list[str]:
                  f"(window {constraint.window_s:g} s)")
     try:
         make_scorer(config.scoring.scorers, red=config.scoring.red_share,
-                    aruco=config.scoring.aruco)
+                    aruco=config.scoring.aruco, hog=config.scoring.hog_people)
     except (ValueError, RuntimeError) as exc:
         raise AppSetupError(f"{config.source}: scoring.scorers: {exc}") from None
     lines.append(f"scoring: {', '.join(config.scoring.scorers) or 'none'}")
@@ -725,7 +726,7 @@ class MiddlewareDecider:
         report = event.report
         self.middleware.on_report(report, now)
         for echo in report.echoes:
-            if echo.sender != self.agent or not hasattr(self.constraint, "on_round_trip"):
+            if echo.sender != self.agent:
                 continue
             try:
                 trip = RoundTrip(t_sent=echo.t_sent, t_remote_rcv=echo.t_rcv,
@@ -740,12 +741,7 @@ class MiddlewareDecider:
                    for e in report.entries if e.sender == self.agent and e.t_sent is not None]
         if not samples:
             return
-        on_samples = getattr(self.constraint, "on_samples", None)
-        if on_samples is not None:
-            on_samples(samples, now=now)
-        else:
-            for sample in samples:
-                self.constraint.on_sample(sample, now=now)
+        self.constraint.on_samples(samples, now=now)
         self.counters["link_samples"] += len(samples)
 
     def set_params(self, params: Mapping[str, Any], now: float) -> None:

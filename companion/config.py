@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.mavlink import DEFAULT_STREAM_RATES_HZ, MavlinkSettings
-from companion.scoring import ArucoSettings, RedShareSettings
+from companion.scoring import ArucoSettings, HogSettings, RedShareSettings
 
 __all__ = [
     "DEFAULT_CONFIG_PATH",
@@ -62,6 +62,7 @@ class ScoringConfig:
     scorers: tuple[str, ...] = ("red_share",)
     red_share: RedShareSettings = field(default_factory=RedShareSettings)
     aruco: ArucoSettings = field(default_factory=ArucoSettings)
+    hog_people: HogSettings = field(default_factory=HogSettings)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -288,8 +289,21 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
         scale=ar.get("scale", 0.5, "a number in (0, 1]", lambda v: _is_number(v) and 0 < v <= 1),
     )
     ar.done()
+    hog = sc.table("hog_people")
+    hog_settings = HogSettings(
+        scale=hog.get("scale", 0.5, "a number in (0, 1]", lambda v: _is_number(v) and 0 < v <= 1),
+        win_stride_px=hog.get("win_stride_px", 8, "a positive multiple of 8",
+                              lambda v: isinstance(v, int) and not isinstance(v, bool)
+                              and v > 0 and v % 8 == 0),
+        pyramid_scale=hog.get("pyramid_scale", 1.05, "a number > 1",
+                              lambda v: _is_number(v) and v > 1),
+        min_weight=hog.get("min_weight", 0.5, "a number >= 0",
+                           lambda v: _is_number(v) and v >= 0),
+    )
+    hog.done()
     sc.done()
-    scoring = ScoringConfig(scorers=tuple(names), red_share=red_settings, aruco=aruco_settings)
+    scoring = ScoringConfig(scorers=tuple(names), red_share=red_settings, aruco=aruco_settings,
+                            hog_people=hog_settings)
 
     mi = root.table("mission")
     spec = mi.string("spec", "builtin:image_streaming")

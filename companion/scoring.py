@@ -10,8 +10,9 @@ plain synchronous code; the app runs them in an executor, never on the event loo
 * :class:`ArucoScorer`: the object to reconstruct (KPK demonstrator, ch. 7.4) is tagged with
   ArUco markers (``cv2.aruco``, DICT_4X4_50 by default); ``object`` is true when a target
   marker is seen.
-* :class:`HogPeopleScorer`: OpenCV's built-in HOG people detector, where the OpenCV build
-  ships it (OpenCV 5 moved it to opencv-contrib; then it raises :class:`ScorerUnavailable`).
+* :class:`HogPeopleScorer`: OpenCV's built-in HOG+SVM people detector (weights compiled into
+  OpenCV). OpenCV 4.x ships it; OpenCV 5 moved it to opencv-contrib, and without it the scorer
+  raises :class:`ScorerUnavailable` naming the fix (an ``opencv-python-headless<5`` build).
 
 No downloaded weights anywhere. A better detector plugs in by implementing :class:`Scorer`.
 """
@@ -31,6 +32,7 @@ __all__ = [
     "ArucoSettings",
     "CompositeScorer",
     "HogPeopleScorer",
+    "HogSettings",
     "RedShareScorer",
     "RedShareSettings",
     "Scorer",
@@ -147,28 +149,74 @@ class ArucoScorer:
         return {"object": hit, "markers": seen}
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class HogSettings:
+    """Knobs of OpenCV's HOG+SVM people detector (Dalal & Triggs 64x128 window)."""
+
+    scale: float = 0.5
+    """Detect on a downscaled copy: ~8x faster; finds people from ~160 px tall in the frame
+    (measured on silhouettes; from <= 100 px at 1.0, the 64x128 window's own limit)."""
+    win_stride_px: int = 8
+    """Step of the sliding window (pixels of the scaled image); a multiple of the 8 px cell."""
+    pyramid_scale: float = 1.05
+    """Ratio between image-pyramid levels (OpenCV's default); larger is faster, coarser."""
+    min_weight: float = 0.5
+    """SVM margin a detection needs to count as a person (0 keeps every window OpenCV keeps)."""
+
+    def __post_init__(self) -> None:
+        if not 0 < self.scale <= 1:
+            raise ValueError(f"scale must be in (0, 1], got {self.scale}")
+        if self.win_stride_px < 1 or self.win_stride_px % 8:
+            raise ValueError(f"win_stride_px must be a positive multiple of 8 (the HOG cell), "
+                             f"got {self.win_stride_px}")
+        if not self.pyramid_scale > 1:
+            raise ValueError(f"pyramid_scale must be > 1, got {self.pyramid_scale}")
+        if self.min_weight < 0:
+            raise ValueError(f"min_weight must be >= 0, got {self.min_weight}")
+
+
+HOG_FIX = ('install an OpenCV 4 build: pip install "opencv-python-headless>=4.10,<5" '
+           "(OpenCV 5 moved HOGDescriptor to opencv-contrib's xobjdetect), "
+           "or use the 'aruco' or 'red_share' scorer")
+
+
+def _hog_class() -> Any:
+    """``cv2.HOGDescriptor`` (OpenCV 4), else the contrib build's ``cv2.xobjdetect`` one."""
+    found = getattr(cv2, "HOGDescriptor", None)
+    if found is None:
+        found = getattr(getattr(cv2, "xobjdetect", None), "HOGDescriptor", None)
+    return found
+
+
 class HogPeopleScorer:
-    """``people``: persons found by OpenCV's default HOG+SVM people detector."""
+    """``people``: persons found by OpenCV's default HOG+SVM people detector; ``object``: any;
+    ``people_score``: the largest SVM margin (0.0 when none), a confidence for eq. 7.2-style
+    utilities. Needs an OpenCV build with ``HOGDescriptor`` (4.x, or 5.x with contrib)."""
 
     name = "hog_people"
 
-    def __init__(self, *, win_stride_px: int = 8, scale: float = 0.5) -> None:
-        hog_class = getattr(cv2, "HOGDescriptor", None)
+    def __init__(self, settings: HogSettings | None = None, **options: Any) -> None:
+        if settings is not None and options:
+            raise TypeError("give HogSettings or keyword options, not both")
+        self.settings = settings or HogSettings(**options)
+        hog_class = _hog_class()
         if hog_class is None:
             raise ScorerUnavailable(
-                f"the HOG people detector is not in OpenCV {cv2.__version__} "
-                "(OpenCV 5 moved it to opencv-contrib); use the 'aruco' or 'red_share' scorer")
+                f"the HOG people detector is not in OpenCV {cv2.__version__}: {HOG_FIX}")
         self._hog = hog_class()
         self._hog.setSVMDetector(hog_class.getDefaultPeopleDetector())
-        self._stride = (win_stride_px, win_stride_px)
-        self._scale = scale
+        s = self.settings
+        self._stride = (s.win_stride_px, s.win_stride_px)
 
     def score(self, image: Image) -> dict[str, Any]:
-        if self._scale != 1.0:
-            image = cv2.resize(image, None, fx=self._scale, fy=self._scale,
-                               interpolation=cv2.INTER_AREA)
-        rects, _ = self._hog.detectMultiScale(image, winStride=self._stride)
-        return {"people": len(rects), "object": len(rects) > 0}
+        s = self.settings
+        if s.scale != 1.0:
+            image = cv2.resize(image, None, fx=s.scale, fy=s.scale, interpolation=cv2.INTER_AREA)
+        _, weights = self._hog.detectMultiScale(image, winStride=self._stride,
+                                                scale=s.pyramid_scale)
+        margins = [float(w) for w in np.ravel(weights) if float(w) >= s.min_weight]
+        return {"people": len(margins), "people_score": max(margins, default=0.0),
+                "object": bool(margins)}
 
 
 @dataclass(kw_only=True)
@@ -190,10 +238,11 @@ class CompositeScorer:
 
 
 def make_scorer(names: Sequence[str], *, red: RedShareSettings | None = None,
-                aruco: ArucoSettings | None = None,
+                aruco: ArucoSettings | None = None, hog: HogSettings | None = None,
                 options: Mapping[str, Any] | None = None) -> CompositeScorer:
     """The scorers named in the configuration, in order (``red_share``, ``aruco``,
-    ``hog_people``). Raises ValueError on an unknown name."""
+    ``hog_people``; ``options`` are HogSettings fields when ``hog`` is not given). Raises
+    ValueError on an unknown name, ScorerUnavailable when this OpenCV lacks a detector."""
     built: list[Scorer] = []
     for name in names:
         if name == "red_share":
@@ -201,7 +250,8 @@ def make_scorer(names: Sequence[str], *, red: RedShareSettings | None = None,
         elif name == "aruco":
             built.append(ArucoScorer(aruco))
         elif name == "hog_people":
-            built.append(HogPeopleScorer(**dict(options or {})))
+            built.append(HogPeopleScorer(hog) if hog is not None
+                         else HogPeopleScorer(**dict(options or {})))
         else:
             raise ValueError(f"unknown scorer {name!r} (known: red_share, aruco, hog_people)")
     return CompositeScorer(scorers=built)

@@ -1,7 +1,8 @@
 """``uav-sitl fleet``: a whole simulated fleet on one machine, as the demo and the e2e backbone.
 
     uav-sitl fleet --drones N --scene SCENE --duration S [--netns] [--link-rate R]
-                   [--background B] [--summary-json FILE] [--out DIR] [--policy mcts|random|...]
+                   [--link-delay MS] [--link-loss PCT] [--background B]
+                   [--summary-json FILE] [--out DIR] [--policy mcts|random|...]
 
 Starts one ``uav-sitl vehicle --count N`` process (N MAVLink vehicles flying a survey of the
 scene), N ``uav-companion run`` processes (synthetic camera of the scene, mission spec
@@ -12,6 +13,11 @@ SIGTERM or after ``--duration`` stops everything (SIGTERM, wait, SIGKILL; each c
 process group, and with a parent-death signal, so nothing is left behind) and prints a summary:
 per drone images generated/sent/received/stored, mean frame rate and latency, and the fleet's
 total utility from ``uav-utility evaluate`` on the merged companion and ground-station logs.
+
+With ``--netns`` (root) every drone (its companion) runs in its own network namespace, the
+ground station in another, all on one shaped bridge (:class:`sitl.linkemu.SharedMedium`): the
+drones contend for one radio-like channel; the vehicles run in a namespace of their own,
+each reached from its drone over an unshaped link (the autopilot's serial line).
 
 The launcher is a thin synchronous shell: processes, files and HTTP polls. The numbers come
 from the mission logs (``utility_specs.log`` records) and the ground station's own database.
@@ -44,6 +50,7 @@ from sitl.fleet_config import (
     DroneSlot,
     FleetPlan,
     free_port,
+    mavlink_host,
     mission_spec_path,
     write_run_configs,
 )
@@ -74,6 +81,11 @@ POLICIES = ("mcts", "random", "send_all")
 WIFI_G_RATE_BIT_S = 6_000_000.0
 """``--netns`` default link rate: what 802.11g delivers to UDP in practice with several
 stations contending (well below its 54 Mbit/s PHY rate)."""
+WIFI_G_DELAY_MS = 2.0
+"""``--netns`` default one-way delay per crossing of the medium (802.11g channel access and
+air time of a frame, a few ms); applied only where the kernel has netem."""
+WIFI_G_LOSS_PERCENT = 0.1
+"""``--netns`` default residual loss per datagram after 802.11 MAC retransmissions."""
 
 
 class FleetError(RuntimeError):
@@ -130,10 +142,16 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--http-port", type=int, default=0,
                    help="dashboard port (default: a free one)")
     p.add_argument("--netns", action="store_true",
-                   help="(root) drones in their own network namespace, joined to the ground "
-                        "station's through a shaped link (tc)")
+                   help="(root) each drone in its own network namespace, all joined to the "
+                        "ground station's through one shaped shared link (tc)")
     p.add_argument("--link-rate", type=float, default=WIFI_G_RATE_BIT_S,
                    help="--netns: link rate in bit/s (default 6e6, 802.11g-like)")
+    p.add_argument("--link-delay", type=float, default=WIFI_G_DELAY_MS, metavar="MS",
+                   help=f"--netns: one-way delay in ms (default {WIFI_G_DELAY_MS:g}; needs "
+                        "netem in the kernel, else reported as not emulated)")
+    p.add_argument("--link-loss", type=float, default=WIFI_G_LOSS_PERCENT, metavar="PCT",
+                   help=f"--netns: loss per datagram in %% (default {WIFI_G_LOSS_PERCENT:g}; "
+                        "needs netem)")
     p.add_argument("--background", default=None, metavar="BITS[@T[+D]]",
                    help="--netns: iperf3 UDP background traffic of BITS bit/s from T s after "
                         "the start for D s (default from the start, to the end); thesis fig 7.4")
@@ -145,6 +163,12 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
         p.error("--duration must be >= 0")
     if not 0.0 <= args.drop_probability <= 1.0:
         p.error("--drop-probability must be in [0, 1]")
+    if args.link_rate <= 0:
+        p.error("--link-rate must be > 0")
+    if args.link_delay < 0:
+        p.error("--link-delay must be >= 0")
+    if not 0.0 <= args.link_loss < 100.0:
+        p.error("--link-loss must be in [0, 100)")
     try:
         w, h = (int(x) for x in args.size.lower().split("x"))
     except ValueError:
@@ -514,6 +538,13 @@ def format_summary(summary: dict[str, Any]) -> str:
         lines.append(f"total utility {utility['total']:.3f} ({per_type})")
     elif utility:
         lines.append(f"utility: not evaluated: {utility.get('error')}")
+    link = summary.get("link")
+    if link:
+        lines.append(f"link: {link['description']}")
+        counters = link.get("bottleneck") or {}
+        if counters:
+            lines.append(f"  bottleneck sent {counters['sent_bytes']} B in "
+                         f"{counters['sent_packets']} packets, dropped {counters['dropped']}")
     data = summary["data"]
     lines.append(f"data: {summary['run_dir']}")
     lines.append(f"  images   {data['images']}")
@@ -597,42 +628,53 @@ class _NsForwarder:
 
 
 class FleetNetns:
-    """``--netns``: the drones (vehicles and companions) in one namespace, the ground station
-    in another, joined by the shaped veth link of :class:`sitl.linkemu.NetnsLink` (``tc tbf``
-    rate and queue); all drones share that one bottleneck, like one radio channel. Optional
-    ``iperf3`` background traffic over the same link, on at a given time (thesis fig. 7.4).
+    """``--netns``: each drone's companion in its own namespace, the ground station in
+    another, all on the shaped bridge of :class:`sitl.linkemu.SharedMedium` (``tc tbf`` rate
+    and queue once, toward the station: the drones contend like stations on one radio
+    channel; netem delay/loss where the kernel has it). The vehicles share a namespace, each
+    reached from its drone over an unshaped veth. Optional ``iperf3`` background traffic from
+    another host on the medium, on at a given time (thesis fig. 7.4).
     """
 
-    def __init__(self, *, rate_bit_s: float) -> None:
-        from sitl.linkemu import NetnsLink
+    def __init__(self, *, drones: int, rate_bit_s: float, delay_s: float = 0.0,
+                 loss: float = 0.0) -> None:
+        from sitl.linkemu import SharedMedium
 
-        self.link = NetnsLink(rate_bit_per_s=rate_bit_s,
-                              queue_limit_bytes=max(15_000, int(rate_bit_s / 8 * 0.05)))
+        self.medium = SharedMedium(drones=drones, rate_bit_per_s=rate_bit_s, delay_s=delay_s,
+                                   loss=loss,
+                                   queue_limit_bytes=max(15_000, int(rate_bit_s / 8 * 0.05)))
         self._forwarder: _NsForwarder | None = None
         self._background: Any = None
         self._plan: tuple[Background, float] | None = None
         self._bg_on = False
 
     def open(self) -> None:
-        from sitl.linkemu import cleanup_stale
+        from sitl.linkemu import LinkEmuError, cleanup_stale
 
         cleanup_stale()
-        self.link.open()
+        try:
+            self.medium.open()  # removes what it built if it fails half-way
+        except LinkEmuError as exc:
+            raise FleetError(f"--netns: cannot build the shared link: {exc}") from None
 
-    def wrap_drone(self, argv: Sequence[str]) -> list[str]:
-        return ["ip", "netns", "exec", self.link.ns_sender, *argv]
+    def wrap_drone(self, index: int, argv: Sequence[str]) -> list[str]:
+        return self.medium.wrap(self.medium.ns_drones[index], argv)
+
+    def wrap_vehicles(self, argv: Sequence[str]) -> list[str]:
+        assert self.medium.ns_vehicles is not None
+        return self.medium.wrap(self.medium.ns_vehicles, argv)
 
     def wrap_gs(self, argv: Sequence[str]) -> list[str]:
-        return ["ip", "netns", "exec", self.link.ns_receiver, *argv]
+        return self.medium.wrap(self.medium.ns_ground, argv)
 
     def forward_http(self, port: int) -> str:
-        self._forwarder = _NsForwarder(self.link.ns_receiver, port)
+        self._forwarder = _NsForwarder(self.medium.ns_ground, port)
         return f"http://127.0.0.1:{self._forwarder.port}"
 
     def schedule_background(self, background: Background, t_start: float) -> None:
         from sitl.linkemu import Iperf3Background
 
-        self._background = Iperf3Background(self.link)
+        self._background = Iperf3Background(self.medium)
         self._background.start_server()
         self._plan = (background, t_start)
 
@@ -651,19 +693,57 @@ class FleetNetns:
             self._background.stop()
             self._plan = None
 
+    def describe(self) -> dict[str, Any]:
+        """The link of the run for the summary: namespaces, shaping, what netem did, and the
+        bottleneck's counters (call before :meth:`close`)."""
+        from sitl.linkemu import LinkEmuError, parse_qdisc_counters
+
+        m = self.medium
+        counters = None
+        with contextlib.suppress(LinkEmuError, OSError, subprocess.SubprocessError):
+            counters = parse_qdisc_counters(m.qdisc_stats())
+        return {
+            "description": m.describe(),
+            "rate_bit_s": m.rate_bit_per_s,
+            "queue_limit_bytes": m.queue_limit_bytes,
+            "delay_s": m.delay_s,
+            "loss": m.loss,
+            "netem": m.netem,
+            "impairment_note": m.impairment_note,
+            "namespaces": {"medium": m.ns_medium, "ground_station": m.ns_ground,
+                           "vehicles": m.ns_vehicles, "background": m.ns_background,
+                           "drones": list(m.ns_drones)},
+            "addresses": {"ground_station": m.ground_addr, "background": m.background_addr,
+                          "drones": [m.drone_addr(i) for i in range(m.drones)]},
+            "bottleneck": counters,
+        }
+
     def close(self) -> None:
         if self._forwarder is not None:
             self._forwarder.close()
         if self._background is not None:
             self._background.stop()
-        self.link.close()
+        self.medium.close()
+
+
+class _Loopback:
+    """The process wrappers of :class:`FleetNetns` for a run on 127.0.0.1: none."""
+
+    def wrap_drone(self, index: int, argv: Sequence[str]) -> list[str]:
+        return list(argv)
+
+    def wrap_vehicles(self, argv: Sequence[str]) -> list[str]:
+        return list(argv)
+
+    def wrap_gs(self, argv: Sequence[str]) -> list[str]:
+        return list(argv)
 
 
 # -- the run -----------------------------------------------------------------------------------
 
 
 class _Stop:
-    """Set by SIGINT/SIGTERM; the launcher polls it between short sleeps."""
+    """Set by SIGINT/SIGTERM/SIGHUP; the launcher polls it between short sleeps."""
 
     def __init__(self) -> None:
         self.reason: str | None = None
@@ -691,10 +771,12 @@ def _scene_arg(scene: str) -> str:
 
 def make_plan(args: argparse.Namespace, run_dir: Path, *, netns: bool = False) -> FleetPlan:
     """Ports, files and budgets of a run (loopback, or the namespaces' addresses)."""
-    from sitl.linkemu import RECEIVER_ADDR
+    from sitl.linkemu import GROUND_ADDR, SharedMedium
+
     drones = tuple(
         DroneSlot(index=i, drone_id=f"drone{i + 1}", system_id=i + 1,
-                  mavlink_port=free_port(), folder=run_dir / "drones" / f"drone{i + 1}")
+                  mavlink_port=free_port(), folder=run_dir / "drones" / f"drone{i + 1}",
+                  mavlink_host=SharedMedium.vehicle_addrs(i)[1] if netns else None)
         for i in range(args.drones))
     params: dict[str, Any] = {}
     if args.constraint == "constant":
@@ -703,8 +785,9 @@ def make_plan(args: argparse.Namespace, run_dir: Path, *, netns: bool = False) -
         run_dir=run_dir, drones=drones, scene=_scene_arg(args.scene),
         spec_path=mission_spec_path(args.spec), gs_udp_port=free_port(),
         gs_http_port=args.http_port or free_port(kind=socket.SOCK_STREAM),
-        gs_host=RECEIVER_ADDR if netns else "127.0.0.1",
+        gs_host=GROUND_ADDR if netns else "127.0.0.1",
         gs_bind_host="0.0.0.0" if netns else "127.0.0.1",
+        drone_bind_host="0.0.0.0" if netns else "127.0.0.1",
         drone_listen_host="0.0.0.0" if netns else "127.0.0.1",
         camera_rate_hz=args.rate, camera_width=args.width, camera_height=args.height,
         mcts_iterations=args.mcts_iterations, time_budget_s=args.time_budget,
@@ -737,7 +820,8 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
     run_dir = (args.out or Path("out") / "fleet" / time.strftime("%Y%m%d-%H%M%S")).resolve()
     netns = None
     if args.netns:
-        netns = FleetNetns(rate_bit_s=args.link_rate)
+        netns = FleetNetns(drones=args.drones, rate_bit_s=args.link_rate,
+                           delay_s=args.link_delay / 1000.0, loss=args.link_loss / 100.0)
     plan = make_plan(args, run_dir, netns=netns is not None)
     write_run_configs(plan)
     from ground_station.token import ensure_token
@@ -745,7 +829,8 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
     token, _ = ensure_token(plan.gs_data_dir / "token")
     procs = Processes(plan.logs_dir)
     stop = _Stop()
-    previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {sig: signal.signal(sig, stop)
+                for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     tty = out.isatty() and not args.quiet
     t_start = t_end = None
     companions: list[Child] = []
@@ -753,21 +838,25 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
     station: list[Child] = []
     failure: str | None = None
     base_url = f"http://127.0.0.1:{plan.gs_http_port}"
+    link_info: dict[str, Any] | None = None
+    where: FleetNetns | _Loopback = netns or _Loopback()
     try:
         if netns is not None:
             netns.open()
-        wrap = netns.wrap_drone if netns else (lambda argv: list(argv))
-        wrap_gs = netns.wrap_gs if netns else (lambda argv: list(argv))
-        if netns is not None:
             base_url = netns.forward_http(plan.gs_http_port)
         api = GroundStationApi(base_url, token)
         print(f"run folder: {run_dir}", file=out)
         print(f"dashboard:  {base_url}/?token={token}", file=out)
         print(f"token:      {token}   (also: uav-ground-station token --data-dir "
               f"{plan.gs_data_dir})", file=out)
+        if netns is not None:
+            print(f"link:       {netns.medium.describe()}", file=out)
+            if netns.medium.netem is False:  # said on stderr too, where warnings go
+                print(f"uav-sitl fleet: WARNING: link {netns.medium.impairment_note}",
+                      file=sys.stderr)
         out.flush()
 
-        station.append(procs.start("ground_station", wrap_gs(
+        station.append(procs.start("ground_station", where.wrap_gs(
             [*_tool("uav-ground-station", "ground_station.cli"), "run",
              "--config", str(plan.gs_config_path)])))
         ready_file = run_dir / "vehicles.json"
@@ -777,14 +866,14 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
                  "--flavour", args.flavour, "--seed", str(args.seed),
                  "--ready-file", str(ready_file)]
         for slot in plan.drones:
-            vargv += ["--out", f"{plan.drone_bind_host}:{slot.mavlink_port}"]
-        vehicles.append(procs.start("vehicles", wrap(vargv)))
+            vargv += ["--out", f"{mavlink_host(plan, slot)}:{slot.mavlink_port}"]
+        vehicles.append(procs.start("vehicles", where.wrap_vehicles(vargv)))
         _wait(stop, "the vehicles", 30.0, ready_file.exists, vehicles)
         _wait(stop, "the ground station's API", 30.0,
               lambda: _try(lambda: api.get("/api/stats")) is not None, station)
         for slot in plan.drones:
-            companions.append(procs.start(slot.drone_id, wrap(
-                _companion_argv(slot, args.policy, args.drop_probability))))
+            companions.append(procs.start(slot.drone_id, where.wrap_drone(
+                slot.index, _companion_argv(slot, args.policy, args.drop_probability))))
         print(f"waiting for {args.drones} drone(s) to be heard...", file=out)
         out.flush()
 
@@ -849,6 +938,8 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
         procs.stop(station, timeout_s=15.0)
         procs.stop_all(timeout_s=5.0)
         if netns is not None:
+            if netns.medium.namespaces:
+                link_info = netns.describe()
             netns.close()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -864,6 +955,7 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
     summary["exit_codes"] = {c.name: c.proc.returncode for c in procs.children}
     summary["failure"] = failure
     summary["dashboard"] = f"{base_url}/"
+    summary["link"] = link_info
     text = json.dumps(_finite(summary), indent=2, sort_keys=True, allow_nan=False)
     (run_dir / "summary.json").write_text(text + "\n", encoding="utf-8")
     if args.summary_json is not None:

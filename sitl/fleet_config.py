@@ -34,6 +34,7 @@ __all__ = [
     "companion_toml",
     "free_port",
     "ground_station_toml",
+    "mavlink_host",
     "mission_spec_path",
     "toml_value",
     "write_fleet_key",
@@ -112,6 +113,9 @@ class DroneSlot:
     mavlink_port: int
     """Where the companion listens for its vehicle (the vehicle's ``--out``)."""
     folder: Path
+    mavlink_host: str | None = None
+    """The companion's address toward its vehicle when it differs per drone (``--netns``:
+    the drone namespace's end of its autopilot link); None: the plan's ``drone_bind_host``."""
 
     @property
     def config_path(self) -> Path:
@@ -138,7 +142,8 @@ class FleetPlan:
     gs_bind_host: str = "127.0.0.1"
     """Where the station's UDP socket binds (its HTTP API is always on 127.0.0.1)."""
     drone_bind_host: str = "127.0.0.1"
-    """Where vehicles and companions talk MAVLink (loopback of the drones' namespace)."""
+    """Where vehicles bind and companions talk MAVLink unless a drone has its own
+    ``mavlink_host`` (``--netns``: vehicles bind ``0.0.0.0`` in the vehicles namespace)."""
     drone_listen_host: str = "127.0.0.1"
     """Where companions receive reports and commands (``0.0.0.0`` across namespaces)."""
     mission: str = "fleet"
@@ -180,12 +185,17 @@ class FleetPlan:
         return self.run_dir / "logs"
 
 
+def mavlink_host(plan: FleetPlan, drone: DroneSlot) -> str:
+    """Where ``drone``'s companion listens for its vehicle (and the vehicle sends to)."""
+    return drone.mavlink_host or plan.drone_bind_host
+
+
 def companion_toml(plan: FleetPlan, drone: DroneSlot) -> str:
     """The ``uav-companion`` configuration of one simulated drone."""
     tables: dict[str, dict[str, Any]] = {
         "drone": {"id": drone.drone_id},
         "mavlink": {
-            "url": f"udpin:{plan.drone_bind_host}:{drone.mavlink_port}",
+            "url": f"udpin:{mavlink_host(plan, drone)}:{drone.mavlink_port}",
             "source_system": drone.system_id,
         },
         "camera": {

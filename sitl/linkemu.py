@@ -1,13 +1,26 @@
-"""Link emulation on a real kernel path: network namespaces, a veth pair, ``tc``, ``iperf3``.
+"""Link emulation on a real kernel path: network namespaces, veths, a bridge, ``tc``, ``iperf3``.
 
-:class:`NetnsLink` creates two namespaces joined by a veth pair (``10.199.0.1`` in the sender
-namespace, ``10.199.0.2`` in the receiver namespace; nothing outside them is touched), shapes
-the sender->receiver direction with a token bucket (``tc tbf``: rate and a byte-bounded queue),
-changes the rate on the fly, starts processes inside either namespace, and always cleans up:
-on ``close()``/context exit, at interpreter exit, and for leftovers of dead processes
-(:func:`cleanup_stale`). Namespace names carry the pid, so parallel runs never collide.
-``netem`` is not needed (some kernels lack it); the base latency is then the serialisation
-time of one packet at the shaped rate.
+Two topologies, both made only of namespaces this module creates (addresses ``10.199.x.y`` and
+``10.198.x.y`` live inside them; nothing of the host is touched):
+
+- :class:`NetnsLink`: two namespaces joined by a veth pair (``10.199.0.1`` sender,
+  ``10.199.0.2`` receiver), the sender->receiver direction shaped with a token bucket
+  (``tc tbf``: rate and a byte-bounded queue). The probe experiments of ch. 6 use it.
+- :class:`SharedMedium`: a radio channel for a fleet. Every drone has its own namespace, the
+  ground station and an ``iperf3`` background host have theirs, and all of them hang on one
+  bridge in a "medium" namespace through one veth each. The bridge's port toward the ground
+  station is shaped once (tbf), so every drone and the background contend for one queue and
+  one rate like stations on one channel. Optional delay and loss use ``netem`` on every
+  station's radio interface (each crossing of the medium pays them once), *only when the
+  kernel has* ``sch_netem``: :func:`netem_missing` says why not, and the medium reports that
+  delay/loss are not emulated rather than faking them. A "vehicles" namespace holds the
+  simulated autopilots, each reached from its drone over its own unshaped veth (the
+  flight controller's serial line).
+
+Both start processes inside their namespaces and always clean up: on ``close()``/context
+exit, on errors while building, at interpreter exit, on SIGTERM/SIGHUP when nobody else
+handles them, and for leftovers of dead processes (:func:`cleanup_stale`). Namespace names
+carry the pid (``uavle<pid>x<n>...``), so parallel runs never collide.
 
 The module also holds a tiny measurement probe (``python -m sitl.linkemu probe-sender|
 probe-receiver``): the receiver reports what arrived and when, as JSON datagrams a few times a
@@ -31,8 +44,9 @@ import socket
 import struct
 import subprocess
 import sys
+import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -41,15 +55,24 @@ __all__ = [
     "Iperf3Background",
     "LinkEmuError",
     "NetnsLink",
+    "SharedMedium",
     "cleanup_stale",
     "missing_requirements",
+    "netem_missing",
 ]
 
 REQUIREMENTS_HINT = "run as root with iproute2 and iperf3: apt-get install iproute2 iperf3"
 NS_PREFIX = "uavle"
-"""Prefix of every namespace this module creates: ``uavle<pid>x<n>s`` / ``...r``."""
+"""Prefix of every namespace this module creates: ``uavle<pid>x<n>`` + a role suffix."""
+_NS_NAME = re.compile(rf"{NS_PREFIX}(\d+)x\d+(?:[srmgbvp]|d\d+)")
+"""Roles: s/r sender/receiver (NetnsLink), m medium, g ground, b background, v vehicles,
+d<i> drone i (SharedMedium), p a throwaway probe of :func:`netem_missing`."""
 SENDER_ADDR = "10.199.0.1"
 RECEIVER_ADDR = "10.199.0.2"
+GROUND_ADDR = RECEIVER_ADDR
+"""The ground station on the shared medium (the same address as NetnsLink's receiver)."""
+BACKGROUND_ADDR = "10.199.0.3"
+MAX_DRONES = 64
 L2_OVERHEAD_BYTES = 14 + 20 + 8
 """Ethernet + IPv4 + UDP header bytes that tbf counts on top of a UDP payload."""
 
@@ -80,7 +103,7 @@ def cleanup_stale() -> list[str]:
     out = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True, check=False)
     for line in out.stdout.splitlines():
         name = line.split()[0] if line.split() else ""
-        match = re.fullmatch(rf"{NS_PREFIX}(\d+)x\d+[sr]", name)
+        match = _NS_NAME.fullmatch(name)
         if match is None:
             continue
         pid = int(match.group(1))
@@ -97,9 +120,126 @@ def cleanup_stale() -> list[str]:
 
 
 _counter = 0
+_netem_cache: list[str | None] = []
 
 
-class NetnsLink:
+def _next_tag() -> str:
+    global _counter
+    _counter += 1
+    return f"{NS_PREFIX}{os.getpid()}x{_counter}"
+
+
+def netem_missing() -> str | None:
+    """None when ``tc netem`` works here; else why not (e.g. the kernel lacks ``sch_netem``).
+
+    Tried once per process on the loopback of a throwaway namespace of ours.
+    """
+    if _netem_cache:
+        return _netem_cache[0]
+    reason = missing_requirements()
+    if reason is None:
+        ns = f"{_next_tag()}p"
+        try:
+            _run(["ip", "netns", "add", ns])
+            try:
+                proc = subprocess.run(["tc", "-n", ns, "qdisc", "add", "dev", "lo", "root",
+                                       "netem", "delay", "1ms"], capture_output=True,
+                                      text=True, check=False, timeout=30)
+            finally:
+                subprocess.run(["ip", "netns", "del", ns], capture_output=True, check=False)
+            if proc.returncode != 0:
+                reason = (f"the kernel has no netem qdisc (sch_netem; tc: "
+                          f"{proc.stderr.strip() or proc.returncode})")
+        except LinkEmuError as exc:
+            reason = f"cannot check for netem: {exc}"
+    _netem_cache.append(reason)
+    return reason
+
+
+class _Namespaces:
+    """Namespaces and processes that always go away: on close(), on errors while building,
+    at interpreter exit, and on SIGTERM/SIGHUP when their handler is still the default one
+    (turned into SystemExit so ``finally``/``with`` run)."""
+
+    def __init__(self) -> None:
+        self._procs: list[subprocess.Popen[Any]] = []
+        self._created: list[str] = []
+        self._closed = False
+        self._old_handlers: dict[int, Any] = {}
+
+    def __enter__(self) -> Any:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _build(self) -> None:
+        raise NotImplementedError
+
+    def open(self) -> None:
+        atexit.register(self.close)
+        self._catch_signals()
+        try:
+            self._build()
+        except BaseException:
+            self.close()
+            raise
+
+    def _add_ns(self, ns: str) -> None:
+        _run(["ip", "netns", "add", ns])
+        self._created.append(ns)
+        _run(["ip", "-n", ns, "link", "set", "lo", "up"])
+
+    def _catch_signals(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return
+
+        def on_signal(signum: int, frame: object) -> None:
+            raise SystemExit(128 + signum)
+
+        for sig in (signal.SIGTERM, signal.SIGHUP):
+            if signal.getsignal(sig) == signal.SIG_DFL:
+                self._old_handlers[sig] = signal.signal(sig, on_signal)
+
+    def close(self) -> None:
+        """Stop every process started here, then delete the namespaces (and their links)."""
+        if self._closed:
+            return
+        self._closed = True
+        for proc in self._procs:
+            if proc.poll() is None:
+                proc.terminate()
+        for proc in self._procs:
+            try:
+                proc.wait(timeout=3)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(timeout=3)
+        for ns in reversed(self._created):
+            subprocess.run(["ip", "netns", "del", ns], capture_output=True, check=False)
+        self._created.clear()
+        if threading.current_thread() is threading.main_thread():
+            for sig, handler in self._old_handlers.items():
+                with contextlib.suppress(ValueError, TypeError):
+                    signal.signal(sig, handler)
+        self._old_handlers.clear()
+        with contextlib.suppress(Exception):
+            atexit.unregister(self.close)
+
+    @property
+    def namespaces(self) -> list[str]:
+        """The namespaces that exist now (created and not yet deleted)."""
+        return list(self._created)
+
+    def popen(self, ns: str, argv: Sequence[str], **kwargs: Any) -> subprocess.Popen[Any]:
+        """Start ``argv`` inside namespace ``ns``; it is terminated by :meth:`close`."""
+        proc = subprocess.Popen(["ip", "netns", "exec", ns, *argv], **kwargs)
+        self._procs.append(proc)
+        return proc
+
+
+class NetnsLink(_Namespaces):
     """Two namespaces and a shaped veth pair; a context manager that always cleans up.
 
     Parameters
@@ -119,9 +259,8 @@ class NetnsLink:
         queue_limit_bytes: int = 37_500,
         burst_bytes: int = 3_000,
     ) -> None:
-        global _counter
-        _counter += 1
-        tag = f"{NS_PREFIX}{os.getpid()}x{_counter}"
+        super().__init__()
+        tag = _next_tag()
         self.ns_sender = f"{tag}s"
         self.ns_receiver = f"{tag}r"
         self.dev_sender = "veth-s"
@@ -129,65 +268,40 @@ class NetnsLink:
         self.rate_bit_per_s = float(rate_bit_per_s)
         self.queue_limit_bytes = int(queue_limit_bytes)
         self.burst_bytes = int(burst_bytes)
-        self._procs: list[subprocess.Popen[Any]] = []
-        self._created: list[str] = []
-        self._closed = False
-
-    # -- lifecycle -------------------------------------------------------------------------
 
     def __enter__(self) -> NetnsLink:
         self.open()
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    # iperf3 background: from the sender namespace to the receiver.
+    @property
+    def bg_client_ns(self) -> str:
+        return self.ns_sender
 
-    def open(self) -> None:
-        atexit.register(self.close)
-        try:
-            for ns in (self.ns_sender, self.ns_receiver):
-                _run(["ip", "netns", "add", ns])
-                self._created.append(ns)
-            _run(["ip", "link", "add", self.dev_sender, "netns", self.ns_sender, "type", "veth",
-                  "peer", "name", self.dev_receiver, "netns", self.ns_receiver])
-            for ns, dev, addr in (
-                (self.ns_sender, self.dev_sender, SENDER_ADDR),
-                (self.ns_receiver, self.dev_receiver, RECEIVER_ADDR),
-            ):
-                _run(["ip", "-n", ns, "addr", "add", f"{addr}/30", "dev", dev])
-                _run(["ip", "-n", ns, "link", "set", dev, "up"])
-                _run(["ip", "-n", ns, "link", "set", "lo", "up"])
-            self._tbf("add")
-        except BaseException:
-            self.close()
-            raise
+    @property
+    def bg_server_ns(self) -> str:
+        return self.ns_receiver
 
-    def close(self) -> None:
-        """Stop every process started here, then delete the namespaces (and the veth)."""
-        if self._closed:
-            return
-        self._closed = True
-        for proc in self._procs:
-            if proc.poll() is None:
-                proc.terminate()
-        for proc in self._procs:
-            try:
-                proc.wait(timeout=3)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=3)
-        for ns in reversed(self._created):
-            subprocess.run(["ip", "netns", "del", ns], capture_output=True, check=False)
-        self._created.clear()
-        with contextlib.suppress(Exception):
-            atexit.unregister(self.close)
+    bg_server_addr = RECEIVER_ADDR
+
+    def _build(self) -> None:
+        for ns in (self.ns_sender, self.ns_receiver):
+            self._add_ns(ns)
+        _run(["ip", "link", "add", self.dev_sender, "netns", self.ns_sender, "type", "veth",
+              "peer", "name", self.dev_receiver, "netns", self.ns_receiver])
+        for ns, dev, addr in (
+            (self.ns_sender, self.dev_sender, SENDER_ADDR),
+            (self.ns_receiver, self.dev_receiver, RECEIVER_ADDR),
+        ):
+            _run(["ip", "-n", ns, "addr", "add", f"{addr}/30", "dev", dev])
+            _run(["ip", "-n", ns, "link", "set", dev, "up"])
+        self._tbf("add")
 
     # -- shaping ---------------------------------------------------------------------------
 
     def _tbf(self, verb: str) -> None:
-        _run(["tc", "-n", self.ns_sender, "qdisc", verb, "dev", self.dev_sender, "root",
-              "handle", "1:", "tbf", "rate", f"{int(self.rate_bit_per_s)}bit",
-              "burst", str(self.burst_bytes), "limit", str(self.queue_limit_bytes)])
+        _tbf(verb, self.ns_sender, self.dev_sender, rate_bit_per_s=self.rate_bit_per_s,
+             burst_bytes=self.burst_bytes, queue_limit_bytes=self.queue_limit_bytes)
 
     def set_rate(self, rate_bit_per_s: float) -> None:
         """Change the bottleneck rate now (the queue bound stays)."""
@@ -201,19 +315,209 @@ class NetnsLink:
     def qdisc_stats(self) -> str:
         return _run(["tc", "-s", "-n", self.ns_sender, "qdisc", "show", "dev", self.dev_sender])
 
-    # -- processes -------------------------------------------------------------------------
 
-    def popen(self, ns: str, argv: Sequence[str], **kwargs: Any) -> subprocess.Popen[Any]:
-        """Start ``argv`` inside namespace ``ns``; it is terminated by :meth:`close`."""
-        proc = subprocess.Popen(["ip", "netns", "exec", ns, *argv], **kwargs)
-        self._procs.append(proc)
-        return proc
+def _tbf(verb: str, ns: str, dev: str, *, rate_bit_per_s: float, burst_bytes: int,
+         queue_limit_bytes: int) -> None:
+    _run(["tc", "-n", ns, "qdisc", verb, "dev", dev, "root", "handle", "1:", "tbf",
+          "rate", f"{int(rate_bit_per_s)}bit", "burst", str(burst_bytes),
+          "limit", str(queue_limit_bytes)])
+
+
+_QDISC_COUNTERS = re.compile(r"Sent (\d+) bytes (\d+) pkt \(dropped (\d+), overlimits (\d+)")
+
+
+def parse_qdisc_counters(text: str) -> dict[str, int] | None:
+    """The first qdisc's ``Sent B bytes P pkt (dropped D, overlimits O`` of ``tc -s`` output."""
+    match = _QDISC_COUNTERS.search(text)
+    if match is None:
+        return None
+    sent_bytes, sent_packets, dropped, overlimits = (int(g) for g in match.groups())
+    return {"sent_bytes": sent_bytes, "sent_packets": sent_packets, "dropped": dropped,
+            "overlimits": overlimits}
+
+
+RADIO_DEV = "radio0"
+"""Each station's interface on the medium (drones, ground station, background host)."""
+MAVLINK_DEV = "mav0"
+"""A drone's interface toward its simulated autopilot in the vehicles namespace."""
+
+
+class SharedMedium(_Namespaces):
+    """A fleet's radio channel: one namespace per drone, one for the ground station, one for
+    an iperf3 background host, all bridged in a medium namespace, the bridge's port toward the
+    ground station shaped once with tbf (so all of them share one rate and one queue).
+
+    ``delay_s`` and ``loss`` (a probability per datagram) are applied with netem on every
+    station's radio interface when the kernel has netem; otherwise :attr:`netem` is False,
+    :attr:`impairment_note` says so, and the link has rate and queue only.
+    Addresses: ground ``10.199.0.2``, background ``10.199.0.3``, drone i ``10.199.0.(10+i)``
+    (/24); drone i <-> vehicles namespace ``10.198.i.2`` <-> ``10.198.i.1`` (/30, unshaped).
+    """
+
+    def __init__(
+        self,
+        *,
+        drones: int,
+        rate_bit_per_s: float = 6_000_000.0,
+        delay_s: float = 0.0,
+        loss: float = 0.0,
+        queue_limit_bytes: int = 37_500,
+        burst_bytes: int = 3_000,
+        vehicles: bool = True,
+        background: bool = True,
+        netem_check: Callable[[], str | None] = netem_missing,
+    ) -> None:
+        super().__init__()
+        if not 1 <= drones <= MAX_DRONES:
+            raise ValueError(f"drones must be in 1..{MAX_DRONES}, got {drones}")
+        if delay_s < 0 or not 0.0 <= loss < 1.0:
+            raise ValueError(f"need delay_s >= 0 and 0 <= loss < 1, got {delay_s}, {loss}")
+        if rate_bit_per_s <= 0:
+            raise ValueError(f"rate must be > 0, got {rate_bit_per_s}")
+        tag = _next_tag()
+        self.drones = drones
+        self.ns_medium = f"{tag}m"
+        self.ns_ground = f"{tag}g"
+        self.ns_background: str | None = f"{tag}b" if background else None
+        self.ns_vehicles: str | None = f"{tag}v" if vehicles else None
+        self.ns_drones = tuple(f"{tag}d{i}" for i in range(drones))
+        self.rate_bit_per_s = float(rate_bit_per_s)
+        self.delay_s = float(delay_s)
+        self.loss = float(loss)
+        self.queue_limit_bytes = int(queue_limit_bytes)
+        self.burst_bytes = int(burst_bytes)
+        self.bottleneck_dev = "gs"
+        """The medium namespace's bridge port toward the ground station (shaped)."""
+        self._netem_check = netem_check
+        self.netem: bool | None = None
+        """True: delay/loss applied; False: asked for but netem is missing; None: not asked."""
+        self.impairment_note: str | None = None
+
+    def __enter__(self) -> SharedMedium:
+        self.open()
+        return self
+
+    # -- addresses -------------------------------------------------------------------------
+
+    @staticmethod
+    def drone_addr(index: int) -> str:
+        return f"10.199.0.{10 + index}"
+
+    @staticmethod
+    def vehicle_addrs(index: int) -> tuple[str, str]:
+        """(vehicle side, drone side) of drone ``index``'s autopilot link."""
+        return f"10.198.{index}.1", f"10.198.{index}.2"
+
+    ground_addr = GROUND_ADDR
+    background_addr = BACKGROUND_ADDR
+
+    # iperf3 background: from the background host to the ground station, over the medium.
+    @property
+    def bg_client_ns(self) -> str:
+        if self.ns_background is None:
+            raise LinkEmuError("this medium was built without a background host")
+        return self.ns_background
+
+    @property
+    def bg_server_ns(self) -> str:
+        return self.ns_ground
+
+    bg_server_addr = GROUND_ADDR
+
+    # -- building --------------------------------------------------------------------------
+
+    def _stations(self) -> list[tuple[str, str, str]]:
+        """(namespace, bridge port name in the medium, address) of every station."""
+        out = [(self.ns_ground, self.bottleneck_dev, GROUND_ADDR)]
+        if self.ns_background is not None:
+            out.append((self.ns_background, "bg", BACKGROUND_ADDR))
+        out += [(ns, f"d{i}", self.drone_addr(i)) for i, ns in enumerate(self.ns_drones)]
+        return out
+
+    def _build(self) -> None:
+        stations = self._stations()
+        self._add_ns(self.ns_medium)
+        for ns, _, _ in stations:
+            self._add_ns(ns)
+        m = self.ns_medium
+        _run(["ip", "-n", m, "link", "add", "br0", "type", "bridge"])
+        for ns, port, addr in stations:
+            _run(["ip", "link", "add", RADIO_DEV, "netns", ns, "type", "veth",
+                  "peer", "name", port, "netns", m])
+            _run(["ip", "-n", m, "link", "set", port, "master", "br0"])
+            _run(["ip", "-n", m, "link", "set", port, "up"])
+            _run(["ip", "-n", ns, "addr", "add", f"{addr}/24", "dev", RADIO_DEV])
+            _run(["ip", "-n", ns, "link", "set", RADIO_DEV, "up"])
+        _run(["ip", "-n", m, "link", "set", "br0", "up"])
+        if self.ns_vehicles is not None:
+            v = self.ns_vehicles
+            self._add_ns(v)
+            for i, ns in enumerate(self.ns_drones):
+                vehicle, drone = self.vehicle_addrs(i)
+                _run(["ip", "link", "add", MAVLINK_DEV, "netns", ns, "type", "veth",
+                      "peer", "name", f"v{i}", "netns", v])
+                for where, dev, addr in ((ns, MAVLINK_DEV, drone), (v, f"v{i}", vehicle)):
+                    _run(["ip", "-n", where, "addr", "add", f"{addr}/30", "dev", dev])
+                    _run(["ip", "-n", where, "link", "set", dev, "up"])
+        self._tbf("add")
+        self._impair(stations)
+
+    def _impair(self, stations: list[tuple[str, str, str]]) -> None:
+        if self.delay_s == 0 and self.loss == 0:
+            return
+        asked = f"delay {1000 * self.delay_s:g} ms, loss {100 * self.loss:g} %"
+        reason = self._netem_check()
+        if reason is not None:
+            self.netem = False
+            self.impairment_note = (f"{asked} NOT emulated: {reason}; the medium has rate "
+                                    f"and queue only")
+            return
+        for ns, _, _ in stations:
+            _run(["tc", "-n", ns, "qdisc", "add", "dev", RADIO_DEV, "root", "netem",
+                  "delay", f"{1e6 * self.delay_s:.0f}us", "loss", f"{100 * self.loss:g}%"])
+        self.netem = True
+        self.impairment_note = f"{asked} per crossing of the medium (netem on every station)"
+
+    # -- shaping ---------------------------------------------------------------------------
+
+    def _tbf(self, verb: str) -> None:
+        _tbf(verb, self.ns_medium, self.bottleneck_dev, rate_bit_per_s=self.rate_bit_per_s,
+             burst_bytes=self.burst_bytes, queue_limit_bytes=self.queue_limit_bytes)
+
+    def set_rate(self, rate_bit_per_s: float) -> None:
+        """Change the channel's rate now (the queue bound stays)."""
+        self.rate_bit_per_s = float(rate_bit_per_s)
+        self._tbf("change")
+
+    def payload_capacity_bytes_per_s(self, payload_bytes: int) -> float:
+        """UDP payload bytes per second the current rate carries for ``payload_bytes`` packets."""
+        return self.rate_bit_per_s / 8 * payload_bytes / (payload_bytes + L2_OVERHEAD_BYTES)
+
+    def qdisc_stats(self) -> str:
+        """``tc -s`` of the shared bottleneck (toward the ground station)."""
+        return _run(["tc", "-s", "-n", self.ns_medium, "qdisc", "show", "dev",
+                     self.bottleneck_dev])
+
+    def describe(self) -> str:
+        """One line for a run's output: topology, rate, queue, and what delay/loss do."""
+        impair = self.impairment_note or "no delay/loss asked"
+        return (f"{self.drones} drone namespace(s) {self.ns_drones[0]}..; ground "
+                f"{self.ns_ground} ({GROUND_ADDR}); bridge in {self.ns_medium}; "
+                f"rate {self.rate_bit_per_s / 1e6:g} Mbit/s, queue {self.queue_limit_bytes} B "
+                f"(tbf toward the ground station); {impair}")
+
+    def wrap(self, ns: str, argv: Sequence[str]) -> list[str]:
+        """``argv`` run inside ``ns`` (for launchers that start processes themselves)."""
+        if ns not in self._created:
+            raise LinkEmuError(f"{ns} is not a namespace of this medium")
+        return ["ip", "netns", "exec", ns, *argv]
 
 
 class Iperf3Background:
-    """UDP background traffic from the sender namespace to the receiver namespace."""
+    """UDP background traffic of ``link`` (a NetnsLink: sender -> receiver namespace; a
+    SharedMedium: background host -> ground station, across the shared bottleneck)."""
 
-    def __init__(self, link: NetnsLink, *, port: int = 5201) -> None:
+    def __init__(self, link: NetnsLink | SharedMedium, *, port: int = 5201) -> None:
         self.link = link
         self.port = port
         self._server: subprocess.Popen[Any] | None = None
@@ -221,8 +525,8 @@ class Iperf3Background:
 
     def start_server(self) -> None:
         self._server = self.link.popen(
-            self.link.ns_receiver,
-            ["iperf3", "-s", "-B", RECEIVER_ADDR, "-p", str(self.port)],
+            self.link.bg_server_ns,
+            ["iperf3", "-s", "-B", self.link.bg_server_addr, "-p", str(self.port)],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         )
 
@@ -230,8 +534,8 @@ class Iperf3Background:
         """Start a client sending ``rate_bit_per_s`` of UDP payload for ``duration_s``."""
         self.stop()
         self._client = self.link.popen(
-            self.link.ns_sender,
-            ["iperf3", "-c", RECEIVER_ADDR, "-p", str(self.port), "-u",
+            self.link.bg_client_ns,
+            ["iperf3", "-c", self.link.bg_server_addr, "-p", str(self.port), "-u",
              "-b", f"{int(rate_bit_per_s)}", "-l", str(payload_bytes),
              "-t", f"{max(1, math.ceil(duration_s))}", "--connect-timeout", "3000"],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
@@ -243,7 +547,6 @@ class Iperf3Background:
             with contextlib.suppress(subprocess.TimeoutExpired):
                 self._client.wait(timeout=3)
         self._client = None
-
 
 # --------------------------------------------------------------------------------------------
 # Measurement probe: runs inside the namespaces as ``python -m sitl.linkemu probe-...``.

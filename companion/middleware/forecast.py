@@ -97,9 +97,13 @@ class StreamForecaster:
         times = list(stream.times)
         seqs = list(stream.seqs)
         steps = seqs[-1] - seqs[0]
-        if steps > 0 and all(b > a for a, b in itertools.pairwise(seqs)) and self._alone(key):
-            # The sender's only stream: its sequence numbers count the periods in between,
-            # which tells a 3 s stream from a 1 s stream of which every third message arrived.
+        if steps > 0 and self._alone(key) and _seq_paced(times, seqs):
+            # The sender's only known stream, and its sequence numbers advance in step with
+            # time: they count the periods in between, which tells a 3 s stream from a 1 s
+            # stream of which every third message arrived. A sender numbers all its
+            # messages with one counter (the companion does), so seq steps also count its
+            # other, unheard streams (images among telemetry): then the time per step varies
+            # from gap to gap and the seqs say nothing about this stream's period.
             return (times[-1] - times[0]) / steps
         gaps = [b - a for a, b in itertools.pairwise(times) if b - a > 1e-9]
         if not gaps:
@@ -208,6 +212,19 @@ class StreamForecaster:
         stale = [k for k, s in self._streams.items() if not s.times or s.times[-1] < older_than]
         for key in stale:
             del self._streams[key]
+
+
+def _seq_paced(times: list[float], seqs: list[int]) -> bool:
+    """Every gap spans the same time per sequence step (within 20 %, room for jitter)."""
+    per_step = []
+    for (t0, s0), (t1, s1) in itertools.pairwise(zip(times, seqs, strict=True)):
+        if s1 <= s0:
+            return False
+        per_step.append((t1 - t0) / (s1 - s0))
+    if not per_step:
+        return False
+    lo, hi = min(per_step), max(per_step)
+    return hi > 0 and hi - lo <= 0.2 * hi
 
 
 def _best_size(message: Message) -> int:

@@ -58,6 +58,12 @@ class MiddlewareConfig:
     """At most this many levels (nearest first): bounds the work per decision."""
     chunk_iterations: int = 100
     """With a wall-time deadline, the budget clock is read every this many iterations."""
+    announce_after_s: float | None = 60.0
+    """Other agents learn of a stream only from its deliveries: a stream of this agent that
+    has sent nothing for this long is invisible to their plans, so they fill the shared
+    window and it is dropped for ever (a starvation loop; at mission start, the agents that
+    speak first take the window). Then a message the tree would send if the window were
+    free goes out anyway, once, and makes the stream known ("mcts-announce"). None: off."""
 
     def __post_init__(self) -> None:
         if not self.agent:
@@ -67,6 +73,8 @@ class MiddlewareConfig:
         if not (self.horizon_s > 0 and self.c >= 0 and self.default_latency_s >= 0
                 and self.tail_s >= 0):
             raise MiddlewareError("need horizon_s > 0, c >= 0, default_latency_s >= 0, tail_s >= 0")
+        if self.announce_after_s is not None and not self.announce_after_s > 0:
+            raise MiddlewareError("announce_after_s must be > 0 or None")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -94,6 +102,18 @@ class Decision:
             raise MiddlewareError("a dropped message has no version")
 
 
+def _dense_enough(problem: Problem, level: int, lam: float) -> bool:
+    """The message is worth a place in the fleet's plan: some version brings at least the
+    utility per byte at which the horizon's messages fill the budget (the density the
+    default policy asks for, :func:`~companion.middleware.mcts.rollout_threshold`)."""
+    if not 0 <= level < problem.n or lam <= 0:
+        return False
+    return any(
+        float(problem.gain[level, o, 0]) >= lam * max(1, int(problem.size[level, o]))
+        for o in range(1, int(problem.nopt[level]))
+    )
+
+
 class Middleware:
     """Per-agent optimiser: forecast + in-flight + MCTS with pruning and merging (ch. 5)."""
 
@@ -116,6 +136,8 @@ class Middleware:
         )
         self.counters: Counter[str] = Counter()
         self.last_problem: Problem | None = None
+        self._last_sent: dict[str, float] = {}
+        """Per own message type: when it last sent one (what the fleet has heard of)."""
 
     @property
     def spec(self) -> MissionSpec:
@@ -165,6 +187,20 @@ class Middleware:
             self.counters["fallback"] += 1
         else:
             option, reason = result.option, "mcts-exact" if result.exhausted else "mcts"
+        if option == 0 and view.root_window and self._invisible(message.type, now) \
+                and _dense_enough(problem, level, search.lam):
+            # What the tree would do if the fleet, knowing of this stream, had left room.
+            free = build_problem(
+                self.spec, items=view.items, fixed=view.fixed,
+                horizon_end=view.horizon_end + self.config.tail_s,
+                budget_bytes=self.constraint.budget_bytes(now=now), window_s=window_s,
+            )
+            relaxed = MCTS(free, c=self.config.c, max_nodes=self.config.max_iterations + 1)
+            self._run(relaxed, deadline)
+            announce = relaxed.result()
+            if announce.option:
+                option, reason, result = announce.option, "mcts-announce", announce
+                self.counters["announce"] += 1
         decision = Decision(
             send=option != 0,
             version=(option - 1) if option != 0 and message.versions else None,
@@ -180,6 +216,14 @@ class Middleware:
         self._after(message, decision, now)
         return decision
 
+    def _invisible(self, type_name: str, now: float) -> bool:
+        """Has the fleet not heard of this agent's ``type_name`` stream for a long time?"""
+        after = self.config.announce_after_s
+        if after is None:
+            return False
+        last = self._last_sent.get(type_name)
+        return last is None or now - last > after
+
     def _run(self, search: MCTS, deadline: float | None) -> None:
         budget = self.config.max_iterations
         if deadline is None or self.budget_clock is None:
@@ -194,6 +238,7 @@ class Middleware:
     def _after(self, message: Message, decision: Decision, now: float) -> None:
         self.counters["sent" if decision.send else "dropped"] += 1
         if decision.send:
+            self._last_sent[message.type] = now
             sent = option_message(message, (decision.version or 0) + 1)
             self.knowledge.on_sent(sent, now=now)
             self.constraint.on_sent(sent.size, now=now)

@@ -94,3 +94,14 @@ def test_unreadable_key_file(tmp_path: Path) -> None:
     path = _write(tmp_path, '[drone]\nid = "d"\n[ground_station]\nfleet_key_file = "nokey"\n')
     with pytest.raises(ConfigError, match=r"ground_station.fleet_key_file: expected a readable"):
         load_config(path)
+
+
+def test_hog_people_settings_are_read_and_checked(tmp_path: Path) -> None:
+    good = tmp_path / "good.toml"
+    good.write_text('[drone]\nid = "d1"\n[scoring.hog_people]\nscale = 1.0\nwin_stride_px = 16\n')
+    hog = load_config(good).scoring.hog_people
+    assert (hog.scale, hog.win_stride_px, hog.pyramid_scale) == (1.0, 16, 1.05)
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[drone]\nid = "d1"\n[scoring.hog_people]\nwin_stride_px = 12\n')
+    with pytest.raises(ConfigError, match="win_stride_px"):
+        load_config(bad)

@@ -1,6 +1,8 @@
-"""Frame features: red share over both hue bands, opening, ArUco markers."""
+"""Frame features: red share over both hue bands, opening, ArUco markers, HOG people."""
 
 from __future__ import annotations
+
+from typing import ClassVar
 
 import cv2
 import numpy as np
@@ -12,6 +14,7 @@ from companion.scoring import (
     ArucoScorer,
     ArucoSettings,
     HogPeopleScorer,
+    HogSettings,
     RedShareScorer,
     RedShareSettings,
     ScorerUnavailable,
@@ -114,9 +117,138 @@ def test_composite_merges_and_ors_object() -> None:
         make_scorer(["magic"])
 
 
+HAS_HOG = hasattr(cv2, "HOGDescriptor")
+needs_hog = pytest.mark.skipif(not HAS_HOG, reason=f"OpenCV {cv2.__version__} has no "
+                               "HOGDescriptor (opencv-python-headless>=4.10,<5 has it)")
+
+
+def _person_frame(height: int = 240, x: int = 320, bg: int = 200, fg: int = 40) -> np.ndarray:
+    """A dark upright person-like silhouette (head, torso, arms, legs) on a plain background."""
+    image = np.full((480, 640, 3), bg, np.uint8)
+    top, u, col = (480 - height) // 2, height / 8.0, (fg, fg, fg)  # u: one head height
+
+    def pt(dx: float, dy: float) -> tuple[int, int]:
+        return (round(x + dx * u), round(top + dy * u))
+
+    cv2.circle(image, pt(0, 0.5), round(0.5 * u), col, -1, cv2.LINE_AA)
+    cv2.ellipse(image, pt(0, 2.6), (round(0.95 * u), round(1.7 * u)), 0, 0, 360, col, -1,
+                cv2.LINE_AA)
+    for side in (-1, 1):
+        cv2.line(image, pt(0.9 * side, 1.5), pt(1.2 * side, 4.0), col, round(0.45 * u),
+                 cv2.LINE_AA)
+        cv2.line(image, pt(0.45 * side, 4.0), pt(0.7 * side, 7.8), col, round(0.6 * u),
+                 cv2.LINE_AA)
+    return image
+
+
+@needs_hog
+@pytest.mark.parametrize(("height", "x"), [(180, 200), (240, 320), (300, 420)])
+def test_hog_finds_a_person_silhouette(height: int, x: int) -> None:
+    result = HogPeopleScorer().score(_person_frame(height, x))
+    assert result["people"] == 1 and result["object"] is True
+    assert result["people_score"] >= 1.0  # well above the 0.5 margin threshold
+
+
+@needs_hog
+def test_hog_scale_trades_small_people_for_speed() -> None:
+    """The 64x128 window on a half-size copy misses a 120 px person that full size finds."""
+    small = _person_frame(120)
+    assert HogPeopleScorer().score(small)["people"] == 0
+    assert HogPeopleScorer(HogSettings(scale=1.0)).score(small)["people"] == 1
+
+
+@needs_hog
+def test_hog_finds_nobody_in_plain_or_red_frames() -> None:
+    red = _frame()
+    red[100:380, 200:440] = (0, 0, 255)
+    for image in (_frame(), red, _marker_frame(5)):
+        assert HogPeopleScorer().score(image) == {"people": 0, "people_score": 0.0,
+                                                  "object": False}
+
+
+@needs_hog
+def test_hog_finds_nobody_in_synthetic_aerial_frames() -> None:
+    """Fields, tracks, red objects and markers seen from 20-80 m are not people."""
+    from sitl.camera import CameraPose, SyntheticCamera
+    from sitl.scenes import load_scene
+
+    camera = SyntheticCamera(load_scene("demo"), width_px=640, height_px=480)
+    scorer = HogPeopleScorer()
+    rng = np.random.default_rng(3)
+    for i in range(6):
+        pose = CameraPose(east_m=float(rng.uniform(-150, 150)),
+                          north_m=float(rng.uniform(-150, 150)),
+                          up_m=float(rng.uniform(20, 80)), yaw_rad=float(rng.uniform(0, 6.28)))
+        assert scorer.score(camera.render(pose, t_s=float(i)))["people"] == 0
+
+
+@needs_hog
+def test_composite_with_hog_people_ors_object() -> None:
+    scorer = make_scorer(["red_share", "aruco", "hog_people"])
+    result = scorer.score(_person_frame())
+    assert result["object"] is True and result["people"] == 1 and result["markers"] == []
+    assert result["red"] == 0.0
+
+
+class _FakeHog:
+    """Stands in for cv2.HOGDescriptor: records the call, returns fixed detections."""
+
+    calls: ClassVar[list[tuple[tuple[int, ...], tuple[int, int], float]]] = []
+    weights: ClassVar[tuple[float, ...]] = ()
+
+    def setSVMDetector(self, detector: object) -> None:
+        assert detector == "default-people"
+
+    @staticmethod
+    def getDefaultPeopleDetector() -> str:
+        return "default-people"
+
+    def detectMultiScale(self, image: np.ndarray, *, winStride: tuple[int, int],
+                         scale: float) -> tuple[np.ndarray, np.ndarray]:
+        _FakeHog.calls.append((image.shape, winStride, scale))
+        rects = np.zeros((len(self.weights), 4), np.int32)
+        return rects, np.array(self.weights, np.float64).reshape(-1, 1)
+
+
+def test_hog_plumbing_scales_filters_and_reports(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Runs on every OpenCV: the detector sees the scaled frame, weak windows do not count."""
+    monkeypatch.setattr(cv2, "HOGDescriptor", _FakeHog, raising=False)
+    monkeypatch.setattr(_FakeHog, "calls", [])
+    monkeypatch.setattr(_FakeHog, "weights", (0.3, 2.5, 0.9))
+    scorer = HogPeopleScorer(HogSettings(scale=0.5, win_stride_px=16, pyramid_scale=1.2))
+    assert scorer.score(_frame()) == {"people": 2, "people_score": 2.5, "object": True}
+    assert _FakeHog.calls == [((240, 320, 3), (16, 16), 1.2)]
+    monkeypatch.setattr(_FakeHog, "weights", (0.49,))
+    assert HogPeopleScorer(min_weight=0.5).score(_frame()) == {
+        "people": 0, "people_score": 0.0, "object": False}
+    assert HogPeopleScorer(scale=1.0, min_weight=0.0).score(_frame())["people"] == 1
+    assert _FakeHog.calls[-1][0] == (480, 640, 3)
+    merged = make_scorer(["red_share", "hog_people"], options={"min_weight": 0.4}).score(
+        _frame())
+    assert merged == {"red": 0.0, "people": 1, "people_score": 0.49, "object": True}
+
+
+def test_hog_missing_names_the_fix(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Runs on every OpenCV: without HOGDescriptor the scorer refuses to start, saying why."""
+    monkeypatch.delattr(cv2, "HOGDescriptor", raising=False)
+    monkeypatch.delattr(cv2, "xobjdetect", raising=False)
+    for build in (HogPeopleScorer, lambda: make_scorer(["red_share", "hog_people"])):
+        with pytest.raises(ScorerUnavailable,
+                           match=r'opencv-python-headless>=4\.10,<5.*opencv-contrib'):
+            build()
+
+
+@pytest.mark.skipif(HAS_HOG, reason="this OpenCV has HOGDescriptor")
 def test_hog_people_detector_reports_when_missing() -> None:
-    if hasattr(cv2, "HOGDescriptor"):
-        assert HogPeopleScorer().score(_frame())["people"] == 0
-    else:
-        with pytest.raises(ScorerUnavailable, match="opencv-contrib"):
-            HogPeopleScorer()
+    with pytest.raises(ScorerUnavailable, match=f"not in OpenCV {cv2.__version__}"):
+        HogPeopleScorer()
+
+
+@pytest.mark.parametrize(("field", "value"), [("scale", 0.0), ("scale", 1.5),
+                                              ("win_stride_px", 12), ("win_stride_px", 0),
+                                              ("pyramid_scale", 1.0), ("min_weight", -1.0)])
+def test_invalid_hog_settings_are_rejected(field: str, value: float) -> None:
+    with pytest.raises(ValueError, match=field):
+        HogSettings(**{field: value})
+    with pytest.raises(TypeError, match="not both"):
+        HogPeopleScorer(HogSettings(), scale=0.5)

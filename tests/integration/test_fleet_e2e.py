@@ -325,8 +325,8 @@ def _netns_missing() -> str | None:
 @pytest.mark.timeout(300)
 @pytest.mark.skipif(_netns_missing() is not None, reason=str(_netns_missing()))
 def test_fleet_over_namespaces_with_background_traffic(tmp_path: Path) -> None:
-    """--netns: drones and station in their own namespaces behind a shaped link, iperf3
-    background switched on during the mission; the namespaces are gone afterwards."""
+    """--netns: each drone and the station in their own namespaces on one shaped medium,
+    iperf3 background switched on during the mission; the namespaces are gone afterwards."""
     run_dir = tmp_path / "run"
     summary_path = tmp_path / "summary.json"
     proc = subprocess.Popen([*FLEET, "--out", str(run_dir), "--summary-json", str(summary_path),
@@ -346,3 +346,7 @@ def test_fleet_over_namespaces_with_background_traffic(tmp_path: Path) -> None:
         assert drone["received"] > 0
     _station_stored_what_it_received(summary)
     assert summary["utility"]["total"] > 0
+    link = summary["link"]
+    assert len(set(link["namespaces"]["drones"])) == 2
+    # The background (1.5 Mbit/s for 8 s = 1.5 MB) crossed the same shaped port as the images.
+    assert link["bottleneck"]["sent_bytes"] > summary["bytes_received"] + 0.5 * 1.5e6

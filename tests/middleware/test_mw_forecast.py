@@ -87,6 +87,24 @@ def test_sequence_numbers_tell_a_sparse_fast_stream_from_a_slow_one() -> None:
     assert g.period(("a", "battery")) == pytest.approx(3.0)
 
 
+def test_seqs_shared_with_unheard_streams_do_not_set_the_period() -> None:
+    """A sender numbers all its messages with one counter: 3 Hz images among 1 Hz position
+    reports. Only the images are heard of; their seq steps (1 or 2) count the unheard
+    positions too, so the period comes from the times (1/3 s), not from seq (about 1/4 s)."""
+    f = StreamForecaster()
+    events = sorted([(k / 3.0, "image") for k in range(12)] + [(k + 0.1, "position")
+                                                             for k in range(4)])
+    for seq, (t, kind) in enumerate(events):
+        if kind == "image":
+            f.observe(msg("a", seq, "image", T0 + t))
+    assert f.period(("a", "image")) == pytest.approx(1 / 3.0, rel=1e-6)
+    # the other way round the seqs still help: a sender's only stream, every third heard
+    h = StreamForecaster()
+    for seq in range(0, 30, 3):
+        h.observe(msg("b", seq, "image", T0 + seq / 3.0 + 0.01 * (seq % 2)))
+    assert h.period(("b", "image")) == pytest.approx(1 / 3.0, rel=0.01)
+
+
 def test_a_stream_heard_once_repeats_at_the_fleet_period() -> None:
     f = StreamForecaster()
     for k in range(4):

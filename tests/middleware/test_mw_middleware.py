@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ast
 import csv
+import dataclasses
 import itertools
 from pathlib import Path
 
@@ -176,3 +177,26 @@ def test_bad_data_is_counted_and_does_not_poison_the_forecast() -> None:
     assert mw.counters["delivered"] == 0
     for k in range(1, 4):  # good messages afterwards are decided normally
         assert mw.decide(msg("a", k, "battery", T0 + k), T0 + k).reason == "mcts"
+
+
+def _full_window_then_own(mw: Middleware) -> list[Decision]:
+    """b's delivered status reports (10 Hz) keep the 1 s window full; then a's battery
+    messages, worth far more per byte, come."""
+    for j in range(11):
+        t = T0 - 1.0 + 0.1 * j
+        other = dataclasses.replace(msg("b", j, "status", t, size=200), receiver="ground",
+                                    t_sent=t, t_rcv=t + 0.05)
+        mw.on_delivered([other], t + 0.05)
+    return [mw.decide(msg("a", 100 + k, "battery", T0 + 0.1 + 0.2 * k), T0 + 0.1 + 0.2 * k)
+            for k in range(3)]
+
+
+def test_an_invisible_stream_announces_itself_once() -> None:
+    """Other agents plan only for streams they have heard of: a stream that never got a
+    message out is sent once over a full window (counted), then plans as usual."""
+    decisions = _full_window_then_own(_mw(budget_bytes_per_s=250.0))
+    assert [d.send for d in decisions] == [True, False, False]
+    assert decisions[0].reason == "mcts-announce"
+    off = _mw(budget_bytes_per_s=250.0, announce_after_s=None)
+    assert [d.send for d in _full_window_then_own(off)] == [False, False, False]
+    assert off.counters["announce"] == 0
