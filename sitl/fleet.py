@@ -312,6 +312,18 @@ class GroundStationApi:
 # -- live counters from the companions' mission logs -------------------------------------------
 
 
+
+def _new_lines(path: Path, offset: int) -> tuple[list[bytes], int]:
+    """Whole lines appended to a growing log since ``offset``, and the offset after them."""
+    try:
+        with path.open("rb") as f:
+            f.seek(offset)
+            chunk = f.read()
+    except OSError:
+        return [], offset
+    end = chunk.rfind(b"\n") + 1
+    return chunk[:end].splitlines(), offset + end
+
 @dataclass(slots=True)
 class LogTail:
     """Counts image records of a growing companion log (complete lines only)."""
@@ -322,15 +334,8 @@ class LogTail:
     _offset: int = 0
 
     def poll(self) -> None:
-        try:
-            with self.path.open("rb") as f:
-                f.seek(self._offset)
-                chunk = f.read()
-        except OSError:
-            return
-        end = chunk.rfind(b"\n") + 1
-        self._offset += end
-        for line in chunk[:end].splitlines():
+        lines, self._offset = _new_lines(self.path, self._offset)
+        for line in lines:
             if b'"type":"image"' not in line:
                 continue
             self.generated += 1
@@ -350,15 +355,8 @@ class StationTail:
     _offset: int = 0
 
     def poll(self) -> None:
-        try:
-            with self.path.open("rb") as f:
-                f.seek(self._offset)
-                chunk = f.read()
-        except OSError:
-            return
-        end = chunk.rfind(b"\n") + 1
-        self._offset += end
-        for line in chunk[:end].splitlines():
+        lines, self._offset = _new_lines(self.path, self._offset)
+        for line in lines:
             if b'"type": "image"' not in line and b'"type":"image"' not in line:
                 continue
             with contextlib.suppress(ValueError, KeyError, TypeError):
