@@ -144,7 +144,7 @@ def optimum(n_missions: int, t_end: float) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/out"))
+    parser.add_argument("--out", type=Path, default=Path("artifacts/bench_mcts"))
     parser.add_argument("--quick", action="store_true", help="shorter missions (indicative)")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
