@@ -53,7 +53,18 @@ lint: $(VENV)/.installed-test
 typecheck: $(VENV)/.installed-test
 	$(VENV)/bin/mypy utility_specs companion/middleware companion/protocol
 
-pytest: $(VENV)/.installed-test system-deps
+# MAVProxy, one of the stock clients the simulated vehicle is tested with, lives in its own
+# folder: its wheel depends on opencv-python (GUI build), which would clash with the headless
+# OpenCV the project uses, and it needs only pymavlink and pyserial at run time.
+MAVPROXY_DIR := $(VENV)/mavproxy
+
+$(MAVPROXY_DIR)/bin/mavproxy.py: $(VENV)/bin/python
+	-@$(PIP) install -q --no-deps --target $(MAVPROXY_DIR) "MAVProxy>=1.8,<2" "pyserial>=3.5" \
+	  || echo "note: MAVProxy not installed; its test will skip"
+
+pytest: $(VENV)/.installed-test system-deps $(MAVPROXY_DIR)/bin/mavproxy.py
+	@if [ -x $(MAVPROXY_DIR)/bin/mavproxy.py ]; then \
+	  export UAV_SITL_MAVPROXY=$(CURDIR)/$(MAVPROXY_DIR)/bin/mavproxy.py PYTHONPATH=$(CURDIR)/$(MAVPROXY_DIR); fi; \
 	$(PY) -m pytest -q -m "not slow" -p no:cacheprovider
 
 test: lint typecheck pytest
