@@ -239,7 +239,39 @@ class _Namespaces:
         return proc
 
 
-class NetnsLink(_Namespaces):
+class _ShapedLink(_Namespaces):
+    """Namespaces joined through one ``tc tbf`` bottleneck that can be re-rated live."""
+
+    rate_bit_per_s: float
+    burst_bytes: int
+    queue_limit_bytes: int
+
+    @property
+    def bottleneck(self) -> tuple[str, str]:
+        """(namespace, device) of the shaped egress."""
+        raise NotImplementedError
+
+    def _tbf(self, verb: str) -> None:
+        ns, dev = self.bottleneck
+        _tbf(verb, ns, dev, rate_bit_per_s=self.rate_bit_per_s,
+             burst_bytes=self.burst_bytes, queue_limit_bytes=self.queue_limit_bytes)
+
+    def set_rate(self, rate_bit_per_s: float) -> None:
+        """Change the bottleneck rate now (the queue bound stays)."""
+        self.rate_bit_per_s = float(rate_bit_per_s)
+        self._tbf("change")
+
+    def payload_capacity_bytes_per_s(self, payload_bytes: int) -> float:
+        """UDP payload bytes per second the current rate carries for ``payload_bytes`` packets."""
+        return self.rate_bit_per_s / 8 * payload_bytes / (payload_bytes + L2_OVERHEAD_BYTES)
+
+    def qdisc_stats(self) -> str:
+        """``tc -s`` of the bottleneck."""
+        ns, dev = self.bottleneck
+        return _run(["tc", "-s", "-n", ns, "qdisc", "show", "dev", dev])
+
+
+class NetnsLink(_ShapedLink):
     """Two namespaces and a shaped veth pair; a context manager that always cleans up.
 
     Parameters
@@ -297,23 +329,10 @@ class NetnsLink(_Namespaces):
             _run(["ip", "-n", ns, "link", "set", dev, "up"])
         self._tbf("add")
 
-    # -- shaping ---------------------------------------------------------------------------
+    @property
+    def bottleneck(self) -> tuple[str, str]:
+        return self.ns_sender, self.dev_sender
 
-    def _tbf(self, verb: str) -> None:
-        _tbf(verb, self.ns_sender, self.dev_sender, rate_bit_per_s=self.rate_bit_per_s,
-             burst_bytes=self.burst_bytes, queue_limit_bytes=self.queue_limit_bytes)
-
-    def set_rate(self, rate_bit_per_s: float) -> None:
-        """Change the bottleneck rate now (the queue bound stays)."""
-        self.rate_bit_per_s = float(rate_bit_per_s)
-        self._tbf("change")
-
-    def payload_capacity_bytes_per_s(self, payload_bytes: int) -> float:
-        """UDP payload bytes per second the current rate carries for ``payload_bytes`` packets."""
-        return self.rate_bit_per_s / 8 * payload_bytes / (payload_bytes + L2_OVERHEAD_BYTES)
-
-    def qdisc_stats(self) -> str:
-        return _run(["tc", "-s", "-n", self.ns_sender, "qdisc", "show", "dev", self.dev_sender])
 
 
 def _tbf(verb: str, ns: str, dev: str, *, rate_bit_per_s: float, burst_bytes: int,
@@ -342,7 +361,7 @@ MAVLINK_DEV = "mav0"
 """A drone's interface toward its simulated autopilot in the vehicles namespace."""
 
 
-class SharedMedium(_Namespaces):
+class SharedMedium(_ShapedLink):
     """A fleet's radio channel: one namespace per drone, one for the ground station, one for
     an iperf3 background host, all bridged in a medium namespace, the bridge's port toward the
     ground station shaped once with tbf (so all of them share one rate and one queue).
@@ -478,25 +497,10 @@ class SharedMedium(_Namespaces):
         self.netem = True
         self.impairment_note = f"{asked} per crossing of the medium (netem on every station)"
 
-    # -- shaping ---------------------------------------------------------------------------
-
-    def _tbf(self, verb: str) -> None:
-        _tbf(verb, self.ns_medium, self.bottleneck_dev, rate_bit_per_s=self.rate_bit_per_s,
-             burst_bytes=self.burst_bytes, queue_limit_bytes=self.queue_limit_bytes)
-
-    def set_rate(self, rate_bit_per_s: float) -> None:
-        """Change the channel's rate now (the queue bound stays)."""
-        self.rate_bit_per_s = float(rate_bit_per_s)
-        self._tbf("change")
-
-    def payload_capacity_bytes_per_s(self, payload_bytes: int) -> float:
-        """UDP payload bytes per second the current rate carries for ``payload_bytes`` packets."""
-        return self.rate_bit_per_s / 8 * payload_bytes / (payload_bytes + L2_OVERHEAD_BYTES)
-
-    def qdisc_stats(self) -> str:
-        """``tc -s`` of the shared bottleneck (toward the ground station)."""
-        return _run(["tc", "-s", "-n", self.ns_medium, "qdisc", "show", "dev",
-                     self.bottleneck_dev])
+    @property
+    def bottleneck(self) -> tuple[str, str]:
+        """The shared bottleneck: the medium's port toward the ground station."""
+        return self.ns_medium, self.bottleneck_dev
 
     def describe(self) -> str:
         """One line for a run's output: topology, rate, queue, and what delay/loss do."""
