@@ -313,11 +313,6 @@ def _max(occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
     occs = sorted(occs, key=lambda o: o.start)
     if any(o.until != math.inf for o in occs):
         return _max_with_versions(occs, t0, t1)
-    first = occs[0].curve
-    if long and isinstance(first, ShapeCurve) and all(
-        isinstance(o.curve, ShapeCurve) and o.curve.shape is first.shape for o in occs
-    ):
-        return _max_shapes(occs, first.shape, t0, t1)
     candidates: list[_Occurrence] = []
     total = 0.0
     n = len(occs)
@@ -342,8 +337,8 @@ def _max_shapes(
     t0: float,
     t1: float,
     *,
-    scales: Sequence[float] | None = None,
-    make_curve: Callable[[Message], Curve] | None = None,
+    scales: Sequence[float],
+    make_curve: Callable[[Message], Curve],
 ) -> float:
     """:func:`_max` for one shape with per-message scales (the video family), mostly in numpy.
 
@@ -355,8 +350,6 @@ def _max_shapes(
     """
     n = len(occs)
     gens = [o.m.t_gen for o in occs]
-    if scales is None:
-        scales = [o.curve.scale for o in occs]  # type: ignore[union-attr]
     x_zero = shape.x_zero
     pieces_lo: list[float] = []
     pieces_hi: list[float] = []
@@ -431,7 +424,6 @@ def _max_shapes(
         chosen = [occs[j] for j in index[row][valid[row]].tolist()]
         for o in chosen:
             if o.curve is None:
-                assert make_curve is not None
                 o.curve = make_curve(o.m)
         total += _envelope_integral(chosen, pieces_lo[row], pieces_hi[row])
     return total

@@ -218,11 +218,11 @@ def test_vectorised_shape_envelope_agrees_with_the_general_sweep() -> None:
         t += float(rng.uniform(0.1, 0.6))
         messages.append(msg(t, t + float(rng.exponential(0.2)), seq=seq,
                             red=float(rng.choice([0.0, 0.01, 0.2, 0.5, 1.0]))))
+    t_end = t + 5.0
     occs = [o for m in messages for o in core.occurrences([m])]
+    vectorised = core.evaluate_stream(info(fn, "max"), occs, t_start=0.0, t_end=t_end)
     for o in occs:
         o.curve = fn.curve(o.m)
-    t_end = t + 5.0
-    vectorised = core._max(occs, 0.0, t_end)
     sweep = core._max_with_versions(sorted(occs, key=lambda o: o.start), 0.0, t_end)
     assert vectorised == pytest.approx(sweep, rel=1e-12)
     assert vectorised > 0
