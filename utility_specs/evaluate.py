@@ -4,6 +4,10 @@ The integral of eq. 4.2 is computed piece by piece between the breakpoints where
 changes - a reception, a better version replacing a worse one, a utility reaching its cap or
 zero, two messages' utilities crossing, the receiver's state changing - and within a piece in
 closed form. There is no fixed time step: the result is exact up to floating point.
+
+Short streams (the optimiser's two- and three-message ones) go through curve objects; long
+``max`` streams through the same sweep on flat arrays, compiled by numba
+(:mod:`utility_specs._envelope`), which is what keeps a whole mission in milliseconds.
 """
 
 from __future__ import annotations
@@ -12,13 +16,14 @@ import bisect
 import itertools
 import math
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from operator import attrgetter
 
 import numpy as np
-from numpy.typing import NDArray
 
-from utility_specs.curves import Curve, FloatArray, Shape, ShapeCurve, StepCurve
+from utility_specs._envelope import JIT, max_envelope_integral
+from utility_specs.curves import Curve
 from utility_specs.errors import MessageError
 from utility_specs.functions import UtilityFunction
 from utility_specs.message import Message, StateHistory
@@ -37,8 +42,8 @@ StreamKey = tuple[str, str, str | None]
 """(receiver, type, sender); sender is None when the type is not aggregated per sender."""
 
 _EMPTY_HISTORY = StateHistory()
-_VECTORISE_FROM = 48
-"""Streams this long go through numpy; on shorter ones its call overhead costs more than it
+_COMPILED_FROM = 8
+"""Streams this long take the compiled sweep; on shorter ones the call costs more than it
 saves (the optimiser evaluates many two- and three-message streams)."""
 _MAX_SWITCHES = 1_000_000
 
@@ -70,6 +75,10 @@ class _Occurrence:
     start: float
     until: float
     curve: Curve | None = None
+
+
+_start = attrgetter("start")
+_t_rcv = attrgetter("t_rcv")
 
 
 def occurrences(copies: Iterable[Message]) -> list[_Occurrence]:
@@ -129,9 +138,8 @@ def evaluate(
     for key in sorted(streams, key=lambda k: (k[0], k[1], k[2] or "")):
         receiver, type_name, _ = key
         info = spec.types[type_name]
-        raw = evaluate_stream(
-            info, _timeline(streams[key]), t_start=t_start, t_end=t_end,
-            history=states.get(receiver, _EMPTY_HISTORY),
+        raw = _stream_total(
+            info, streams[key], t_start, t_end, states.get(receiver, _EMPTY_HISTORY)
         )
         value = info.weight * raw
         per_stream[key] = value
@@ -147,15 +155,50 @@ def evaluate(
     )
 
 
-def _timeline(stream: list[Message]) -> list[_Occurrence]:
-    """Occurrences of a stream's messages; copies of one message collapse by eq. 4.33."""
+def _stream_total(
+    info: InfoType, stream: list[Message], t0: float, t1: float, history: StateHistory
+) -> float:
+    """:func:`evaluate_stream` for received messages; copies of one message collapse by
+    eq. 4.33. A long ``max`` stream without copies goes to the compiled sweep directly."""
     if len({(m.sender, m.seq) for m in stream}) == len(stream):
+        if info.aggregation == "max" and JIT and len(stream) >= _COMPILED_FROM:
+            stream.sort(key=_t_rcv)
+            starts = [m.t_rcv for m in stream]
+            value = _compiled_max(info.utility, stream, starts, None, t0, t1)  # type: ignore[arg-type]
+            if value is not None:
+                return value
         inf = math.inf
-        return [_Occurrence(m, m.t_rcv, inf) for m in stream]  # type: ignore[arg-type]
-    groups: dict[tuple[str, int], list[Message]] = defaultdict(list)
-    for m in stream:
-        groups[(m.sender, m.seq)].append(m)
-    return [o for group in groups.values() for o in occurrences(group)]
+        occs = [_Occurrence(m, m.t_rcv, inf) for m in stream]  # type: ignore[arg-type]
+    else:
+        groups: dict[tuple[str, int], list[Message]] = defaultdict(list)
+        for m in stream:
+            groups[(m.sender, m.seq)].append(m)
+        occs = [o for group in groups.values() for o in occurrences(group)]
+    return evaluate_stream(info, occs, t_start=t0, t_end=t1, history=history)
+
+
+def _compiled_max(
+    fn: UtilityFunction,
+    messages: Sequence[Message],
+    starts: Sequence[float],
+    untils: Sequence[float] | None,
+    t0: float,
+    t1: float,
+) -> float | None:
+    """Eq. 4.5 by the compiled sweep (copies sorted by start), or None if ``fn`` has no
+    family form."""
+    family = fn.family(messages)
+    if family is None:
+        return None
+    n = len(messages)
+    return max_envelope_integral(
+        family,
+        np.array(starts, dtype=np.float64),
+        np.full(n, math.inf) if untils is None else np.array(untils, dtype=np.float64),
+        np.array([m.t_gen for m in messages], dtype=np.float64),
+        t0,
+        t1,
+    )
 
 
 def evaluate_stream(
@@ -180,16 +223,17 @@ def evaluate_stream(
             for o in occs
         ]
     if fn.state_dependent:
+        if info.aggregation == "sum":
+            return _sum_piecewise_constant(fn, occs, t_start, t_end, history)
         return _piecewise_constant(info, fn, occs, t_start, t_end, history)
-    if (
-        info.aggregation == "max"
-        and len(occs) >= _VECTORISE_FROM
-        and all(o.until == math.inf for o in occs)
-    ):
-        occs = sorted(occs, key=lambda o: o.start)
-        family = fn.shape_scales([o.m for o in occs])
-        if family is not None:
-            return _max_shape_family(fn, occs, family[0], family[1], t_start, t_end)
+    if info.aggregation == "max" and JIT and len(occs) >= _COMPILED_FROM:
+        occs = sorted(occs, key=_start)
+        value = _compiled_max(
+            fn, [o.m for o in occs], [o.start for o in occs], [o.until for o in occs],
+            t_start, t_end,
+        )
+        if value is not None:
+            return value
     for o in occs:
         o.curve = fn.curve(o.m)
     if info.aggregation == "sum":
@@ -236,70 +280,6 @@ def _last(occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
     return total
 
 
-def _newest_leads(occs: Sequence[_Occurrence]) -> bool:
-    """True when the newest generated message always leads (one shape, one scale)."""
-    first = occs[0].curve
-    if isinstance(first, StepCurve):
-        return all(isinstance(o.curve, StepCurve) and o.until == math.inf for o in occs)
-    if not isinstance(first, ShapeCurve):
-        return False
-    return all(
-        isinstance(o.curve, ShapeCurve) and first.same_family(o.curve) and o.until == math.inf
-        for o in occs
-    )
-
-
-def _max_newest_leads(occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
-    """Eq. 4.5 when the newest generated message leads, for curves already built."""
-    first = occs[0].curve
-    starts = [o.start for o in occs]
-    gens = [o.m.t_gen for o in occs]
-    if isinstance(first, StepCurve):
-        ordered = np.sort(np.asarray(starts, dtype=np.float64))
-        ends = np.append(ordered[1:], t1)
-        return float(np.sum(np.maximum(np.clip(ends, t0, t1) - np.clip(ordered, t0, t1), 0.0)))
-    assert isinstance(first, ShapeCurve)
-    return first.scale * _newest_leads_integral(first.shape, starts, gens, t0, t1)
-
-
-def _newest_leads_integral(
-    shape: Shape, starts: Sequence[float], gens: Sequence[float], t0: float, t1: float
-) -> float:
-    """∫ φ(t - newest t_gen received so far) over [t0, t1]: one vectorised pass.
-
-    Between two receptions the envelope of equally scaled curves is the received message
-    with the latest generation time.
-    """
-    start_arr = np.asarray(starts, dtype=np.float64)
-    gen_arr = np.asarray(gens, dtype=np.float64)
-    order = np.argsort(start_arr, kind="stable")
-    start_arr, gen_arr = start_arr[order], gen_arr[order]
-    leader_gen = np.maximum.accumulate(gen_arr)
-    ends = np.append(start_arr[1:], t1)
-    a = np.clip(start_arr, t0, t1)
-    b = np.clip(ends, t0, t1)
-    xa = a - leader_gen
-    xb = np.maximum(b - leader_gen, xa)
-    return float(np.sum(shape.phi_integral_array(xa, xb)))
-
-
-def _max_shape_family(
-    fn: UtilityFunction,
-    occs: Sequence[_Occurrence],
-    shape: Shape,
-    scales: Sequence[float],
-    t0: float,
-    t1: float,
-) -> float:
-    """Eq. 4.5 for scale(m)·φ(t - t_gen) streams (``occs`` sorted by reception)."""
-    if min(scales) == max(scales):
-        if scales[0] <= 0:
-            return 0.0
-        gens = [o.m.t_gen for o in occs]
-        return scales[0] * _newest_leads_integral(shape, [o.start for o in occs], gens, t0, t1)
-    return _max_shapes(occs, shape, t0, t1, scales=scales, make_curve=fn.curve)
-
-
 def _max(occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
     """Eq. 4.5: integral of the upper envelope of the received messages' utilities.
 
@@ -307,10 +287,7 @@ def _max(occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
     admitted if a candidate stays above it until it expires (or the mission ends), and it
     evicts the candidates it stays above, so the set stays small.
     """
-    long = len(occs) >= _VECTORISE_FROM
-    if long and _newest_leads(occs):
-        return _max_newest_leads(occs, t0, t1)
-    occs = sorted(occs, key=lambda o: o.start)
+    occs = sorted(occs, key=_start)
     if any(o.until != math.inf for o in occs):
         return _max_with_versions(occs, t0, t1)
     candidates: list[_Occurrence] = []
@@ -331,135 +308,6 @@ def _max(occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
     return total
 
 
-def _max_shapes(
-    occs: Sequence[_Occurrence],
-    shape: Shape,
-    t0: float,
-    t1: float,
-    *,
-    scales: Sequence[float],
-    make_curve: Callable[[Message], Curve],
-) -> float:
-    """:func:`_max` for one shape with per-message scales (the video family), mostly in numpy.
-
-    Between two receptions the candidates are a short staircase (each older one has a
-    higher scale; a newer message with at least the scale of an older one dominates it).
-    On most pieces no candidate can overtake the leader - every curve is non-increasing, so
-    one that starts below where the leader ends never does - and the piece is the leader's
-    closed-form integral, done for all pieces at once. The rest take the exact path.
-    """
-    n = len(occs)
-    gens = [o.m.t_gen for o in occs]
-    x_zero = shape.x_zero
-    pieces_lo: list[float] = []
-    pieces_hi: list[float] = []
-    flat: list[int] = []
-    sizes: list[int] = []
-    # The staircase, oldest first: generation times rise and scales fall along it.
-    stair: list[int] = []
-    for i in range(n):
-        g, s = gens[i], scales[i]
-        if s > 0:
-            if not stair or g >= gens[stair[-1]]:
-                while stair and scales[stair[-1]] <= s:
-                    stair.pop()
-                if not stair or scales[stair[-1]] > s:
-                    stair.append(i)
-            elif not any(gens[j] >= g and scales[j] >= s for j in stair):
-                # received out of generation order: insert where it belongs
-                stair = [j for j in stair if not (g >= gens[j] and s >= scales[j])]
-                stair.append(i)
-                stair.sort(key=gens.__getitem__)
-        lo = occs[i].start if occs[i].start > t0 else t0
-        hi = occs[i + 1].start if i + 1 < n else t1
-        if hi > t1:
-            hi = t1
-        if hi <= lo:
-            continue
-        while stair and gens[stair[0]] + x_zero <= lo:
-            stair.pop(0)
-        if stair:
-            pieces_lo.append(lo)
-            pieces_hi.append(hi)
-            flat.extend(stair)
-            sizes.append(len(stair))
-    if not sizes:
-        return 0.0
-    count = len(sizes)
-    width = max(sizes)
-    lo_arr = np.asarray(pieces_lo, dtype=np.float64)
-    hi_arr = np.asarray(pieces_hi, dtype=np.float64)
-    size_arr = np.asarray(sizes, dtype=np.int64)
-    index = np.full((count, width), -1, dtype=np.int64)
-    row_of = np.repeat(np.arange(count), size_arr)
-    col_of = np.arange(len(flat)) - np.repeat(np.cumsum(size_arr) - size_arr, size_arr)
-    index[row_of, col_of] = flat
-    valid = index >= 0
-    g_all = np.asarray(gens, dtype=np.float64)
-    s_all = np.asarray(scales, dtype=np.float64)
-    g_cand = np.where(valid, g_all[index], 0.0)
-    s_cand = np.where(valid, s_all[index], 0.0)
-    at_lo = np.where(valid, s_cand * shape.phi_array(lo_arr[:, None] - g_cand), -np.inf)
-    best = at_lo.max(axis=1)
-    # ties go to the newest message, which decays last
-    tied = at_lo >= best[:, None]
-    leader = np.argmax(np.where(tied, g_cand, -np.inf), axis=1)
-    rows = np.arange(count)
-    g_lead, s_lead = g_cand[rows, leader], s_cand[rows, leader]
-    lead_at_hi = s_lead * shape.phi_array(hi_arr - g_lead)
-    challengers = valid & (at_lo > (lead_at_hi * (1.0 + 1e-12) + 1e-12)[:, None])
-    challengers[rows, leader] = False
-    hard = np.flatnonzero(challengers.any(axis=1))
-    if hard.size:
-        challengers[hard] &= _may_overtake(
-            shape, lo_arr[hard], hi_arr[hard], g_cand[hard], s_cand[hard],
-            g_lead[hard], s_lead[hard],
-        )
-    simple = ~challengers.any(axis=1)
-    total = float(np.sum(
-        s_lead[simple]
-        * shape.phi_integral_array(lo_arr[simple] - g_lead[simple], hi_arr[simple] - g_lead[simple])
-    ))
-    for row in np.flatnonzero(~simple).tolist():
-        chosen = [occs[j] for j in index[row][valid[row]].tolist()]
-        for o in chosen:
-            if o.curve is None:
-                o.curve = make_curve(o.m)
-        total += _envelope_integral(chosen, pieces_lo[row], pieces_hi[row])
-    return total
-
-
-def _may_overtake(
-    shape: Shape,
-    lo: FloatArray,
-    hi: FloatArray,
-    g: FloatArray,
-    s: FloatArray,
-    g_lead: FloatArray,
-    s_lead: FloatArray,
-) -> NDArray[np.bool_]:
-    """Whether each candidate rises above its piece's leader somewhere in [lo, hi].
-
-    Between the knots of both curves and their critical point the difference is monotone, so
-    its maximum over the piece is at one of those points: checking them is exact.
-    """
-    lo2, hi2 = lo[:, None], hi[:, None]
-    gl, sl = g_lead[:, None], s_lead[:, None]
-    points = [np.broadcast_to(lo2, g.shape), np.broadcast_to(hi2, g.shape)]
-    for x in shape.x_knots:
-        points += [g + x, np.broadcast_to(gl + x, g.shape)]
-    critical = shape.critical_array(
-        np.broadcast_to(sl, g.shape), np.broadcast_to(gl, g.shape), s, g
-    )
-    if critical is not None:
-        points.append(np.where(np.isnan(critical), lo2, critical))
-    t = np.clip(np.stack(points, axis=-1), lo2[..., None], hi2[..., None])
-    leader_values = sl[..., None] * shape.phi_array(t - gl[..., None])
-    gap = s[..., None] * shape.phi_array(t - g[..., None]) - leader_values
-    above: NDArray[np.bool_] = gap > 1e-12 * (1.0 + np.abs(leader_values))
-    return np.asarray(above.any(axis=-1), dtype=np.bool_)
-
-
 def _max_with_versions(occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
     """:func:`_max` when better versions replace copies: their ``until`` ends a piece too."""
     times = sorted({o.start for o in occs} | {o.until for o in occs if o.until < t1} | {t0, t1})
@@ -467,13 +315,13 @@ def _max_with_versions(occs: Sequence[_Occurrence], t0: float, t1: float) -> flo
     index, n = 0, len(occs)
     total = 0.0
     for a, b in itertools.pairwise(times):
+        # first drop who has ended: a copy replaced at a must not veto its successor
+        candidates[:] = [c for c in candidates if c.until > a and c.curve.expiry > a]  # type: ignore[union-attr]
         while index < n and occs[index].start <= a:
             _admit(candidates, occs[index], t1)
             index += 1
         if b <= t0 or a >= t1:
             continue
-        if candidates:
-            candidates[:] = [c for c in candidates if c.until > a and c.curve.expiry > a]  # type: ignore[union-attr]
         if candidates:
             total += _envelope_integral(candidates, max(a, t0), min(b, t1))
     return total
@@ -553,6 +401,35 @@ def _envelope_integral(candidates: Sequence[_Occurrence], a: float, b: float) ->
     raise RuntimeError("max envelope did not settle; a utility's critical points are wrong")
 
 
+def _sum_piecewise_constant(
+    fn: UtilityFunction,
+    occs: Sequence[_Occurrence],
+    t0: float,
+    t1: float,
+    history: StateHistory,
+) -> float:
+    """``sum`` of a state-dependent utility: each copy on its own, one state at a time.
+
+    A value depends on (message, state) only, so between two state changes each live copy
+    contributes its value times its overlap; all copies live in a state are valued at once.
+    """
+    by_start = sorted(occs, key=_start)
+    starts = [o.start for o in by_start]
+    total = 0.0
+    for a, b in itertools.pairwise([t0, *history.change_times(t0, t1), t1]):
+        live = [o for o in by_start[: bisect.bisect_left(starts, b)] if o.until > a]
+        if not live:
+            continue
+        middle = 0.5 * (a + b)
+        values = fn.values([o.m for o in live], middle, history.at(middle))
+        total += math.fsum(
+            v * (min(o.until, b) - max(o.start, a))
+            for o, v in zip(live, values, strict=True)
+            if v
+        )
+    return total
+
+
 def _piecewise_constant(
     info: InfoType,
     fn: UtilityFunction,
@@ -561,7 +438,8 @@ def _piecewise_constant(
     t1: float,
     history: StateHistory,
 ) -> float:
-    """State-dependent utilities are constant between receptions and state changes.
+    """``max`` and ``last`` of a state-dependent utility: constant between receptions,
+    replacements, generations and state changes.
 
     Values depend on (message, state) only, so while the state stays the same only a new
     message needs evaluating and the aggregate is updated, not recomputed.
@@ -574,7 +452,6 @@ def _piecewise_constant(
     gens = [o.m.t_gen for o in by_gen]
     by_start = sorted(occs, key=lambda o: o.start)
     last = info.aggregation == "last"
-    summing = info.aggregation == "sum"
     total = 0.0
     live: dict[int, tuple[_Occurrence, float]] = {}
     level = 0.0
@@ -599,9 +476,7 @@ def _piecewise_constant(
             value = fn.value(o.m, middle, state)
             live[id(o)] = (o, value)
             next_until = min(next_until, o.until)
-            if summing and not dirty:
-                level += value
-            elif not dirty:
+            if not dirty:
                 level = max(level, value)
             index += 1
         if last:
@@ -611,7 +486,7 @@ def _piecewise_constant(
             level = max((v for o, v in live.values() if o.m.key == newest), default=0.0)
         elif dirty:
             values = [v for _, v in live.values()]
-            level = (math.fsum(values) if summing else max(values)) if values else 0.0
+            level = max(values, default=0.0)
         total += level * (b - a)
     return total
 

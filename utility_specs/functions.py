@@ -28,6 +28,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from utility_specs._envelope import CAPPED_LOG, EXPONENTIAL, LINE, QUADRATIC, STEP, Family
 from utility_specs.curves import (
     Curve,
     FloatArray,
@@ -142,10 +143,11 @@ class UtilityFunction(ABC):
         """True only if U(a, t) >= U(b, t) for every t at which both have arrived."""
         return self.curve(a).dominates(self.curve(b))
 
-    def shape_scales(self, messages: Sequence[Message]) -> tuple[Shape, list[float]] | None:
-        """For functions of the form scale(m)·φ(t - t_gen): φ and the scales, else None.
+    def family(self, messages: Sequence[Message]) -> Family | None:
+        """The messages' curves as one family on flat arrays (reads and checks their data).
 
-        Lets the evaluator integrate whole streams in numpy without a curve per message.
+        Lets the evaluator integrate a whole stream in compiled code without a curve object
+        per message; None when the function has no such form.
         """
         return None
 
@@ -174,6 +176,11 @@ class _LinearDecay(UtilityFunction):
     def curve(self, m: Message) -> Curve:
         u0, c = self.line(m)
         return LineCurve(m.t_gen, u0, c)
+
+    def family(self, messages: Sequence[Message]) -> Family:
+        line = self.line
+        lines = [line(m) for m in messages]
+        return Family(LINE, (), [u0 for u0, _ in lines], [c for _, c in lines])
 
 
 class Battery(_LinearDecay):
@@ -259,8 +266,9 @@ class Position(UtilityFunction):
     def curve(self, m: Message) -> Curve:
         return ShapeCurve(m.t_gen, 1.0, self._shape)
 
-    def shape_scales(self, messages: Sequence[Message]) -> tuple[Shape, list[float]]:
-        return self._shape, [1.0] * len(messages)
+    def family(self, messages: Sequence[Message]) -> Family:
+        n = len(messages)
+        return Family(QUADRATIC, (self._shape.c,), [1.0] * n, [0.0] * n)
 
     def params(self) -> dict[str, float]:
         return {"v_max": self.v_max, "area": self.area}
@@ -273,6 +281,10 @@ class Status(UtilityFunction):
 
     def curve(self, m: Message) -> Curve:
         return StepCurve(m.t_gen)
+
+    def family(self, messages: Sequence[Message]) -> Family:
+        n = len(messages)
+        return Family(STEP, (), [1.0] * n, [0.0] * n)
 
     def value(self, m: Message, t: float, state: Mapping[str, Any] = EMPTY_STATE) -> float:
         return 1.0 if m.t_rcv is not None and t > m.t_rcv else 0.0
@@ -309,8 +321,9 @@ class StatusPoisson(UtilityFunction):
     def curve(self, m: Message) -> Curve:
         return ShapeCurve(m.t_gen, 1.0, self._shape)
 
-    def shape_scales(self, messages: Sequence[Message]) -> tuple[Shape, list[float]]:
-        return self._shape, [1.0] * len(messages)
+    def family(self, messages: Sequence[Message]) -> Family:
+        n = len(messages)
+        return Family(EXPONENTIAL, (self.rate,), [1.0] * n, [0.0] * n)
 
     def params(self) -> dict[str, float]:
         return {"rate": self.rate}
@@ -382,10 +395,14 @@ class Localization(UtilityFunction):
         self, messages: Sequence[Message], t: float, state: Mapping[str, Any] = EMPTY_STATE
     ) -> list[float]:
         observed_raw = state.get("observed_cells")
-        if messages and observed_raw and all(self.NEW_CELLS in m.data for m in messages):
+        if messages and observed_raw:
+            try:
+                new_cells = [m.data[self.NEW_CELLS] for m in messages]
+            except KeyError:  # not prepared, or polygons
+                return super().values(messages, t, state)
             observed = self._parsed_observation(observed_raw, messages[0], _cells)
             share = 1.0 / len(observed)
-            return [len(m.data[self.NEW_CELLS] & observed) * share for m in messages]
+            return [len(new & observed) * share for new in new_cells]
         return super().values(messages, t, state)
 
     def value(self, m: Message, t: float, state: Mapping[str, Any] = EMPTY_STATE) -> float:
@@ -533,9 +550,12 @@ class Video(UtilityFunction):
     def curve(self, m: Message) -> Curve:
         return ShapeCurve(m.t_gen, self.scale(m), self._shape)
 
-    def shape_scales(self, messages: Sequence[Message]) -> tuple[Shape, list[float]]:
-        scale = self.scale
-        return self._shape, [scale(m) for m in messages]
+    def family(self, messages: Sequence[Message]) -> Family:
+        shape, scale = self._shape, self.scale
+        return Family(
+            CAPPED_LOG, (shape.k, shape.l, shape.x_cap, shape.x_zero),
+            [scale(m) for m in messages], [0.0] * len(messages),
+        )
 
     def params(self) -> dict[str, float]:
         return {"S": self.S, "f_max": self.f_max, "f_1": self.f_1}

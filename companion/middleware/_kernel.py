@@ -10,27 +10,12 @@ copy of it. Without numba the same code runs as plain Python (about 100 times sl
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
-F = TypeVar("F", bound=Callable[..., Any])
-
-try:  # pragma: no cover - which branch runs depends on the environment
-    import numba
-
-    def _jit(f: F) -> F:
-        compiled: F = numba.njit(cache=True, nogil=True)(f)  # type: ignore[assignment]
-        return compiled
-
-    JIT = True
-except ImportError:  # pragma: no cover
-
-    def _jit(f: F) -> F:
-        return f
-
-    JIT = False
+from utility_specs.jit import JIT
+from utility_specs.jit import jit as _jit
 
 __all__ = [
     "C_DEAD",

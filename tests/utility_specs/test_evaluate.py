@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
+from itertools import groupby
 
 import numpy as np
 import pytest
@@ -78,6 +80,19 @@ def test_a_better_version_received_later_replaces_the_earlier_one() -> None:
     # a worse version arriving after the best one changes nothing
     late_half = Message(**{**_fields(base), "version": 1, "t_rcv": 2.0})
     assert total(info(fn, "sum"), [half, full, late_half], 10.0) == pytest.approx(expected)
+
+
+def test_a_replaced_copy_hands_over_to_its_successor_without_a_gap() -> None:
+    """Quality does not change a status: the successor equals the copy it replaces."""
+    versions = (Version(name="full", size=100, quality=1.0), Version(name="low", size=10,
+                                                                       quality=0.25))
+    base = Message(sender="a", receiver="g", seq=0, type="x", t_gen=0.0, versions=versions)
+    low = Message(**{**_fields(base), "version": 1, "t_rcv": 1.0})
+    full = Message(**{**_fields(base), "version": 0, "t_rcv": 2.0})
+    assert total(info(Status(), "max"), [low, full], 5.0) == pytest.approx(4.0)
+    fn = Battery(depletion_rate=0.1)
+    low, full = (replace(m, data={"level": 1.0}) for m in (low, full))
+    assert total(info(fn, "max"), [low, full], 5.0) == pytest.approx(fn.integral(full, 1.0, 5.0))
 
 
 def _fields(m: Message) -> dict[str, object]:
@@ -205,24 +220,49 @@ def test_localization_total_matches_the_literal_definition() -> None:
     assert exact == pytest.approx(9.5, abs=1e-9)
 
 
-def test_vectorised_shape_envelope_agrees_with_the_general_sweep() -> None:
-    """Two independent paths of eq. 4.5 on a long red-image stream with mixed scales."""
+LONG_VERSIONS = (Version(name="full", size=100, quality=1.0),
+                 Version(name="half", size=40, quality=0.5),
+                 Version(name="quarter", size=10, quality=0.25))
+LONG_CASES = [
+    ("battery", Battery(depletion_rate=0.05), lambda r, t: {"level": 1.0 - 0.004 * t}),
+    ("linear", Linear(), lambda r, t: {"initial": float(r.uniform(0.5, 3.0)),
+                                       "slope": float(r.uniform(0.05, 1.0))}),
+    ("position", Position(v_max=1.0, area=300.0), lambda r, t: {}),
+    ("poisson", StatusPoisson(rate=0.3), lambda r, t: {}),
+    ("status", Status(), lambda r, t: {}),
+    ("video", Video(S=0.1, f_max=5.0, f_1=2.5), lambda r, t: {}),
+    ("red", RedImage(alpha=10.0, S=0.1, f_max=5.0, f_1=2.5),
+     lambda r, t: {"red": float(r.choice([0.0, 0.01, 0.2, 0.5, 1.0]))}),
+]
+
+
+@pytest.mark.parametrize("name,fn,data", LONG_CASES, ids=[c[0] for c in LONG_CASES])
+@pytest.mark.parametrize("seed", [5, 6])
+def test_compiled_sweep_agrees_with_the_curve_sweep(name, fn, data, seed) -> None:  # type: ignore[no-untyped-def]
+    """Two independent paths of eq. 4.5 on long streams, with better versions arriving late."""
     import sys
 
     core = sys.modules["utility_specs.evaluate"]
-    rng = np.random.default_rng(5)
-    fn = RedImage(alpha=10.0, S=0.1, f_max=5.0, f_1=2.5)
-    messages = []
+    if not core.JIT:
+        pytest.skip("numba is not installed: the compiled sweep is off (pip install numba)")
+    rng = np.random.default_rng(seed)
+    copies = []
     t = 0.0
-    for seq in range(400):
-        t += float(rng.uniform(0.1, 0.6))
-        messages.append(msg(t, t + float(rng.exponential(0.2)), seq=seq,
-                            red=float(rng.choice([0.0, 0.01, 0.2, 0.5, 1.0]))))
+    for seq in range(300):
+        t += float(rng.uniform(0.05, 0.6))
+        first = msg(t, t + float(rng.exponential(0.3)), seq=seq, **data(rng, t))
+        first = replace(first, versions=LONG_VERSIONS, version=int(rng.integers(1, 3)))
+        copies.append(first)
+        if rng.random() < 0.3:  # the full version follows and replaces the first copy
+            assert first.t_rcv is not None
+            copies.append(replace(first, version=0, t_rcv=first.t_rcv + float(rng.uniform(0, 3))))
     t_end = t + 5.0
-    occs = [o for m in messages for o in core.occurrences([m])]
-    vectorised = core.evaluate_stream(info(fn, "max"), occs, t_start=0.0, t_end=t_end)
+    occs = [o for _, group in groupby(copies, key=lambda m: m.key)
+            for o in core.occurrences(group)]
+    assert any(o.until < math.inf for o in occs)
+    compiled = core.evaluate_stream(info(fn, "max"), occs, t_start=1.0, t_end=t_end)
     for o in occs:
         o.curve = fn.curve(o.m)
-    sweep = core._max_with_versions(sorted(occs, key=lambda o: o.start), 0.0, t_end)
-    assert vectorised == pytest.approx(sweep, rel=1e-12)
-    assert vectorised > 0
+    sweep = core._max_with_versions(sorted(occs, key=lambda o: o.start), 1.0, t_end)
+    assert compiled == pytest.approx(sweep, rel=1e-12)
+    assert compiled > 0
