@@ -405,19 +405,23 @@ def _records(path: Path) -> list[dict[str, Any]]:
     return out
 
 
-def _stored_images(db_path: Path, mission: str) -> dict[str, dict[str, int]]:
-    """Per sender: image rows of the mission and how many have their file on disk."""
+def _stored_images(db_path: Path, mission: str, t_start: float, t_end: float
+                   ) -> dict[str, dict[str, int]]:
+    """Per sender: image rows of the mission, rows generated in [t_start, t_end], and how many
+    rows have their file on disk."""
     out: dict[str, dict[str, int]] = {}
     if not db_path.exists():
         return out
     con = sqlite3.connect(f"file:{db_path}?mode=ro", uri=True, timeout=10.0)
     try:
         # type = 'image': the station also files telemetry payloads in this table.
-        rows = con.execute("SELECT sender, path FROM images WHERE mission = ? AND type = 'image'",
-                           (mission,))
-        for sender, path in rows:
-            entry = out.setdefault(sender, {"rows": 0, "files": 0})
+        rows = con.execute(
+            "SELECT sender, path, t_gen FROM images WHERE mission = ? AND type = 'image'",
+            (mission,))
+        for sender, path, t_gen in rows:
+            entry = out.setdefault(sender, {"rows": 0, "in_window": 0, "files": 0})
             entry["rows"] += 1
+            entry["in_window"] += t_start <= t_gen <= t_end
             if path and (db_path.parent / path).is_file():  # relative to the data dir, or absolute
                 entry["files"] += 1
     finally:
@@ -458,18 +462,26 @@ def summarize(plan: FleetPlan, *, t_start: float, t_end: float, policy: str,
     """Per drone: images generated/sent (companion log), received (station log), stored
     (station database + files), mean received frame rate and latency in the mission window."""
     window = max(t_end - t_start, 1e-9)
-    received: dict[str, list[dict[str, Any]]] = {}
+    first_copies: dict[str, dict[int, dict[str, Any]]] = {}
+    image_bytes: dict[str, int] = {}  # every copy in the window: air time, not images
     bytes_received = 0
     for r in _records(plan.gs_log_path):
         if r.get("t_rcv") is None:
             continue
-        if t_start <= r["t_gen"] <= t_end:
+        in_window = t_start <= r["t_gen"] <= t_end
+        if in_window:
             bytes_received += int(r.get("size", 0))
         if r.get("type") == "image":
-            received.setdefault(r["sender"], []).append(r)
+            if in_window:
+                image_bytes[r["sender"]] = image_bytes.get(r["sender"], 0) + int(r.get("size", 0))
+            # an image counts once however many of its versions arrived (first copy's latency)
+            seen = first_copies.setdefault(r["sender"], {})
+            if r["seq"] not in seen or r["t_rcv"] < seen[r["seq"]]["t_rcv"]:
+                seen[r["seq"]] = r
+    received = {sender: list(copies.values()) for sender, copies in first_copies.items()}
     bytes_generated = 0
     bytes_generated_mean = 0.0
-    stored = _stored_images(plan.gs_db_path, plan.mission)
+    stored = _stored_images(plan.gs_db_path, plan.mission, t_start, t_end)
     drones: dict[str, Any] = {}
     for slot in plan.drones:
         records = [r for r in _records(slot.log_path) if t_start <= r["t_gen"] <= t_end]
@@ -485,9 +497,10 @@ def summarize(plan: FleetPlan, *, t_start: float, t_end: float, policy: str,
             "sent": len(sent),
             "received": len(got),
             "received_total": len(got_all),
-            "stored": stored.get(slot.drone_id, {}).get("rows", 0),
+            "stored": stored.get(slot.drone_id, {}).get("in_window", 0),
+            "stored_total": stored.get(slot.drone_id, {}).get("rows", 0),
             "stored_files": stored.get(slot.drone_id, {}).get("files", 0),
-            "bytes_received": sum(int(r.get("size", 0)) for r in got),
+            "bytes_received": image_bytes.get(slot.drone_id, 0),
             "fps_generated": len(in_window) / window,
             "fps": len(got) / window,
             "latency_mean_s": sum(latencies) / len(latencies) if latencies else None,
@@ -497,8 +510,7 @@ def summarize(plan: FleetPlan, *, t_start: float, t_end: float, policy: str,
                          / len(in_window)) if in_window else None,
             "log": str(slot.log_path),
         }
-    total_bytes = sum(r.get("size", 0) for rs in received.values() for r in rs
-                      if t_start <= r["t_gen"] <= t_end)
+    total_bytes = sum(image_bytes.values())
     return {
         "policy": policy,
         "t_start": t_start,

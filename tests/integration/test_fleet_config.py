@@ -140,6 +140,8 @@ def test_summary_counts_the_mission_window(tmp_path: Path) -> None:
         drone.log_path.write_text("".join(json.dumps(r) + "\n" for r in own[drone.drone_id]))
     got = [_record(d1, i, t0 - 1 + i, sent=True, rcv=t0 - 1 + i + 0.05) for i in range(8)]
     got += [_record(d2, 0, t0, sent=True, rcv=t0 + 0.25)]
+    # a better version of d1's seq 3 arrives later: one more copy, not one more image
+    got += [_record(d1, 3, t0 + 2, sent=True, rcv=t0 + 2.5, size=4000)]
     plan.gs_log_path.parent.mkdir(parents=True)
     plan.gs_log_path.write_text("".join(json.dumps(r) + "\n" for r in got))
     s = summarize(plan, t_start=t0, t_end=t0 + 10.0, policy="mcts")
@@ -152,7 +154,8 @@ def test_summary_counts_the_mission_window(tmp_path: Path) -> None:
     assert (b["generated"], b["sent"], b["received"]) == (10, 2, 1)
     assert b["latency_mean_s"] == pytest.approx(0.25)
     assert (c["generated"], c["received"], c["latency_mean_s"]) == (0, 0, None)
-    assert s["bytes_received"] == 8 * 1000 and s["bytes_generated"] == (11 + 10) * 4000
+    assert a["bytes_received"] == 7 * 1000 + 4000
+    assert s["bytes_received"] == 8 * 1000 + 4000 and s["bytes_generated"] == (11 + 10) * 4000
     assert s["bytes_generated_mean_version"] == (11 + 10) * (4000 + 1000) / 2
     text = format_summary(s)
     assert d1 in text and "data:" in text

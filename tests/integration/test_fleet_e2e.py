@@ -101,8 +101,9 @@ def _fleet(run_dir: Path, *args: str, timeout_s: float = 240.0) -> dict[str, Any
 def _station_stored_what_it_received(summary: dict[str, Any]) -> None:
     """Every image in the station's own mission log has its database row and its file."""
     for name, drone in summary["drones"].items():
-        assert drone["stored"] == drone["received_total"], name
-        assert drone["stored_files"] == drone["stored"], name
+        assert drone["stored_total"] == drone["received_total"], name
+        assert drone["stored_files"] == drone["stored_total"], name
+        assert drone["stored"] == drone["received"], name  # the same mission window
 
 
 @pytest.mark.timeout(200)
