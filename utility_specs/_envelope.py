@@ -5,8 +5,11 @@ a line ``max(0, a - b·(t - g))``, a step, or ``a·φ(t - g)`` for one shape φ.
 the one of :func:`utility_specs.evaluate._max` (receptions and replacements cut the mission
 into pieces; on each piece the envelope switches leader at exact crossings, found by
 regula falsi between the knots and critical points, where every difference is monotone),
-written on floats and integers so that numba compiles it. Without numba the evaluator keeps
-to the curve objects, which are faster than this code run as plain Python.
+written on floats and integers so that numba compiles it. The curve objects stay the general
+path: a new utility function needs only its :class:`~utility_specs.curves.Curve` (value,
+integral, knots, critical points) and works everywhere; :meth:`UtilityFunction.family` is the
+opt-in to this kernel for the known kinds. Without numba the evaluator keeps to the curve
+objects, which are faster than this code run as plain Python. Tests hold the two paths equal.
 """
 
 from __future__ import annotations
