@@ -83,8 +83,8 @@ def _evaluate(args: argparse.Namespace) -> int:
         print(json.dumps(result.as_dict(), sort_keys=True))
         return 0
     received = sum(1 for m in messages if m.t_rcv is not None)
-    print(f"mission {spec.name!r}: [{t_start:g}, {t_end:g}] s, {len(messages)} records, "
-          f"{received} received")
+    print(f"mission {spec.name!r}: [{t_start:.3f}, {t_end:.3f}] s ({t_end - t_start:.1f} s), "
+          f"{len(messages)} records, {received} received")
     print(f"total utility  {result.total:14.6f}")
     print("per type:")
     for name, value in result.per_type.items():
