@@ -2,14 +2,31 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+from itertools import groupby
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.utility_specs.helpers import info, spec_of
-from utility_specs.evaluate import evaluate
-from utility_specs.functions import Battery, Linear, Position, RedImage, StatusPoisson, Video
-from utility_specs.message import Message
+from utility_specs.evaluate import (
+    JIT,
+    _compiled_max,
+    _max_with_versions,
+    evaluate,
+    occurrences,
+)
+from utility_specs.functions import (
+    Battery,
+    Linear,
+    Position,
+    RedImage,
+    Status,
+    StatusPoisson,
+    Video,
+)
+from utility_specs.message import Message, Version
 
 T_END = 30.0
 FUNCTIONS = {
@@ -87,3 +104,46 @@ def test_per_sender_streams_are_independent(name, data) -> None:  # type: ignore
     streams_wo = evaluate(without_a, spec, t_end=T_END).per_stream
     for key, value in streams_wo.items():
         assert streams_all[key] == pytest.approx(value, rel=1e-12, abs=1e-12)
+
+
+GRID = st.integers(0, 40).map(lambda k: k * 0.25)  # coarse times: ties on purpose
+VERSIONS = (Version(name="full", size=100, quality=1.0), Version(name="half", size=40,
+                                                                   quality=0.5))
+COMPARED = {**FUNCTIONS, "status": (Status(), {})}
+
+
+@st.composite
+def versioned_copies(draw, data_fields):  # type: ignore[no-untyped-def]
+    """Copies of up to 14 messages on a coarse time grid; some get their full version later."""
+    out = []
+    for seq in range(draw(st.integers(0, 14))):
+        t_gen = draw(GRID)
+        data = {k: draw(v) for k, v in data_fields.items()}
+        first = Message(sender="a", receiver="g", seq=seq, type="x", t_gen=t_gen,
+                        t_rcv=t_gen + draw(GRID) / 4, data=data, versions=VERSIONS,
+                        version=draw(st.sampled_from([0, 1])))
+        out.append(first)
+        if first.version == 1 and draw(st.booleans()):
+            assert first.t_rcv is not None
+            out.append(replace(first, version=0, t_rcv=first.t_rcv + draw(GRID) / 2))
+    return out
+
+
+@pytest.mark.skipif(not JIT, reason="numba is not installed: no compiled sweep to compare")
+@pytest.mark.parametrize("name", sorted(COMPARED))
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_compiled_and_curve_sweeps_agree(name, data) -> None:  # type: ignore[no-untyped-def]
+    """The two exact paths of eq. 4.5 on short, tie-rich streams with replaced versions."""
+    fn, fields = COMPARED[name]
+    copies = data.draw(versioned_copies(fields))
+    t_start = data.draw(st.sampled_from([0.0, 2.5, 7.25]))
+    occs = [o for _, group in groupby(copies, key=lambda m: m.key) for o in occurrences(group)]
+    by_start = sorted(occs, key=lambda o: o.start)
+    compiled = _compiled_max(fn, [o.m for o in by_start], [o.start for o in by_start],
+                             [o.until for o in by_start], t_start, T_END)
+    assert compiled is not None
+    for o in occs:
+        o.curve = fn.curve(o.m)
+    sweep = _max_with_versions(by_start, t_start, T_END)
+    assert compiled == pytest.approx(sweep, rel=1e-9, abs=1e-9)
