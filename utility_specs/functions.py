@@ -361,9 +361,15 @@ class Localization(UtilityFunction):
         order = sorted(received, key=lambda m: (m.t_rcv or 0.0, m.sender, m.seq))
         known_cells: set[tuple[int, int]] = set()
         known_area: Any = None
+        new_of: dict[tuple[str, int], tuple[str, Any]] = {}  # a message's N_m, by its key
         out: list[Message] = []
         for m in order:
             data = dict(m.data)
+            if m.key in new_of:  # another version of a message seen already: the same N_m
+                field, new_part = new_of[m.key]
+                data[field] = new_part
+                out.append(replace(m, data=data))
+                continue
             if "cells" in m.data:
                 cells = _cells(m.data["cells"], m)
                 data[self.NEW_CELLS] = frozenset(cells - known_cells)
@@ -377,6 +383,8 @@ class Localization(UtilityFunction):
                 raise MessageError(
                     f"message {m.sender}/{m.seq}: localization needs data 'cells' or 'area'"
                 )
+            field = self.NEW_CELLS if self.NEW_CELLS in data else self.NEW_AREA
+            new_of[m.key] = (field, data[field])
             out.append(replace(m, data=data))
         return out
 

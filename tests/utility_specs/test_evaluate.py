@@ -220,6 +220,23 @@ def test_localization_total_matches_the_literal_definition() -> None:
     assert exact == pytest.approx(9.5, abs=1e-9)
 
 
+def test_a_better_version_of_a_map_keeps_its_new_area() -> None:
+    """Eq. 4.20 and 4.33: a replacement copy covers the area its message covered, so the map
+    loses nothing when the full version arrives."""
+    fn = Localization()
+    history = StateHistory([(0.0, {"observed_cells": [[c, 0] for c in range(4)]})])
+    versions = (Version(name="full", size=100, quality=1.0), Version(name="low", size=10,
+                                                                       quality=0.25))
+    low = replace(msg(0.0, 1.0, seq=0, cells=[[c, 0] for c in range(4)]), versions=versions,
+                  version=1)
+    full = replace(low, version=0, t_rcv=3.0)
+    for aggregation in ("sum", "max", "last"):
+        got = total(info(fn, aggregation), [low, full], 10.0, states={"g": history})
+        assert got == pytest.approx(9.0), aggregation
+        assert got == pytest.approx(reference_integral(info(fn, aggregation), [low, full], 10.0,
+                                                       history=history), abs=0.01)
+
+
 LONG_VERSIONS = (Version(name="full", size=100, quality=1.0),
                  Version(name="half", size=40, quality=0.5),
                  Version(name="quarter", size=10, quality=0.25))
