@@ -147,7 +147,8 @@ class UtilityFunction(ABC):
         """The messages' curves as one family on flat arrays (reads and checks their data).
 
         Lets the evaluator integrate a whole stream in compiled code without a curve object
-        per message; None when the function has no such form.
+        per message; None when the function has no such form. A function with a family must
+        derive nothing in :meth:`prepare` (the compiled path skips it).
         """
         return None
 
