@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import sqlite3
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -25,6 +26,7 @@ log = logging.getLogger(__name__)
 T = TypeVar("T")
 
 MAX_BATCH = 256
+LOG_EVERY_S = 10.0
 
 
 class StorageService:
@@ -53,6 +55,8 @@ class StorageService:
         self.images_stored = 0
         self.errors = 0
         self.last_error: str | None = None
+        self._unlogged = 0
+        self._logged_at = -math.inf
 
     async def open(self) -> None:
         loop = asyncio.get_running_loop()
@@ -117,10 +121,20 @@ class StorageService:
         if result.errors:
             self.errors += len(result.errors)
             self.last_error = result.errors[-1]
-            for text in result.errors[:3]:
-                log.error("storage: %s", text)
+            self._log_errors(result.errors, now)
         if self.on_batch is not None:
             self.on_batch(batch, result)
+
+    def _log_errors(self, errors: Sequence[str], now: float) -> None:
+        """Every error is counted; the log gets one line per ``LOG_EVERY_S`` with how many it
+        skipped, so a full disk (errors in every batch) does not flood it."""
+        self._unlogged += len(errors)
+        if now - self._logged_at < LOG_EVERY_S:
+            return
+        skipped = self._unlogged - 1
+        log.error("storage: %s%s", errors[-1],
+                  f" (and {skipped} more errors since the last line)" if skipped else "")
+        self._unlogged, self._logged_at = 0, now
 
     async def call_writer(self, fn: Callable[[Storage], T]) -> T:
         """Run ``fn(storage)`` in the write thread, ordered after queued batches' writes."""
