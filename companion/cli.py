@@ -55,7 +55,10 @@ def configure_logging(level: str, fmt: str) -> None:
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="uav-companion", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="uav-companion",
+        description="The drone's companion app: run it, check a setup, install the systemd unit.",
+    )
     parser.add_argument("--log-level", default="info",
                         choices=["debug", "info", "warning", "error"])
     parser.add_argument("--log-format", default="json", choices=["json", "text"])
