@@ -38,7 +38,10 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="uav-sitl camera", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(
+        prog="uav-sitl camera",
+        description="Render synthetic camera frames of a scene at given poses to PNG files.",
+    )
     p.add_argument("--scene", default="demo", help="scene name or TOML path (default demo)")
     p.add_argument("--pose", type=_pose, action="append", default=[],
                    help="E,N,UP[,ROLL,PITCH,YAW] (m, deg); repeatable")
