@@ -49,6 +49,9 @@ def unit_text(*, config_path: Path, exec_argv: Sequence[str] | None = None,
         "TimeoutStopSec=15",
         "Environment=PYTHONUNBUFFERED=1",
         "Environment=MAVLINK20=1",
+        # compiled kernels cache here even when the install is read-only (utility_specs.jit)
+        "CacheDirectory=uav-companion",
+        "Environment=NUMBA_CACHE_DIR=%C/uav-companion",
     ]
     if user:
         lines += [f"User={user}", "SupplementaryGroups=dialout video"]

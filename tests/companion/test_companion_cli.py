@@ -109,6 +109,9 @@ def test_unit_text_quotes_paths_and_sets_user() -> None:
                      user="pi")
     assert "ExecStart=/usr/bin/uav-companion run --config '/etc/my dir/c.toml'" in text
     assert "User=pi" in text and "SupplementaryGroups=dialout video" in text
+    # numba's cache: systemd creates %C/uav-companion for the service user
+    assert "CacheDirectory=uav-companion" in text
+    assert "Environment=NUMBA_CACHE_DIR=%C/uav-companion" in text
 
 
 def test_structured_logs_are_one_json_object_per_line(
