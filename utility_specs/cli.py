@@ -65,6 +65,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     log_t_start = None
     for path in args.log:
         log = read_log(path)
+        if log.torn_last_line is not None:
+            print(f"uav-utility: warning: {path}:{log.torn_last_line}: incomplete last line "
+                  "ignored (its writer stopped mid-line)", file=sys.stderr)
         messages.extend(log.messages)
         states.update(log.states)
         log_t_end = log.t_end if log.t_end is not None else log_t_end

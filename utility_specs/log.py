@@ -45,6 +45,9 @@ class MissionLog:
     states: dict[str, StateHistory] = field(default_factory=dict)
     t_start: float | None = None
     t_end: float | None = None
+    torn_last_line: int | None = None
+    """Number of an incomplete last line that was skipped: its writer stopped mid-line (a
+    crash or power loss); every complete record before it counts."""
 
 
 def message_to_record(m: Message, **extra: Any) -> dict[str, Any]:
@@ -124,12 +127,18 @@ def message_from_record(record: Mapping[str, Any]) -> Message:
     )
 
 
-def parse_log(lines: Iterable[str], *, source: str = "<log>") -> MissionLog:
-    """Parse JSON Lines; errors name the source and the line number."""
+def parse_log(
+    lines: Iterable[str], *, source: str = "<log>", allow_torn_tail: bool = False
+) -> MissionLog:
+    """Parse JSON Lines; errors name the source and the line number.
+
+    With ``allow_torn_tail`` (``lines`` keep their newlines, as a file's do), a last line that
+    has no newline and is not valid JSON is skipped and noted in ``torn_last_line``.
+    """
     log = MissionLog()
     state_records: dict[str, list[tuple[float, Mapping[str, Any]]]] = {}
-    for number, line in enumerate(lines, start=1):
-        line = line.strip()
+    for number, raw in enumerate(lines, start=1):
+        line = raw.strip()
         if not line:
             continue
         try:
@@ -156,6 +165,9 @@ def parse_log(lines: Iterable[str], *, source: str = "<log>") -> MissionLog:
             else:
                 log.messages.append(message_from_record(record))
         except (json.JSONDecodeError, MessageError) as exc:
+            if allow_torn_tail and isinstance(exc, json.JSONDecodeError) and not raw.endswith("\n"):
+                log.torn_last_line = number  # only a file's last line lacks its newline
+                continue
             raise LogError(f"{source}:{number}: {exc}") from None
     log.states = {agent: StateHistory(records) for agent, records in state_records.items()}
     return log
@@ -165,7 +177,7 @@ def read_log(path: str | Path) -> MissionLog:
     path = Path(path)
     try:
         with path.open(encoding="utf-8") as f:
-            return parse_log(f, source=str(path))
+            return parse_log(f, source=str(path), allow_torn_tail=True)
     except FileNotFoundError:
         raise LogError(f"{path}: no such log file") from None
 

@@ -102,6 +102,30 @@ def test_a_bad_log_line_names_the_line(line, fragment) -> None:  # type: ignore[
         parse_log([good, line], source="x.jsonl")
 
 
+def test_a_torn_last_line_is_skipped_and_reported(tmp_path: Path) -> None:
+    """A writer that stopped mid-line (crash, power loss) leaves an unterminated last line;
+    the complete records before it still count. A bad line with its newline stays an error."""
+    record = {"sender": "d1", "receiver": "gs", "seq": 0, "type": "battery", "t_gen": 0.0,
+              "t_rcv": 0.5, "data": {"level": 1.0}}
+    path = tmp_path / "log.jsonl"
+    path.write_text(json.dumps(record) + "\n" + '{"mission": {"t_end": 10}}\n'
+                    + json.dumps({**record, "seq": 1})[:40])
+    log = read_log(path)
+    assert [m.seq for m in log.messages] == [0] and log.t_end == 10.0
+    assert log.torn_last_line == 3
+    result = _run("evaluate", "--spec", "telemetry", "--json", str(path))
+    assert result.returncode == 0, result.stderr
+    assert f"{path}:3: incomplete last line ignored" in result.stderr
+    assert json.loads(result.stdout)["total"] == pytest.approx(9.5 - 0.5 + 0.00125)
+    # complete (terminated) bad lines are errors; so is a torn line that is not the last
+    path.write_text(json.dumps(record)[:40] + "\n" + '{"mission": {"t_end": 10}}\n')
+    with pytest.raises(LogError, match=r"log\.jsonl:1"):
+        read_log(path)
+    # an unterminated last line that parses is a record like any other
+    path.write_text('{"mission": {"t_end": 10}}\n' + json.dumps(record))
+    assert read_log(path).torn_last_line is None and len(read_log(path).messages) == 1
+
+
 def test_missing_log_file() -> None:
     with pytest.raises(LogError, match="no such log file"):
         read_log("/nonexistent/log.jsonl")
