@@ -181,10 +181,12 @@ class Storage:
         self.db = sqlite3.connect(self.db_path, check_same_thread=False, isolation_level=None)
         self.db.row_factory = sqlite3.Row
         self.db.execute("PRAGMA busy_timeout = 5000")
+        self.removed_temp_files = 0
         if not readonly:
             self.db.execute("PRAGMA journal_mode = WAL")
             self.db.execute("PRAGMA synchronous = NORMAL")
             self.db.executescript(SCHEMA)
+            self.removed_temp_files = self._remove_temp_files()
         self._logs: dict[str, Any] = {}
         self._files = ThreadPoolExecutor(FILE_WRITERS, thread_name_prefix="gs-image-file")
         self._last_rcv: dict[str, float] = {}
@@ -223,6 +225,16 @@ class Storage:
             / safe_name(message.sender)
             / f"{message.seq:09d}{version}.jpg"
         )
+
+    def _remove_temp_files(self) -> int:
+        """Half-written images of a process that died mid-write (``.NAME.jpg.tmp``): never
+        indexed, never under a final name, only taking space. Runs when a writer opens."""
+        removed = 0
+        for tmp in (self.root / "missions").glob("*/images/*/.*.tmp"):
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+                removed += 1
+        return removed
 
     def _write_file(self, relpath: Path, payload: bytes) -> None:
         final = self.root / relpath

@@ -63,6 +63,9 @@ class StorageService:
         self._writer = await loop.run_in_executor(
             self._write_pool, lambda: Storage(self.root, fsync=self.fsync)
         )
+        if self._writer.removed_temp_files:
+            log.warning("storage: removed %d half-written image files of an earlier crash",
+                        self._writer.removed_temp_files)
         self._reader = await loop.run_in_executor(
             self._read_pool, lambda: Storage(self.root, readonly=True)
         )

@@ -127,6 +127,22 @@ def test_restart_reads_history(tmp_path: Path) -> None:
     again.close()
 
 
+def test_a_restart_removes_half_written_images_of_a_crash(tmp_path: Path) -> None:
+    s = Storage(tmp_path)
+    s.write_batch([image(1)], now=T0)
+    s.close()
+    [stored] = (tmp_path / "missions").rglob("*.jpg")
+    torn = stored.with_name(f".{stored.name[:-4]}2.jpg.tmp")  # a crash between write and rename
+    torn.write_bytes(b"\xff\xd8 half")
+    again = Storage(tmp_path)
+    assert again.removed_temp_files == 1 and not torn.exists() and stored.exists()
+    again.close()
+    torn.write_bytes(b"\xff\xd8 half")
+    reader = Storage(tmp_path, readonly=True)  # a reader never deletes anything
+    assert reader.removed_temp_files == 0 and torn.exists()
+    reader.close()
+
+
 def test_export_images_and_geotag_csv(tmp_path: Path) -> None:
     s = Storage(tmp_path / "data")
     s.write_batch([image(1), image(2, sender="d2", obj=True)], now=T0)
