@@ -116,16 +116,22 @@ class Submission:
 
 
 class MissionLogWriter:
-    """Appends JSON Lines records; flushed by the app's housekeeping and at close."""
+    """Appends JSON Lines records; flushed by the app's housekeeping and at close.
+
+    A full SD card must not stop the drone from streaming: write errors (OSError) are counted
+    in ``errors`` and logged now and then, never raised. The file buffer keeps what it could
+    not write and tries again at the next flush.
+    """
 
     def __init__(self, path: str | Path | None) -> None:
         self._stream: IO[str] | None = None
+        self.errors = 0
         if path is not None:
             Path(path).parent.mkdir(parents=True, exist_ok=True)
             self._stream = open(path, "a", encoding="utf-8")  # noqa: SIM115 - closed in close()
 
     def write(self, record: Mapping[str, Any]) -> bool:
-        """Append one record; False if it cannot be JSON (NaN, odd types): logged, skipped."""
+        """Append one record; False if it cannot be JSON (NaN, odd types) or written."""
         if self._stream is None:
             return True
         try:  # write_record serialises the whole line before writing any of it
@@ -133,16 +139,31 @@ class MissionLogWriter:
         except (ValueError, TypeError) as exc:
             log.warning("mission log: record skipped: %s", exc)
             return False
+        except OSError as exc:
+            self._failed(exc)
+            return False
         return True
 
     def flush(self) -> None:
         if self._stream is not None:
-            self._stream.flush()
+            try:
+                self._stream.flush()
+            except OSError as exc:
+                self._failed(exc)
 
     def close(self) -> None:
         if self._stream is not None:
-            self._stream.close()
-            self._stream = None
+            stream, self._stream = self._stream, None
+            try:
+                stream.close()
+            except OSError as exc:
+                self._failed(exc)
+
+    def _failed(self, exc: OSError) -> None:
+        self.errors += 1
+        if self.errors == 1 or self.errors % 100 == 0:
+            log.error("mission log: write failed (%s), %d times so far; streaming goes on",
+                      exc, self.errors)
 
 
 class TelemetryPublisher:

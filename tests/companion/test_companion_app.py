@@ -3,8 +3,13 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
+import errno
+import io
 import json
+import os
+import subprocess
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -283,6 +288,73 @@ def test_mission_log_skips_records_json_cannot_carry(tmp_path: Path) -> None:
     assert writer.write({"state": {"agent": "d1", "t": float("nan")}}) is False
     writer.close()
     assert (tmp_path / "m.jsonl").read_text() == '{"state":{"agent":"d1","t":1.0}}\n'
+
+
+class _FullDisk(io.StringIO):
+    def write(self, text: str) -> int:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def flush(self) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def close(self) -> None:  # a file's close flushes first
+        super().close()
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def test_mission_log_write_errors_are_counted_not_raised(tmp_path: Path) -> None:
+    from companion.app import MissionLogWriter
+
+    writer = MissionLogWriter(tmp_path / "m.jsonl")
+    writer._stream.close()  # type: ignore[union-attr]
+    writer._stream = _FullDisk()
+    assert writer.write({"state": {"agent": "d1", "t": 1.0}}) is False
+    writer.flush()
+    writer.close()
+    assert writer.errors == 3
+
+
+@pytest.fixture
+def full_disk(tmp_path: Path) -> Any:
+    """A 256 kB tmpfs, filled up (root only; elsewhere the test skips and says why)."""
+    mount_point = tmp_path / "full"
+    mount_point.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("a real full disk needs a tmpfs mount: run the tests as root to enable")
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(mount_point)],
+                          capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        pytest.skip(f"mount -t tmpfs failed ({done.stderr.strip()}): needs CAP_SYS_ADMIN")
+    try:
+        with contextlib.suppress(OSError), open(mount_point / "filler", "wb") as filler:
+            while True:
+                filler.write(b"\0" * 65536)
+                filler.flush()
+        yield mount_point
+    finally:
+        subprocess.run(["umount", "-l", str(mount_point)], check=False)
+
+
+async def test_a_full_sd_card_does_not_stop_streaming(
+        vehicle: FakeVehicle, tmp_path: Path, full_disk: Path) -> None:
+    """The mission log's disk is full: the app keeps deciding and sending, counts the errors,
+    and its log catches up once space is freed."""
+    decider = FakeDecider()
+    log_path = full_disk / "mission.jsonl"
+    app, transports = _make(_config(vehicle, tmp_path), decider, mission_log=log_path)
+    task = asyncio.create_task(app.run())
+    try:
+        await _until(lambda: app._log.errors > 0, timeout_s=10.0)
+        sent = len(transports[0].sent)
+        await _until(lambda: len(transports[0].sent) > sent + 5, timeout_s=10.0)
+        assert not task.done()
+        (full_disk / "filler").unlink()
+        await asyncio.sleep(1.5)  # housekeeping flushes once a second
+    finally:
+        app.stop()
+        await asyncio.wait_for(task, 10)
+    log = read_log(log_path)
+    assert log.messages, "the log resumed once there was space"
 
 
 async def test_status_carries_statustext_fix_and_constraint(
