@@ -32,8 +32,8 @@ from sitl.study.drop_rate import (
     optimum_gap,
     run_mission,
 )
+from utility_specs.files import builtin_spec
 from utility_specs.message import Version
-from utility_specs.spec import builtin_spec
 
 ROWS: list[tuple[str, str, str, bool]] = []
 

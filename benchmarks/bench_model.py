@@ -14,8 +14,8 @@ import time
 import numpy as np
 
 from utility_specs.evaluate import evaluate
+from utility_specs.files import builtin_spec
 from utility_specs.message import Message, StateHistory, Version
-from utility_specs.spec import builtin_spec
 
 TARGET_MS = 50.0
 # (type, rate Hz) per agent: 1 Hz telemetry, 4 images/s split over the four image types

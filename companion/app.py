@@ -640,7 +640,7 @@ class AppSetupError(Exception):
 def load_mission_spec(config: CompanionConfig) -> Any:
     """The mission spec the configuration names (a file or ``builtin:NAME``)."""
     from utility_specs.errors import SpecError
-    from utility_specs.spec import builtin_spec, load_spec
+    from utility_specs.files import builtin_spec, load_spec
 
     spec = config.mission.spec
     try:

@@ -61,7 +61,7 @@ def image_utility_from_spec(spec_path: Path | None, *, alpha: float) -> ImageUti
     """α and rule per type from a mission spec's ``red_image``/``object_image`` types."""
     if spec_path is None:
         return ImageUtility(alpha=alpha)
-    from utility_specs.spec import load_spec
+    from utility_specs.files import load_spec
 
     spec = load_spec(spec_path)
     rules: dict[str, tuple[Kind, float]] = {}

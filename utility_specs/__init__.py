@@ -2,10 +2,11 @@
 
 from utility_specs.errors import LogError, MessageError, SpecError, UtilitySpecsError
 from utility_specs.evaluate import Evaluation, evaluate
+from utility_specs.files import builtin_spec, load_spec, read_log
 from utility_specs.functions import FUNCTIONS, UtilityFunction, make_function
-from utility_specs.log import MissionLog, parse_log, read_log
+from utility_specs.log import MissionLog, parse_log
 from utility_specs.message import Message, StateHistory, Version
-from utility_specs.spec import InfoType, MissionSpec, builtin_spec, load_spec, parse_spec
+from utility_specs.spec import InfoType, MissionSpec, parse_spec
 
 __all__ = [
     "FUNCTIONS",

@@ -9,8 +9,8 @@ from pathlib import Path
 
 from utility_specs.errors import UtilitySpecsError
 from utility_specs.evaluate import evaluate
-from utility_specs.log import merge_copies, read_log
-from utility_specs.spec import builtin_spec, builtin_specs, load_spec
+from utility_specs.files import builtin_spec, builtin_specs, load_spec, read_log
+from utility_specs.log import merge_copies
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -20,7 +20,6 @@ import json
 import math
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import IO, Any
 
 from utility_specs.errors import LogError, MessageError
@@ -32,7 +31,6 @@ __all__ = [
     "message_from_record",
     "message_to_record",
     "parse_log",
-    "read_log",
     "write_record",
 ]
 
@@ -171,15 +169,6 @@ def parse_log(
             raise LogError(f"{source}:{number}: {exc}") from None
     log.states = {agent: StateHistory(records) for agent, records in state_records.items()}
     return log
-
-
-def read_log(path: str | Path) -> MissionLog:
-    path = Path(path)
-    try:
-        with path.open(encoding="utf-8") as f:
-            return parse_log(f, source=str(path), allow_torn_tail=True)
-    except FileNotFoundError:
-        raise LogError(f"{path}: no such log file") from None
 
 
 def write_record(stream: IO[str], record: Mapping[str, Any]) -> None:

@@ -20,11 +20,9 @@ and every error names the file, the key and what was expected.
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from importlib import resources
-from pathlib import Path
+from pathlib import PurePath
 from typing import Any, Literal, cast
 
 from utility_specs.errors import SpecError
@@ -34,9 +32,6 @@ __all__ = [
     "AGGREGATIONS",
     "InfoType",
     "MissionSpec",
-    "builtin_spec",
-    "builtin_specs",
-    "load_spec",
     "parse_spec",
 ]
 
@@ -96,7 +91,7 @@ def parse_spec(raw: Mapping[str, Any], *, source: str = "<memory>") -> MissionSp
     _expect(not unknown, source, ", ".join(sorted(unknown)), "only [mission] and [types]", "")
     mission = raw.get("mission", {})
     _expect(isinstance(mission, Mapping), source, "mission", "a table", mission)
-    name = mission.get("name", Path(source).stem)
+    name = mission.get("name", PurePath(source).stem)
     _expect(isinstance(name, str) and bool(name), source, "mission.name", "a string", name)
     t_end = mission.get("t_end")
     if t_end is not None:
@@ -167,30 +162,3 @@ def _parse_type(type_name: str, table: Any, source: str) -> InfoType:
         )
     except SpecError as exc:
         raise SpecError(f"{source}: {key}: {exc}") from None
-
-
-def load_spec(path: str | Path) -> MissionSpec:
-    """Read and validate a spec file (the only function here that touches a file)."""
-    path = Path(path)
-    try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise SpecError(f"{path}: no such spec file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SpecError(f"{path}: not valid TOML ({exc})") from None
-    return parse_spec(raw, source=str(path))
-
-
-def builtin_specs() -> list[str]:
-    """Names of the mission specs shipped in ``utility_specs/missions``."""
-    folder = resources.files("utility_specs") / "missions"
-    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
-
-
-def builtin_spec(name: str) -> MissionSpec:
-    """A shipped spec by name (``telemetry``, ``image_streaming``...)."""
-    resource = resources.files("utility_specs") / "missions" / f"{name}.toml"
-    if not resource.is_file():
-        raise SpecError(f"no built-in spec {name!r}; expected one of {builtin_specs()}")
-    raw = tomllib.loads(resource.read_text(encoding="utf-8"))
-    return parse_spec(raw, source=f"utility_specs/missions/{name}.toml")

@@ -38,8 +38,9 @@ from companion.middleware.incremental import PlanItem, build_problem, option_mes
 from companion.middleware.middleware import Middleware, MiddlewareConfig
 from sitl.netsim import ChannelConfig, SimAgent, SimResult, StreamConfig, ideal_copies, simulate
 from utility_specs.evaluate import evaluate
+from utility_specs.files import builtin_spec
 from utility_specs.message import Message
-from utility_specs.spec import MissionSpec, builtin_spec
+from utility_specs.spec import MissionSpec
 
 __all__ = [
     "REFERENCE_MCTS",

@@ -23,7 +23,7 @@ from companion_fake_vehicle import FakeVehicle
 from companion.app import CompanionApp
 from companion.config import BudgetConfig, parse_config
 from companion.protocol import Command, CommandReceived, Status
-from utility_specs.log import read_log
+from utility_specs.files import read_log
 from utility_specs.message import Message
 
 

@@ -8,7 +8,7 @@ import pytest
 
 from companion.imaging import encode_versions, image_message
 from companion.protocol import message_metadata
-from utility_specs.spec import builtin_spec
+from utility_specs.files import builtin_spec
 
 T0 = 1_700_000_000.0
 

@@ -12,7 +12,7 @@ import pytest
 
 from ground_station.export import export_mission
 from ground_station.storage import Storage, StoreItem
-from utility_specs.log import read_log
+from utility_specs.files import read_log
 from utility_specs.message import Message
 
 T0 = 1_700_000_000.0

@@ -21,7 +21,7 @@ from ground_station.app import create_app
 from ground_station.fake_drone import FakeDrone
 from ground_station.keys import LINK, STORAGE
 from tests.integration.test_ground_station_udp import AUTH, KEY, TOKEN, make_config
-from utility_specs.log import read_log
+from utility_specs.files import read_log
 
 DISK_BYTES = 3 * 1024 * 1024
 IMAGE_BYTES = 150_000

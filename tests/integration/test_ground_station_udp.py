@@ -17,7 +17,7 @@ from ground_station.config import GroundConfig
 from ground_station.fake_drone import FakeDrone
 from ground_station.keys import LINK, STORAGE
 from ground_station.storage import Storage
-from utility_specs.log import read_log
+from utility_specs.files import read_log
 
 KEY = b"integration-test-fleet-key-0001"
 TOKEN = "integration-token-abcdef"

@@ -10,8 +10,8 @@ import pytest
 from companion.middleware import ConstantConstraint, Middleware, MiddlewareConfig
 from sitl.netsim import ChannelConfig, SimAgent, StreamConfig, simulate
 from utility_specs.evaluate import evaluate
+from utility_specs.files import builtin_spec
 from utility_specs.message import Version
-from utility_specs.spec import builtin_spec
 
 FULL = Version(name="full", size=24_000, quality=1.0)
 HALF = Version(name="half", size=7_000, quality=0.5)

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from utility_specs.errors import LogError, SpecError
-from utility_specs.log import message_to_record, parse_log, read_log, write_record
+from utility_specs.files import builtin_spec, builtin_specs, load_spec, read_log
+from utility_specs.log import message_to_record, parse_log, write_record
 from utility_specs.message import Message, Version
-from utility_specs.spec import builtin_spec, builtin_specs, load_spec
 
 EXPECTED_SPECS = {"image_streaming", "kpk_reconstruction", "telemetry", "sim_mostly_low",
                   "sim_uniform", "sim_mostly_high"}

@@ -1,0 +1,54 @@
+"""The model's file edge: mission specs and logs read from disk.
+
+Everything else in utility_specs is pure and takes parsed data (:func:`parse_spec`,
+:func:`parse_log`); these loaders only read a file and hand its text on.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+from utility_specs.errors import LogError, SpecError
+from utility_specs.log import MissionLog, parse_log
+from utility_specs.spec import MissionSpec, parse_spec
+
+__all__ = ["builtin_spec", "builtin_specs", "load_spec", "read_log"]
+
+
+def read_log(path: str | Path) -> MissionLog:
+    """Parse a mission log file; a torn last line (writer stopped mid-line) is forgiven."""
+    path = Path(path)
+    try:
+        with path.open(encoding="utf-8") as f:
+            return parse_log(f, source=str(path), allow_torn_tail=True)
+    except FileNotFoundError:
+        raise LogError(f"{path}: no such log file") from None
+
+
+def load_spec(path: str | Path) -> MissionSpec:
+    """Read and validate a spec file."""
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SpecError(f"{path}: no such spec file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path}: not valid TOML ({exc})") from None
+    return parse_spec(raw, source=str(path))
+
+
+def builtin_specs() -> list[str]:
+    """Names of the mission specs shipped in ``utility_specs/missions``."""
+    folder = resources.files("utility_specs") / "missions"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def builtin_spec(name: str) -> MissionSpec:
+    """A shipped spec by name (``telemetry``, ``image_streaming``...)."""
+    resource = resources.files("utility_specs") / "missions" / f"{name}.toml"
+    if not resource.is_file():
+        raise SpecError(f"no built-in spec {name!r}; expected one of {builtin_specs()}")
+    raw = tomllib.loads(resource.read_text(encoding="utf-8"))
+    return parse_spec(raw, source=f"utility_specs/missions/{name}.toml")
