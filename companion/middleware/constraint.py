@@ -70,13 +70,16 @@ class GoodputConstraint(ABC):
         """Record that ``size_bytes`` went on the link at ``now``."""
         self._sent.append((now, size_bytes))
         self._sent_bytes += size_bytes
+        self._forget_before(now - self.window_s)  # bounded even when nobody asks
 
     def sent_in_window(self, *, now: float) -> int:
         """Bytes recorded by :meth:`on_sent` in (now - window_s, now]."""
-        horizon = now - self.window_s
+        self._forget_before(now - self.window_s)
+        return self._sent_bytes
+
+    def _forget_before(self, horizon: float) -> None:
         while self._sent and self._sent[0][0] <= horizon:
             self._sent_bytes -= self._sent.popleft()[1]
-        return self._sent_bytes
 
     def admits(self, size_bytes: int, *, now: float) -> bool:
         """Whether sending ``size_bytes`` now keeps the last window within budget."""

@@ -193,3 +193,12 @@ def test_cores_do_no_io(module: str) -> None:
         assert not forbidden & set(names), f"{module} imports {forbidden & set(names)}"
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
             assert node.func.id != "open", f"{module} opens a file"
+
+
+def test_the_send_log_stays_one_window_long_when_nobody_asks() -> None:
+    """The optimiser records every send but never asks admits(): memory must not grow."""
+    c = ConstantConstraint(limit_bytes_per_s=1000.0, window_s=2.0)
+    for i in range(10_000):
+        c.on_sent(100, now=i * 0.01)  # 100 s of sends at 100 Hz
+    assert len(c._sent) <= 201
+    assert c.sent_in_window(now=99.99) == 200 * 100
