@@ -26,8 +26,9 @@ from companion.middleware.constraint import GoodputConstraint
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge, usable
 from companion.middleware.mcts import MCTS, greedy_option
+from companion.protocol.records import report_messages
 from utility_specs.errors import UtilitySpecsError
-from utility_specs.message import Message, Version
+from utility_specs.message import Message
 from utility_specs.spec import MissionSpec
 
 __all__ = ["Decision", "Middleware", "MiddlewareConfig", "MiddlewareError"]
@@ -253,22 +254,8 @@ class Middleware:
         """A receiver report (``companion.protocol.records.Report``): learn its entries."""
         messages = []
         for entry in getattr(report, "entries", ()):
-            try:
-                # The report names the carried version by index and quality only: one
-                # synthetic version keeps the quality (eq. 4.33) the utility reads.
-                version = getattr(entry, "version", None)
-                versions = () if version is None else (
-                    Version(name=f"v{version}", size=entry.size,
-                            quality=getattr(entry, "quality", 1.0)),
-                )
-                messages.append(
-                    Message(
-                        sender=entry.sender, seq=entry.seq, type=entry.type,
-                        t_gen=entry.t_gen, t_sent=entry.t_sent, t_rcv=entry.t_rcv,
-                        size=entry.size, data=dict(entry.data), receiver="ground",
-                        versions=versions, version=0 if versions else None,
-                    )
-                )
+            try:  # one by one: a bad entry is counted, the others still count
+                messages += report_messages([entry], receiver="ground")
             except (UtilitySpecsError, AttributeError, TypeError):
                 self.counters["bad_report_entry"] += 1
         self.on_delivered(messages, now)

@@ -166,6 +166,17 @@ def test_report_entries_keep_the_carried_quality() -> None:
     assert mw.counters["delivered"] == 1
 
 
+def test_a_report_entry_received_before_its_drone_clock_generated_it_counts() -> None:
+    """Ground and drone clocks disagree by a little: t_rcv < t_gen is clamped, not dropped."""
+    from companion.protocol.records import Report, ReportEntry
+
+    mw = _mw()
+    entry = ReportEntry(sender="b", seq=3, type="image", t_gen=T0, t_sent=T0, t_rcv=T0 - 0.02,
+                        size=250, data={})
+    mw.on_report(Report(entries=(entry,)), T0 + 0.1)
+    assert mw.counters["delivered"] == 1 and mw.counters["bad_report_entry"] == 0
+
+
 def test_bad_data_is_counted_and_does_not_poison_the_forecast() -> None:
     mw = _mw()
     bad = Message(sender="a", seq=0, type="battery", t_gen=T0, size=10, data={})  # no level
