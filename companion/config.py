@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.mavlink import DEFAULT_STREAM_RATES_HZ, MavlinkSettings
+from companion.protocol.wire import DEMO_FLEET_KEY, MIN_KEY_BYTES
 from companion.scoring import ArucoSettings, HogSettings, RedShareSettings
 
 __all__ = [
@@ -35,9 +36,6 @@ __all__ = [
 ]
 
 DEFAULT_CONFIG_PATH = Path("/etc/uav-companion/config.toml")
-DEMO_FLEET_KEY = b"uav-infodist-demo-fleet-key"
-"""The ground station's demo default; real fleets set ``ground_station.fleet_key_file``."""
-MIN_KEY_BYTES = 16
 
 
 class ConfigError(ValueError):

@@ -11,6 +11,8 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
+from companion.protocol.wire import DEMO_FLEET_KEY, MIN_KEY_BYTES
+
 __all__ = ["ConfigError", "GroundConfig", "load_config"]
 
 
@@ -36,7 +38,7 @@ class GroundConfig:
     """Receiver id written into the mission log (``receiver`` field)."""
     fleet_id: int = 1
     """Fleet id every datagram must carry (protocol header)."""
-    fleet_key: bytes = b"uav-infodist-demo-fleet-key"
+    fleet_key: bytes = DEMO_FLEET_KEY
     """HMAC key shared by the fleet. Prefer ``fleet_key_file`` outside demos."""
     data_dir: Path = Path("gs-data")
     """Where the SQLite database, images, mission logs and the control token live."""
@@ -78,7 +80,7 @@ class GroundConfig:
         checks: list[tuple[str, bool, str]] = [
             ("station_id", bool(self.station_id), "a non-empty string"),
             ("fleet_id", 0 <= self.fleet_id < 2**32, "an integer in 0..2**32-1"),
-            ("fleet_key", len(self.fleet_key) >= 16, "at least 16 bytes"),
+            ("fleet_key", len(self.fleet_key) >= MIN_KEY_BYTES, f"at least {MIN_KEY_BYTES} bytes"),
             ("mission", bool(self.mission) and "/" not in self.mission, "a name without '/'"),
             ("udp_port", 0 <= self.udp_port < 65536, "a port 0..65535"),
             ("http_port", 0 <= self.http_port < 65536, "a port 0..65535"),

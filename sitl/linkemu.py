@@ -618,8 +618,6 @@ def _probe_sender(args: argparse.Namespace) -> int:
     constraint = make_constraint(args.constraint, **params)
     window_s = constraint.window_s
     observe = LinkStats(window_s=window_s)  # for the log, the same for every constraint
-    learn = getattr(constraint, "on_samples", None)
-    round_trip_hook = getattr(constraint, "on_round_trip", None)
     rng = random.Random(args.seed)
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.setblocking(False)
@@ -669,15 +667,10 @@ def _probe_sender(args: argparse.Namespace) -> int:
                         continue
                     if round_trip is not None:
                         observe.on_round_trip(round_trip)
-                        if round_trip_hook is not None:
-                            round_trip_hook(round_trip, now=now)
+                        constraint.on_round_trip(round_trip, now=now)
                         for sample in samples:
                             observe.update(sample, now=now)
-                        if learn is not None:
-                            learn(samples, now=now)
-                        else:
-                            for sample in samples:
-                                constraint.on_sample(sample, now=now)
+                        constraint.on_samples(samples, now=now)
                     stats = observe.get()
                     offset = observe.clock.get()
                     xi = constraint.limit_bytes_per_s(now=now)

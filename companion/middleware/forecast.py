@@ -85,10 +85,6 @@ class StreamForecaster:
     def streams(self) -> list[StreamKeyT]:
         return list(self._streams)
 
-    def last(self, key: StreamKeyT) -> Message | None:
-        stream = self._streams.get(key)
-        return None if stream is None else stream.last
-
     def period(self, key: StreamKeyT) -> float | None:
         """Estimated period in seconds, ``None`` before two observations."""
         stream = self._streams.get(key)
@@ -124,21 +120,6 @@ class StreamForecaster:
             anchor = self._anchor(key, estimate) if estimate is not None else 0.0
             stream.cached = (estimate, anchor)
         return stream.cached
-
-    def phase(self, key: StreamKeyT, period: float) -> float:
-        """Circular mean of ``t_gen mod period`` over the kept observations, in [0, period).
-
-        Offsets are taken from the newest observation, so that a small error of the period
-        does not grow with the absolute time (Unix seconds) into a large phase error.
-        """
-        stream = self._streams[key]
-        ref = stream.times[-1]
-        total = sum(
-            (cmath.exp(2j * math.pi * (((t - ref) % period) / period)) for t in stream.times),
-            start=0j,
-        )
-        angle = cmath.phase(total) if abs(total) > 1e-12 else 0.0
-        return (ref + (angle / (2 * math.pi) % 1.0) * period) % period
 
     def predict(self, key: StreamKeyT, *, t_from: float, t_to: float) -> list[float]:
         """Predicted generation times in (t_from, t_to] that are not already known.

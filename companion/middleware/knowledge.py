@@ -115,9 +115,6 @@ class FleetKnowledge:
         """Bytes the fleet is known to have sent in [now - T, now] (eq. 5.7)."""
         return sum(b for t, b in self._sends.values() if t >= now - window_s - 1e-9)
 
-    def sends(self) -> list[tuple[float, int]]:
-        return list(self._sends.values())
-
     def base_message(self, message: Message) -> tuple[Message, float] | None:
         """The newest message of ``message``'s stream already sent (delivered or in flight)."""
         stream = stream_of(self.spec, message)

@@ -30,6 +30,7 @@ from companion.protocol.errors import (
 __all__ = [
     "COMMAND_FIXED",
     "DATA_FIXED",
+    "DEMO_FLEET_KEY",
     "HEADER",
     "MAGIC",
     "MAX_DATAGRAM_BYTES",
@@ -59,6 +60,8 @@ TAG_BYTES = 16
 MAX_ID_BYTES = 32
 """Longest sender id, message type, command name, state... in UTF-8 bytes."""
 MIN_KEY_BYTES = 16
+DEMO_FLEET_KEY = b"uav-infodist-demo-fleet-key"
+"""The fleet key of demos and tests; real fleets set a key file on both sides."""
 
 HEADER = struct.Struct("!2sBBIQdHB")
 """magic, version, kind, fleet id, packet number, t_sent, body length, sender id length."""
