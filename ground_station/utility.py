@@ -5,8 +5,11 @@ times the carried version's quality (eq. 4.33): ``q·(1 + α·red)`` for red-sha
 (eq. 7.1) and ``q·(1 + α)`` for images showing the object to reconstruct (eq. 7.2, ``q``
 otherwise). U_vid depends on the stream's frame times, not on the image, so the factor alone
 ranks images. With a mission spec, each message type follows its own utility function
-(``red_image`` or ``object_image``) and α; without one, an ``object`` flag selects eq. 7.2,
-else a ``red`` share selects eq. 7.1, with α from the ground-station config.
+(``red_image`` or ``object_image``) and α, and the plain video types (``video``,
+``video_versions``) weigh only their quality; without a spec (or for a type it does not
+know), an ``object`` flag selects eq. 7.2, else a ``red`` share eq. 7.1, with α from the
+ground-station config. The flags are read leniently here (the dashboard never rejects an
+image); the evaluator's functions check them strictly.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from typing import Any, Literal
 
 __all__ = ["ImageUtility", "image_utility_from_spec"]
 
-Kind = Literal["red", "object"]
+Kind = Literal["red", "object", "plain"]
 
 
 def _red_share(data: Mapping[str, Any]) -> float | None:
@@ -46,6 +49,8 @@ class ImageUtility:
         rule = self.by_type.get(message_type)
         if rule is not None:
             kind, alpha = rule
+            if kind == "plain":
+                return quality  # eq. 4.28 / 4.33: neither red nor objects count
             if kind == "object":
                 return quality * (1.0 + alpha if _has_object(data) else 1.0)  # eq. 7.2
             return quality * (1.0 + alpha * (_red_share(data) or 0.0))  # eq. 7.1
@@ -71,4 +76,6 @@ def image_utility_from_spec(spec_path: Path | None, *, alpha: float) -> ImageUti
             rules[name] = ("red", float(getattr(function, "alpha", alpha)))
         elif function.name == "object_image":
             rules[name] = ("object", float(getattr(function, "alpha", alpha)))
+        elif function.name in ("video", "video_versions"):
+            rules[name] = ("plain", 0.0)
     return ImageUtility(alpha=alpha, by_type=rules)

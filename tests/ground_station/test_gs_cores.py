@@ -153,6 +153,9 @@ def test_image_utility_from_mission_spec() -> None:
     assert u.weight("image", {"red": 0.1, "object": True}) == pytest.approx(2.0)
     assert u.weight("target", {"red": 0.9}) == 1.0
     assert u.weight("other", {"red": 0.5}) == pytest.approx(1.5)  # config α = 1
+    # plain video types of the spec: red and objects do not make them worth more
+    assert u.weight("video", {"red": 0.3, "object": True}, quality=0.5) == 0.5
+    assert u.weight("thumbnail", {"red": 0.3}) == 1.0
 
 
 # -- broadcaster ---------------------------------------------------------------------------
