@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from companion.scoring import RedShareScorer
 from sitl.geo import GeoPoint, enu_from_geo
 from sitl.scenes import Scene
 
@@ -35,6 +36,7 @@ __all__ = [
 
 SKY_BGR = (235, 200, 170)
 GROUND_BGR = (70, 125, 85)
+_RED_SCORER = RedShareScorer()
 _FIELD_PALETTE = np.array([
     (62, 122, 78), (54, 110, 92), (72, 140, 102), (80, 150, 150), (66, 132, 118),
     (88, 128, 120), (58, 100, 70), (96, 160, 170),
@@ -63,12 +65,8 @@ def pose_from_geo(origin: GeoPoint, *, lat_deg: float, lon_deg: float, alt_rel_m
 
 
 def red_share(frame_bgr: np.ndarray) -> float:
-    """Share of pixels in both red hue bands (H <= 10 or >= 170, S > 100, V > 50)."""
-    hsv = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2HSV)
-    low = cv2.inRange(hsv, (0, 100, 50), (10, 255, 255))
-    high = cv2.inRange(hsv, (170, 100, 50), (180, 255, 255))
-    mask = cv2.bitwise_or(low, high)
-    return float(np.count_nonzero(mask)) / float(frame_bgr.shape[0] * frame_bgr.shape[1])
+    """The red share the companion computes for this frame (its default red_share scorer)."""
+    return float(_RED_SCORER.score(frame_bgr)["red"])
 
 
 def _enu_to_px(scene: Scene, east_m: float, north_m: float) -> tuple[float, float]:
