@@ -206,7 +206,8 @@ class GroundLink:
         if image:
             self.counters["images"] += 1
             self.latest_jpeg[message.sender] = event.payload
-        self.broadcaster.publish("drone", {"drone": self.fleet.drone_json(state, now=now)})
+        if self.broadcaster.clients:  # the tile costs ~20 us; build it only for a watcher
+            self.broadcaster.publish("drone", {"drone": self.fleet.drone_json(state, now=now)})
 
     def _on_status(self, event: StatusReceived, now: float) -> None:
         status = event.status
