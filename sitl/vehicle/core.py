@@ -38,7 +38,13 @@ from sitl.vehicle.autopilot import (
     StatusText,
 )
 from sitl.vehicle.flavour import PX4, Flavour, decode_param_value, encode_param_value
-from sitl.vehicle.mission import MissionItem
+from sitl.vehicle.mission import (
+    GLOBAL_FRAMES,
+    RELATIVE_FRAMES,
+    MissionItem,
+    commanded_alt_rel_m,
+    is_nav_command,
+)
 from sitl.vehicle.params import ParamTable
 from sitl.vehicle.physics import Airframe
 from sitl.vehicle.telemetry import DEFAULT_INTERVALS_S, MSG_HEARTBEAT, STREAM_GROUPS, Telemetry
@@ -132,14 +138,14 @@ def _text(value: Any) -> str:
 
 def _item_error(msg: Any, scale: float) -> int | None:
     """MAV_MISSION_RESULT for an item no vehicle could fly, or None when it is acceptable."""
-    if msg.frame in (0, 3, 5, 6, 10, 11) and msg.command < 95 and not (msg.x == 0 and
-                                                                       msg.y == 0):
+    if (msg.frame in GLOBAL_FRAMES | RELATIVE_FRAMES and is_nav_command(msg.command)
+            and not (msg.x == 0 and msg.y == 0)):
         lat, lon = msg.x * scale, msg.y * scale
         if not (math.isfinite(lat) and -90.0 <= lat <= 90.0):
             return 10  # MAV_MISSION_INVALID_PARAM5_X
         if not (math.isfinite(lon) and -180.0 <= lon <= 180.0):
             return 11  # MAV_MISSION_INVALID_PARAM6_Y
-    if msg.command < 95 and msg.command != 20 and not math.isfinite(msg.z):
+    if is_nav_command(msg.command) and msg.command != 20 and not math.isfinite(msg.z):
         return 12  # MAV_MISSION_INVALID_PARAM7
     return None
 
@@ -358,8 +364,8 @@ class VehicleCore:
             res = fc.arm(force=force) if p[0] >= 0.5 else fc.disarm(force=force)
         elif command == mavlink.MAV_CMD_NAV_TAKEOFF:
             alt: float | None = p[6] if math.isfinite(p[6]) else None
-            if alt is not None and self.flavour.takeoff_param7_amsl and frame not in (3, 6):
-                alt -= self.config.home.alt_m
+            if alt is not None and self.flavour.takeoff_param7_amsl:
+                alt = commanded_alt_rel_m(frame, alt, self.config.home)
             res = fc.takeoff(alt)
         elif command == mavlink.MAV_CMD_NAV_LAND:
             res = fc.land()
@@ -381,7 +387,7 @@ class VehicleCore:
                 _lat_lon(p[4], p[5])
                 alt_rel = -here[2]
                 if math.isfinite(p[6]):
-                    alt_rel = p[6] if frame in (3, 6) else p[6] - self.config.home.alt_m
+                    alt_rel = commanded_alt_rel_m(frame, p[6], self.config.home)
                 target = self._geo_to_ned(p[4], p[5], alt_rel)
             else:
                 target = here
@@ -390,7 +396,7 @@ class VehicleCore:
             lat, lon = _lat_lon(p[4], p[5])
             alt_rel = 0.0
             if math.isfinite(p[6]):
-                alt_rel = p[6] if frame in (3, 6) else p[6] - self.config.home.alt_m
+                alt_rel = commanded_alt_rel_m(frame, p[6], self.config.home)
             res = fc.set_roi(self._geo_to_ned(lat, lon, alt_rel))
         elif command == mavlink.MAV_CMD_DO_SET_ROI_NONE:
             res = fc.set_roi(None)
@@ -653,8 +659,7 @@ class VehicleCore:
         self._guided_from_mask(msg.type_mask, pos, vel, msg.yaw, now)
 
     def _on_position_target_global(self, msg: Any, now: float) -> None:
-        alt_rel = msg.alt if msg.coordinate_frame in (3, 6, 10, 11) else (
-            msg.alt - self.config.home.alt_m)
+        alt_rel = commanded_alt_rel_m(msg.coordinate_frame, msg.alt, self.config.home)
         pos = None
         if not msg.type_mask & 0b111:
             lat, lon = _lat_lon(msg.lat_int / 1e7, msg.lon_int / 1e7)

@@ -47,9 +47,16 @@ FRAME_GLOBAL_RELATIVE_ALT_INT = 6
 FRAME_GLOBAL_TERRAIN_ALT = 10
 FRAME_GLOBAL_TERRAIN_ALT_INT = 11
 
-_GLOBAL_FRAMES = {FRAME_GLOBAL, FRAME_GLOBAL_INT}
-_RELATIVE_FRAMES = {FRAME_GLOBAL_RELATIVE_ALT, FRAME_GLOBAL_RELATIVE_ALT_INT,
-                    FRAME_GLOBAL_TERRAIN_ALT, FRAME_GLOBAL_TERRAIN_ALT_INT}
+GLOBAL_FRAMES = frozenset({FRAME_GLOBAL, FRAME_GLOBAL_INT})
+RELATIVE_FRAMES = frozenset({FRAME_GLOBAL_RELATIVE_ALT, FRAME_GLOBAL_RELATIVE_ALT_INT,
+                             FRAME_GLOBAL_TERRAIN_ALT, FRAME_GLOBAL_TERRAIN_ALT_INT})
+"""Altitude above home; terrain frames are flown as relative (the simulated ground is flat)."""
+
+
+def commanded_alt_rel_m(frame: int | None, alt_m: float, home: GeoPoint) -> float:
+    """Altitude above home of a command's altitude: relative frames as is, any other (or no)
+    frame as AMSL, as autopilots read COMMAND_LONG and global setpoints."""
+    return alt_m if frame in RELATIVE_FRAMES else alt_m - home.alt_m
 
 
 def is_nav_command(command: int) -> bool:
@@ -77,13 +84,13 @@ class MissionItem:
 
     @property
     def has_position(self) -> bool:
-        return self.frame in _GLOBAL_FRAMES | _RELATIVE_FRAMES and not (
+        return self.frame in GLOBAL_FRAMES | RELATIVE_FRAMES and not (
             self.lat_deg == 0.0 and self.lon_deg == 0.0
         )
 
     def alt_rel_m(self, home: GeoPoint) -> float:
         """Altitude above home: relative frames as is, AMSL frames minus home's altitude."""
-        if self.frame in _GLOBAL_FRAMES:
+        if self.frame in GLOBAL_FRAMES:
             return self.z_m - home.alt_m
         return self.z_m
 

@@ -367,3 +367,17 @@ def test_invalid_values_are_rejected_counted_and_explained(make_gcs):
         0, 1, 1, M.MAV_FRAME_LOCAL_NED, 0b0000_1111_1111_1000, math.nan, 0, 0, 0, 0, 0, 0, 0,
         0, 0, 0))
     assert gcs.core.counters["invalid_set_position_target_local_ned"] == 1
+
+
+def test_a_terrain_frame_reposition_is_above_home_not_amsl(make_gcs):
+    """COMMAND_INT DO_REPOSITION in MAV_FRAME_GLOBAL_TERRAIN_ALT_INT (11) at 20 m: the flat
+    simulated ground makes terrain altitude the height above home."""
+    gcs = make_gcs(flavour=PX4, params={"MIS_TAKEOFF_ALT": 10.0})
+    gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    gcs.command(M.MAV_CMD_NAV_TAKEOFF, *[0.0] * 6, math.nan)
+    gcs.run_until(10.0)
+    lat, lon = DEFAULT_HOME.lat_deg + 20 / 111_200, DEFAULT_HOME.lon_deg
+    gcs.send(M.MAVLink_command_int_message(1, 1, 11, M.MAV_CMD_DO_REPOSITION, 0, 0, -1, 0, 0,
+                                           math.nan, int(lat * 1e7), int(lon * 1e7), 20.0))
+    gcs.run_until(30.0)
+    assert -gcs.core.fc.state.position_ned_m[2] == pytest.approx(20.0, abs=1.0)
