@@ -47,7 +47,6 @@ from companion.protocol.wire import (
     PacketKind,
     check_key,
     decode_id,
-    loads_json,
     loads_json_object,
     unpack_datagram,
 )
@@ -539,7 +538,7 @@ class Decoder:
         name = reader.short_id(name_len, "command name")
         (target_len,) = reader.unpack(U8)
         target = reader.short_id(target_len, "command target") if target_len else None
-        args = _object(loads_json(reader.rest(), "command args"), "command args")
+        args = loads_json_object(reader.rest(), "command args")
         try:
             command = Command(
                 command_id=command_id, name=name, t_exec=t_exec, args=args, target=target
@@ -556,7 +555,7 @@ class Decoder:
     def _receive_status(self, header: Header, reader: _Reader, addr: Address, now: float) -> None:
         command_id, state_len = reader.unpack(STATUS_FIXED)
         state = reader.short_id(state_len, "status state")
-        info = _object(loads_json(reader.rest(), "status info"), "status info")
+        info = loads_json_object(reader.rest(), "status info")
         status = Status(state=state, command_id=command_id or None, info=info)
         self.counters["statuses"] += 1
         self._emit(

