@@ -185,7 +185,6 @@ class _Partial:
     """Payload plus metadata bytes held."""
     payload_bytes: int = 0
     prototype: Message | None = None
-    t_sent: float | None = None
 
 
 def _number(value: Any, what: str) -> float:
@@ -355,24 +354,27 @@ class Decoder:
             raise OversizePacket(f"{count} fragments > {limits.max_fragments}")
         if total > limits.max_message_bytes:
             raise OversizePacket(f"message of {total} bytes > {limits.max_message_bytes}")
-        prototype = None
         meta_len = 0
+        metadata = b""
         if index == 0:
             (meta_len,) = reader.unpack(METADATA_LEN)
             metadata = reader.take(meta_len)
-            prototype = self._prototype(header, seq, msg_type, t_gen, metadata)
         chunk = reader.rest()
         if len(chunk) > total:
             raise MalformedPacket(f"fragment of {len(chunk)} bytes > message of {total}")
         key: MessageKey = (header.sender, seq, t_gen)
         if key in self._recent:
-            self.counters["late_fragment"] += 1
-            self._emit(PacketDropped(reason="late_fragment", detail=str(key), addr=addr))
+            self._drop("late_fragment", str(key), addr)
             return
+        # the metadata is parsed once, after the late check; a lone fragment is the message
+        prototype = None
+        if index == 0:
+            prototype = self._prototype(header, seq, msg_type, t_gen, metadata,
+                                        t_rcv=max(now, t_gen) if count == 1 else None)
         if count == 1:
             if len(chunk) != total or prototype is None:
                 raise MalformedPacket("single fragment does not hold the whole message")
-            self._complete(prototype, header.t_sent, chunk, addr, now, fragments=1)
+            self._emit_message(prototype, chunk, addr, now, fragments=1)
             self._remember(key)
             return
         partial = self._partials.get(key)
@@ -382,8 +384,7 @@ class Decoder:
             self._discard(key, evicted=False)
             raise MalformedPacket(f"fragment of {key} disagrees with the earlier ones")
         if index in partial.chunks:
-            self.counters["duplicate_fragment"] += 1
-            self._emit(PacketDropped(reason="duplicate_fragment", detail=str(key), addr=addr))
+            self._drop("duplicate_fragment", str(key), addr)
             return
         if partial.payload_bytes + len(chunk) > total:
             self._discard(key, evicted=False)
@@ -397,7 +398,6 @@ class Decoder:
         self._partials.move_to_end(key)
         if prototype is not None:
             partial.prototype = prototype
-            partial.t_sent = header.t_sent
         self._enforce_buffer_bound(keep=key)
         if key not in self._partials:
             return
@@ -407,13 +407,12 @@ class Decoder:
             self._remember(key)
             if len(payload) != partial.total or partial.prototype is None:
                 raise MalformedPacket(f"fragments of {key} add up to {len(payload)} bytes")
-            assert partial.t_sent is not None
-            self._complete(
-                partial.prototype, partial.t_sent, payload, addr, now, fragments=partial.count
-            )
+            message = replace(partial.prototype, t_rcv=max(now, partial.prototype.t_gen))
+            self._emit_message(message, payload, addr, now, fragments=partial.count)
 
     def _prototype(
-        self, header: Header, seq: int, msg_type: str, t_gen: float, raw: bytes
+        self, header: Header, seq: int, msg_type: str, t_gen: float, raw: bytes,
+        *, t_rcv: float | None,
     ) -> Message:
         meta = loads_json_object(raw, "message metadata")
         size = _integer(meta.get("z", 0), "metadata size")
@@ -429,6 +428,7 @@ class Decoder:
                 size=size,
                 receiver=self.local_id,
                 t_sent=header.t_sent,
+                t_rcv=t_rcv,
                 data=data,
                 versions=versions,
                 version=None if version is None else _integer(version, "metadata version"),
@@ -458,17 +458,9 @@ class Decoder:
             victim = next((k for k in self._partials if k != keep), keep)
             self._discard(victim, evicted=True)
 
-    def _complete(
-        self,
-        prototype: Message,
-        t_sent: float,
-        payload: bytes,
-        addr: Address,
-        now: float,
-        *,
-        fragments: int,
+    def _emit_message(
+        self, message: Message, payload: bytes, addr: Address, now: float, *, fragments: int
     ) -> None:
-        message = replace(prototype, t_sent=t_sent, t_rcv=max(now, prototype.t_gen))
         self.counters["messages"] += 1
         self._emit(
             MessageReassembled(
