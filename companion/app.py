@@ -304,7 +304,9 @@ class CompanionApp:
                                              red=config.scoring.red_share,
                                              aruco=config.scoring.aruco,
                                              hog=config.scoring.hog_people)
-        self._commands_seen: set[int] = set()
+        self._command_results: dict[int, Status | None] = {}
+        """Command id -> its final status (None while it waits for ``t_exec``)."""
+        self._command_tasks: set[asyncio.Task[None]] = set()
         self._timers: list[asyncio.TimerHandle] = []
         self._decider_timer: asyncio.TimerHandle | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -457,6 +459,12 @@ class CompanionApp:
             return False
         self._arm_decider_timer()
         info = _decision_record(decision)
+        if self.mission_state != "running" and message.type != "status":
+            # ended (or not started) while the optimiser decided: nothing goes out after end
+            self.counters["not_running"] += 1
+            self._record(message, sent=False, decision={**info, "send": False,
+                                                       "reason": f"mission {self.mission_state}"})
+            return False
         if not decision.send:
             self.counters["dropped"] += 1
             self._record(message, sent=False, decision=info)
@@ -558,25 +566,38 @@ class CompanionApp:
         future.add_done_callback(self._after_decider_call)
 
     def _schedule_command(self, command: Any) -> None:
-        """Acknowledge at once, execute at ``t_exec`` (fleet clock); duplicates are ignored."""
+        """Acknowledge at once, execute at ``t_exec`` (fleet clock); duplicates are ignored.
+
+        A repeated command gets its final result again (``done``/``error``) once it has
+        one, else another ack: the ground station resends until it sees a result, so a lost
+        ``done`` datagram is recovered. The log line comes last and cannot stop the command.
+        """
         if command.target is not None and command.target != self.config.drone_id:
             return
-        if command.command_id in self._commands_seen:
-            self.transport.send_status(Status(state="ack", command_id=command.command_id),
-                                       self.clock())
+        if command.command_id in self._command_results:
+            result = self._command_results[command.command_id]
+            self.transport.send_status(
+                result or Status(state="ack", command_id=command.command_id), self.clock())
             return
-        self._commands_seen.add(command.command_id)
+        self._command_results[command.command_id] = None
         self.counters["commands"] += 1
         self.transport.send_status(Status(state="ack", command_id=command.command_id),
                                    self.clock())
         loop = asyncio.get_running_loop()
         delay = max(0.0, command.t_exec - self.clock())
-        log.info("command %s #%d at %.3f (in %.3f s)", command.name, command.command_id,
-                 command.t_exec, delay, extra={"event": "command", "name": command.name})
         handle = loop.call_later(delay, self._execute_command, command)
         self._timers.append(handle)
+        _log_safely(logging.INFO, "command %s #%d at %.3f (in %.3f s)", command.name,
+                    command.command_id, command.t_exec, delay,
+                    extra={"event": "command", "command": command.name})
 
     def _execute_command(self, command: Any) -> None:
+        """Run a due command; ``set_params`` waits until the optimiser has applied it."""
+        if command.name == "set_params" and self._loop is not None:
+            task = self._loop.create_task(self._apply_params(command))
+            self._command_tasks.add(task)
+            task.add_done_callback(self._command_tasks.discard)
+            return
         now = self.clock()
         info: dict[str, Any] = {"name": command.name}
         try:
@@ -584,39 +605,87 @@ class CompanionApp:
                 self.mission_state = "running"
             elif command.name == "end":
                 self.mission_state = "ended"
-            elif command.name == "set_params":
-                self._set_params(dict(command.args), now)
+            elif command.name == "set_params":  # no loop yet (tests driving the app directly)
+                self._set_params_now(dict(command.args), now)
                 info["params"] = dict(command.args)
             elif command.name == "request_report":
                 info["counters"] = dict(self.counters)
             else:
                 raise ValueError(f"unknown command {command.name!r}")
         except (ValueError, TypeError) as exc:
-            log.warning("command %s failed: %s", command.name, exc)
-            self.transport.send_status(Status(state="error", command_id=command.command_id,
-                                              info={**info, "error": str(exc)}), now)
+            self._finish_command(command, info, error=str(exc))
             return
-        self.transport.send_status(Status(state="done", command_id=command.command_id,
-                                          info=info), now)
+        self._finish_command(command, info)
+
+    async def _apply_params(self, command: Any) -> None:
+        params = dict(command.args)
+        info: dict[str, Any] = {"name": command.name, "params": params}
+        assert self._loop is not None
+        try:
+            await self._loop.run_in_executor(self._decide_pool, self._set_params_now, params,
+                                             self.clock())
+        except Exception as exc:  # any rejection is the error
+            self._finish_command(command, info, error=str(exc) or repr(exc))
+            return
+        finally:
+            self._arm_decider_timer()
+        self._finish_command(command, info)
+
+    def _finish_command(self, command: Any, info: dict[str, Any], *,
+                        error: str | None = None) -> None:
+        """Send and remember the result; then the status message, mission log and log line."""
+        now = self.clock()
+        if error is None:
+            status = Status(state="done", command_id=command.command_id, info=info)
+        else:
+            status = Status(state="error", command_id=command.command_id,
+                            info={**info, "error": error})
+        self._command_results[command.command_id] = status
+        if len(self._command_results) > 1000:  # bounded: forget the oldest
+            del self._command_results[next(iter(self._command_results))]
+        try:
+            self.transport.send_status(status, now)
+        except (OSError, ValueError, LocalProtocolError) as exc:  # resent on the retry
+            self.counters["send_errors"] += 1
+            _log_safely(logging.WARNING, "command %s #%d: result not sent: %s",
+                        command.name, command.command_id, exc)
+        if error is not None:
+            _log_safely(logging.WARNING, "command %s #%d failed: %s", command.name,
+                        command.command_id, error)
+            return
         self.publisher.on_sample(Sample(t=now))
         self._log.write({"state": {"agent": self.config.drone_id, "t": now,
                                    "mission": self.mission_state, "command": command.name}})
+        _log_safely(logging.INFO, "command %s #%d done", command.name, command.command_id,
+                    extra={"event": "command_done", "command": command.name})
 
-    def _set_params(self, params: Mapping[str, Any], now: float) -> None:
-        """Live parameter change (alpha, mcts_iterations, time_budget_s...) without restart."""
-        if "time_budget_s" in params:
-            value = params["time_budget_s"]
-            if not isinstance(value, int | float) or value <= 0:
-                raise ValueError(f"time_budget_s must be a number > 0, got {value!r}")
+    def _set_params_now(self, params: Mapping[str, Any], now: float) -> None:
+        """Live parameter change (alpha, mcts_iterations, time_budget_s...) without restart.
+
+        Runs in the decision executor (the optimiser's one thread). The decider validates
+        every key before it changes anything; the app's own copy follows only when it did.
+        """
+        budget = params.get("time_budget_s")
+        if "time_budget_s" in params and (isinstance(budget, bool)
+                                          or not isinstance(budget, int | float)
+                                          or not budget > 0):
+            raise ValueError(f"time_budget_s must be a number > 0, got {budget!r}")
+        self.decider.set_params(params, now)
+        if budget is not None:
             self.config = dataclasses.replace(
                 self.config, budgets=dataclasses.replace(self.config.budgets,
-                                                         time_budget_s=float(value)))
-        if self._loop is None:
-            self.decider.set_params(params, now)
-            return
-        future = self._loop.run_in_executor(self._decide_pool, self.decider.set_params,
-                                            params, now)
-        future.add_done_callback(self._after_decider_call)
+                                                         time_budget_s=float(budget)))
+
+
+def _log_safely(level: int, msg: str, *args: Any, extra: Mapping[str, Any] | None = None
+                ) -> None:
+    """Log, but never let a logging problem (a bad ``extra`` key, a broken handler) stop
+    the code path that logs: a command must run whether or not its log line can be made."""
+    try:
+        log.log(level, msg, *args, extra=dict(extra) if extra else None)
+    except Exception:  # logging must not break the caller
+        with contextlib.suppress(Exception):
+            log.log(level, msg, *args)
 
 
 def _decision_record(decision: DecisionLike) -> dict[str, Any]:
@@ -766,30 +835,79 @@ class MiddlewareDecider:
         self.counters["link_samples"] += len(samples)
 
     def set_params(self, params: Mapping[str, Any], now: float) -> None:
-        """``mcts_iterations``, ``time_budget_s``, ``alpha`` (eq. 7.1/7.2) and the optimiser's
-        own keys, effective from the next decision."""
+        """``mcts_iterations``, ``time_budget_s``, ``alpha`` (eq. 7.1/7.2), the optimiser's
+        own keys and ``constraint.NAME`` (a number of the goodput constraint, e.g.
+        ``constraint.limit_bytes_per_s`` or ``constraint.alpha_bytes_per_s``), effective from
+        the next decision. All or nothing: every key is checked before any is applied, and a
+        rejected key raises ValueError naming it and why."""
         from companion.middleware.middleware import MiddlewareError
 
         changes: dict[str, Any] = {}
+        constraint_changes: dict[str, float] = {}
+        time_budget: float | None = None
         for key, value in params.items():
             if key == "mcts_iterations":
                 changes["max_iterations"] = value
             elif key == "time_budget_s":
-                if not isinstance(value, int | float) or value <= 0:
+                if isinstance(value, bool) or not isinstance(value, int | float) or value <= 0:
                     raise ValueError(f"time_budget_s must be a number > 0, got {value!r}")
-                self.time_budget_s = float(value)
+                time_budget = float(value)
             elif key == "alpha":
-                self._set_alpha(value)
+                self._check_alpha(value)
             elif key in MIDDLEWARE_KEYS:
                 changes[key] = value
+            elif key.startswith("constraint."):
+                name = key.removeprefix("constraint.")
+                constraint_changes[self._constraint_attr(name)] = self._constraint_value(
+                    key, value)
             else:
                 raise ValueError(f"unknown parameter {key!r} (known: mcts_iterations, "
-                                 f"time_budget_s, alpha, {', '.join(MIDDLEWARE_KEYS)})")
+                                 f"time_budget_s, alpha, {', '.join(MIDDLEWARE_KEYS)}, "
+                                 f"constraint.{', constraint.'.join(self.constraint_keys())})")
         if changes:
             try:
-                self.middleware.config = dataclasses.replace(self.middleware.config, **changes)
+                dataclasses.replace(self.middleware.config, **changes)
             except (MiddlewareError, TypeError) as exc:
                 raise ValueError(str(exc)) from None
+        # everything checked: apply (alpha first, the only step that builds something)
+        if "alpha" in params:
+            self._set_alpha(params["alpha"])
+        if changes:
+            self.middleware.config = dataclasses.replace(self.middleware.config, **changes)
+        if time_budget is not None:
+            self.time_budget_s = time_budget
+        for attr, number in constraint_changes.items():
+            setattr(self.constraint, attr, number)
+
+    def constraint_keys(self) -> list[str]:
+        """The constraint's numbers ``set_params`` may change (``constraint.NAME``)."""
+        names = [k for k, v in vars(self.constraint).items()
+                 if not k.startswith("_") and k not in ("window_s", "n_updates")
+                 and isinstance(v, int | float) and not isinstance(v, bool)]
+        if hasattr(self.constraint, "_limit"):  # ConstantConstraint's ξ
+            names.append("limit_bytes_per_s")
+        return sorted(names)
+
+    def _constraint_attr(self, name: str) -> str:
+        if name not in self.constraint_keys():
+            raise ValueError(f"unknown parameter 'constraint.{name}' for the "
+                             f"{type(self.constraint).__name__} (known: "
+                             f"{', '.join(self.constraint_keys()) or 'none'})")
+        return "_limit" if name == "limit_bytes_per_s" else name
+
+    @staticmethod
+    def _constraint_value(key: str, value: Any) -> float:
+        if (isinstance(value, bool) or not isinstance(value, int | float)
+                or not math.isfinite(value) or value < 0):
+            raise ValueError(f"{key} must be a number >= 0, got {value!r}")
+        return float(value)
+
+    def _check_alpha(self, alpha: Any) -> None:
+        if isinstance(alpha, bool) or not isinstance(alpha, int | float) or alpha < 0:
+            raise ValueError(f"alpha must be a number >= 0, got {alpha!r}")
+        if not any("alpha" in info.utility.params()
+                   for info in self.middleware.config.spec.types.values()):
+            raise ValueError("alpha: no information type of the mission uses alpha")
 
     def _set_alpha(self, alpha: Any) -> None:
         from utility_specs.errors import SpecError
