@@ -270,7 +270,7 @@ async def _issue(request: web.Request, verb: str) -> web.Response:
     link._flush_alerts()
     state = app[MISSIONS].state(now=now)
     app[BROADCASTER].publish("mission", {"mission": state})
-    return _json({"command": issued.as_json(), "mission": state})
+    return _json({"command": issued.as_json(now), "mission": state})
 
 
 async def api_start(request: web.Request) -> web.Response:
@@ -283,6 +283,10 @@ async def api_end(request: web.Request) -> web.Response:
 
 async def api_params(request: web.Request) -> web.Response:
     return await _issue(request, "params")
+
+
+async def api_report(request: web.Request) -> web.Response:
+    return await _issue(request, "report")
 
 
 async def api_reset_reports(request: web.Request) -> web.Response:
@@ -403,7 +407,9 @@ def create_app(
     app[TOKEN] = token if token is not None else ensure_token(config.token_path)[0]
     app[FLEET] = FleetView(high_utility=config.high_utility, link_lost_s=config.link_lost_s)
     app[MISSIONS] = MissionManager(
-        retry_s=config.command_retry_s, first_command_id=int(clock() * 10) % (2**31)
+        retry_s=config.command_retry_s,
+        reply_timeout_s=config.command_reply_timeout_s,
+        first_command_id=int(clock() * 10) % (2**31)
     )
     app[BROADCASTER] = Broadcaster(queue_size=config.ws_queue_size)
     app[IMAGE_UTILITY] = image_utility_from_spec(config.spec, alpha=config.alpha)
@@ -427,5 +433,6 @@ def create_app(
     app.router.add_post("/api/mission/start", api_start)
     app.router.add_post("/api/mission/end", api_end)
     app.router.add_post("/api/mission/params", api_params)
+    app.router.add_post("/api/mission/report", api_report)
     app.router.add_post("/api/mission/reports/reset", api_reset_reports)
     return app

@@ -54,6 +54,8 @@ class GroundConfig:
     """Receiver report period (thesis ch. 6 needs a few samples per second)."""
     command_retry_s: float = 0.5
     """How often an unacknowledged mission command is sent again."""
+    command_reply_timeout_s: float = 5.0
+    """A drone without a done/error this long after a command's execution time: no reply."""
     link_lost_s: float = 3.0
     """A drone not heard for this long raises a link-loss alert."""
     reassembly_timeout_s: float = 2.0
@@ -87,6 +89,7 @@ class GroundConfig:
             ("udp_rcvbuf_bytes", self.udp_rcvbuf_bytes >= 65536, "an integer >= 65536"),
             ("report_interval_s", self.report_interval_s > 0, "a number > 0"),
             ("command_retry_s", self.command_retry_s > 0, "a number > 0"),
+            ("command_reply_timeout_s", self.command_reply_timeout_s > 0, "a number > 0"),
             ("link_lost_s", self.link_lost_s > 0, "a number > 0"),
             ("reassembly_timeout_s", self.reassembly_timeout_s > 0, "a number > 0"),
             ("max_pending_messages", self.max_pending_messages > 0, "an integer > 0"),
@@ -120,6 +123,7 @@ _TYPES: dict[str, tuple[type | tuple[type, ...], str]] = {
     "http_port": (int, "an integer port"),
     "report_interval_s": ((int, float), "a number of seconds"),
     "command_retry_s": ((int, float), "a number of seconds"),
+    "command_reply_timeout_s": ((int, float), "a number of seconds"),
     "link_lost_s": ((int, float), "a number of seconds"),
     "reassembly_timeout_s": ((int, float), "a number of seconds"),
     "max_pending_messages": (int, "an integer"),

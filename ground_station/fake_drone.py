@@ -1,7 +1,8 @@
 """A minimal drone for tests, benchmarks and demos: real datagrams built with the codec.
 
 It sends images (synthetic JPEGs or raw bytes) and telemetry to a ground station over UDP,
-acknowledges every COMMAND it receives with a STATUS ``ack``, and keeps the reports and
+acknowledges every COMMAND it receives with a STATUS ``ack`` and reports ``done`` at its
+execution time (as the companion does), and keeps the reports and
 commands it got so a test can check them. The companion app is the real thing; this is
 the smallest honest peer for the ground station.
 """
@@ -69,11 +70,15 @@ class FakeDrone(asyncio.DatagramProtocol):
         ground: tuple[str, int],
         clock: Callable[[], float] = time.time,
         auto_ack: bool = True,
+        auto_done: bool = True,
     ) -> None:
         self.drone_id = drone_id
         self.ground = ground
         self.clock = clock
         self.auto_ack = auto_ack
+        self.auto_done = auto_done
+        """Like the companion: ``done`` at the command's ``t_exec``, again on a repeat."""
+        self.done: set[int] = set()
         self.encoder = Encoder(fleet_id, drone_id, key)
         self.decoder = Decoder(fleet_id, key, local_id=drone_id)
         self.transport: asyncio.DatagramTransport | None = None
@@ -102,10 +107,26 @@ class FakeDrone(asyncio.DatagramProtocol):
                 self.commands.append(event)
                 self.command_event.set()
                 if self.auto_ack:
-                    self.send_status("ack", command_id=event.command.command_id)
+                    self._answer(event.command)
             elif isinstance(event, ReportReceived):
                 self.reports.append(event)
                 self.report_event.set()
+
+    def _answer(self, command: Any) -> None:
+        cid = command.command_id
+        if cid in self.done:
+            self.send_status("done", command_id=cid, info={"name": command.name})
+            return
+        self.send_status("ack", command_id=cid)
+        if not self.auto_done or any(c.command.command_id == cid for c in self.commands[:-1]):
+            return
+        delay = max(0.0, command.t_exec - self.clock())
+        asyncio.get_running_loop().call_later(delay, self._execute, command)
+
+    def _execute(self, command: Any) -> None:
+        self.done.add(command.command_id)
+        if self.transport is not None and not self.transport.is_closing():
+            self.send_status("done", command_id=command.command_id, info={"name": command.name})
 
     # -- sending --------------------------------------------------------------------------
     def sendto(self, datagram: bytes) -> None:

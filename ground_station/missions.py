@@ -4,7 +4,11 @@ Sans-I/O: time comes in as ``now`` (fleet clock, Unix seconds). A command with a
 argument ("in 5 s", "+5", "at 14:00") becomes an absolute ``t_exec``; the shell sends it to
 every known drone and sends it again every ``retry_s`` until that drone acknowledges it
 (a STATUS packet naming the command id). Drones that appear while a command is still live
-get it too. Status reports ("done"...) are counted so an operator can wait for them.
+get it too. Each drone's result of a command is ``done``, ``error`` (with the drone's
+reason) or ``no reply`` once ``reply_timeout_s`` passed after its execution time; a drone
+that acknowledged but whose result did not arrive gets the command again (it answers a
+repeat with its result), so a lost ``done`` datagram is recovered. Status reports
+("done"...) are counted so an operator can wait for them.
 """
 
 from __future__ import annotations
@@ -29,7 +33,8 @@ __all__ = [
     "parse_when",
 ]
 
-COMMAND_NAMES = {"start": "start", "end": "end", "params": "set_params"}
+COMMAND_NAMES = {"start": "start", "end": "end", "params": "set_params",
+                 "report": "request_report"}
 """Operator verbs to the command names on the wire (companion.protocol.records.Command)."""
 
 
@@ -114,7 +119,8 @@ class ShellCommand:
     """One parsed line of the interactive terminal (thesis fig. 3.7)."""
 
     verb: str
-    """start, end, params, wait_drones, wait_reports, reset_reports, sleep, help, close, quit."""
+    """start, end, params, report, wait_drones, wait_reports, reset_reports, sleep, status,
+    help, close, quit."""
     when: str | None = None
     params: Mapping[str, Any] = field(default_factory=dict)
     count: int | None = None
@@ -123,16 +129,28 @@ class ShellCommand:
 
 
 HELP = """Available commands:
-  s [TIME]       start mission (TIME: now, +5, in 5 s, at 14:00)
-  e [TIME]       end mission
-  p A=1,B=2 [@ TIME]  set mission parameters on every drone, e.g. p alpha=10,mcts_iterations=300
-  n N            wait for N drones to be heard
-  r [N] [NAME]   wait for N reports named NAME (default: every known drone, 'done')
-  rr             reset all counted reports
-  l N            sleep for N seconds
-  h              display this list
-  c              close the interactive mode
-  q              exit the program"""
+  (the one-letter names of thesis fig. 3.7, in brackets, work too)
+  start [TIME]          (s)  start the mission on every drone (TIME: now, +5, in 5 s, at 14:00)
+  end [TIME]            (e)  end the mission: drones stop streaming images
+  params A=1,B=2 [@ TIME]  (p)  set parameters on every drone, e.g. params mcts_iterations=300
+  report                     ask every drone for its counters
+  wait                  (r)  wait for every drone's result of the last command
+  wait [N] NAME         (r)  wait for N reports named NAME (default N: every known drone)
+  drones N              (n)  wait until N drones are heard
+  reset                 (rr) forget the counted reports
+  sleep N               (l)  sleep for N seconds
+  status                     mission phase, drones and the last commands' results
+  help                  (h)  this list
+  close                 (c)  leave the interactive mode
+  quit                  (q)  exit the program
+Every wait gives up after the shell's timeout and names the drones that did not answer."""
+
+ALIASES = {
+    "s": "start", "e": "end", "p": "params", "set": "params", "n": "drones", "r": "wait",
+    "w": "wait", "reports": "wait", "results": "wait", "rr": "reset", "l": "sleep",
+    "h": "help", "?": "help", "c": "close", "q": "quit", "exit": "quit",
+}
+"""Old letters of thesis fig. 3.7 and other guesses -> command names."""
 
 
 def parse_shell_line(line: str) -> ShellCommand | None:
@@ -140,20 +158,23 @@ def parse_shell_line(line: str) -> ShellCommand | None:
     text = line.strip()
     if not text:
         return None
-    verb, _, rest = text.partition(" ")
+    word, _, rest = text.partition(" ")
+    verb = ALIASES.get(word.lower(), word.lower())
     rest = rest.strip()
-    if verb in ("s", "e"):
-        return ShellCommand(verb="start" if verb == "s" else "end", when=rest or None)
-    if verb == "p":
+    if verb in ("start", "end"):
+        return ShellCommand(verb=verb, when=rest or None)
+    if verb == "params":
         params_text, _, when = rest.partition("@")
         return ShellCommand(
             verb="params", params=parse_params(params_text), when=when.strip() or None
         )
-    if verb == "n":
+    if verb == "report":
+        return ShellCommand(verb="report", when=rest or None)
+    if verb == "drones":
         if not rest.isdigit():
-            raise MissionError("n: expected the number of drones, e.g. n 4")
+            raise MissionError(f"{word}: expected the number of drones, e.g. {word} 4")
         return ShellCommand(verb="wait_drones", count=int(rest))
-    if verb == "r":
+    if verb == "wait":
         count: int | None = None
         report: str | None = None
         for arg in rest.split():
@@ -162,38 +183,84 @@ def parse_shell_line(line: str) -> ShellCommand | None:
             elif report is None:
                 report = arg
             else:
-                raise MissionError("r: expected at most a count and a report name, e.g. r 4 done")
+                raise MissionError(
+                    f"{word}: expected at most a count and a report name, e.g. {word} 4 done"
+                )
         return ShellCommand(verb="wait_reports", count=count, report=report)
-    if verb == "rr":
+    if verb == "reset":
         return ShellCommand(verb="reset_reports")
-    if verb == "l":
+    if verb == "sleep":
         try:
             seconds = float(rest)
         except ValueError:
-            raise MissionError("l: expected a number of seconds, e.g. l 5") from None
+            raise MissionError(f"{word}: expected a number of seconds, e.g. {word} 5") from None
         if not (math.isfinite(seconds) and seconds >= 0):
-            raise MissionError("l: expected a number of seconds >= 0")
+            raise MissionError(f"{word}: expected a number of seconds >= 0")
         return ShellCommand(verb="sleep", seconds=seconds)
-    if verb == "h":
-        return ShellCommand(verb="help")
-    if verb == "c":
-        return ShellCommand(verb="close")
-    if verb == "q":
-        return ShellCommand(verb="quit")
-    raise MissionError(f"unknown command {verb!r}; h lists the commands")
+    if verb in ("help", "close", "quit", "status"):
+        return ShellCommand(verb=verb)
+    raise MissionError(f"unknown command {word!r}; help (or h) lists the commands")
+
+
+FINAL = ("done", "error")
+"""Drone states that end a command (a STATUS naming its id)."""
+NO_REPLY = "no reply"
 
 
 @dataclass(slots=True, kw_only=True)
 class IssuedCommand:
-    """A command and, per drone, when it was last sent and whether it was acknowledged."""
+    """A command and, per drone, when it was sent, acknowledged and what came of it."""
 
     command: Command
     t_issued: float
+    reply_timeout_s: float = 5.0
+    targets: set[str] = field(default_factory=set)
+    """Drones the command is for: those known when issued and those heard while it is live."""
+    first_sent: dict[str, float] = field(default_factory=dict)
     last_sent: dict[str, float] = field(default_factory=dict)
     acked: dict[str, float] = field(default_factory=dict)
     states: dict[str, str] = field(default_factory=dict)
+    results: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Drone -> ``{"state": "done"|"error", "t": ..., "info": {...}}`` from its final STATUS."""
 
-    def as_json(self) -> dict[str, Any]:
+    def reply_deadline(self, drone: str) -> float:
+        """When a drone without a result counts as ``no reply``."""
+        t0 = max(self.command.t_exec, self.first_sent.get(drone, self.command.t_exec))
+        return t0 + self.reply_timeout_s
+
+    def result(self, drone: str, now: float | None) -> str:
+        """``done``, ``error``, ``no reply``, or while waiting ``acked``/``sent``/``pending``."""
+        final = self.results.get(drone)
+        if final is not None:
+            return str(final["state"])
+        if now is not None and now >= self.reply_deadline(drone):
+            return NO_REPLY
+        if drone in self.acked:
+            return "acked"
+        return "sent" if drone in self.last_sent else "pending"
+
+    def outcome(self, now: float | None) -> dict[str, Any]:
+        """Per drone result (with the reason of an error) and their counts."""
+        drones = sorted(self.targets | set(self.last_sent) | set(self.acked))
+        per_drone: dict[str, dict[str, Any]] = {}
+        counts = {"done": 0, "error": 0, NO_REPLY: 0, "waiting": 0}
+        for drone in drones:
+            result = self.result(drone, now)
+            entry: dict[str, Any] = {"result": result}
+            final = self.results.get(drone)
+            if final is not None:
+                entry["info"] = final["info"]
+                if result == "error":
+                    entry["reason"] = str(final["info"].get("error", "no reason given"))
+            elif result == NO_REPLY:
+                entry["reason"] = (f"no result {self.reply_timeout_s:g} s after execution"
+                                   + ("" if drone in self.acked else "; never acknowledged"))
+            per_drone[drone] = entry
+            counts[result if result in counts else "waiting"] += 1
+        return {"results": per_drone, "summary": {**counts, "total": len(drones)},
+                "finished": counts["waiting"] == 0 and bool(drones)}
+
+    def as_json(self, now: float | None = None) -> dict[str, Any]:
         c = self.command
         return {
             "command_id": c.command_id,
@@ -204,6 +271,7 @@ class IssuedCommand:
             "sent_to": sorted(self.last_sent),
             "acked_by": sorted(self.acked),
             "states": dict(self.states),
+            **self.outcome(now),
         }
 
 
@@ -216,17 +284,28 @@ class MissionManager:
         Time between two sends of an unacknowledged command to the same drone.
     command_ttl_s
         How long after ``t_exec`` a command is still sent (to late or newly heard drones).
+    reply_timeout_s
+        How long after ``t_exec`` (or after the first send, for a late drone) a drone without
+        a ``done``/``error`` counts as ``no reply``.
     first_command_id
         Seed of the command ids; pick it from the clock so ids differ across restarts.
     """
 
     def __init__(
-        self, *, retry_s: float, command_ttl_s: float = 30.0, first_command_id: int = 1
+        self,
+        *,
+        retry_s: float,
+        command_ttl_s: float = 30.0,
+        reply_timeout_s: float = 5.0,
+        first_command_id: int = 1,
     ) -> None:
         if not retry_s > 0:
             raise ValueError(f"retry_s must be > 0, got {retry_s}")
+        if not reply_timeout_s > 0:
+            raise ValueError(f"reply_timeout_s must be > 0, got {reply_timeout_s}")
         self.retry_s = retry_s
         self.command_ttl_s = command_ttl_s
+        self.reply_timeout_s = reply_timeout_s
         self._next_id = max(1, first_command_id % (2**32 - 1))
         self.drones: dict[str, float] = {}
         """Known drones -> when first heard."""
@@ -262,7 +341,8 @@ class MissionManager:
         command = Command(
             command_id=self._take_id(), name=COMMAND_NAMES[verb], t_exec=t_exec, args=args or {}
         )
-        issued = IssuedCommand(command=command, t_issued=now)
+        issued = IssuedCommand(command=command, t_issued=now,
+                               reply_timeout_s=self.reply_timeout_s, targets=set(self.drones))
         self.commands[command.command_id] = issued
         if verb == "start":
             self.t_start, self.t_end = t_exec, None
@@ -281,7 +361,13 @@ class MissionManager:
         return cid
 
     def on_status(
-        self, drone: str, *, state: str, command_id: int | None, now: float
+        self,
+        drone: str,
+        *,
+        state: str,
+        command_id: int | None,
+        now: float,
+        info: Mapping[str, Any] | None = None,
     ) -> IssuedCommand | None:
         """A STATUS from a drone: an ack (with a command id) and/or a named report."""
         self.on_drone_heard(drone, now=now)
@@ -289,7 +375,10 @@ class MissionManager:
             issued = self.commands.get(command_id)
             if issued is not None:
                 issued.acked.setdefault(drone, now)
-                issued.states[drone] = state
+                if state in FINAL:
+                    issued.results[drone] = {"state": state, "t": now, "info": dict(info or {})}
+                if drone not in issued.results or state in FINAL:  # a late ack never undoes
+                    issued.states[drone] = state
             return issued
         # An unsolicited status is repeated while it holds; a report is a change of it
         # (e.g. running -> done), counted once.
@@ -310,6 +399,18 @@ class MissionManager:
     def _live(self, issued: IssuedCommand, now: float) -> bool:
         return now <= issued.command.t_exec + self.command_ttl_s
 
+    def _next_send(self, issued: IssuedCommand, drone: str) -> float | None:
+        """When ``drone`` should get ``issued`` next: until acknowledged every ``retry_s``;
+        acknowledged but without a result, again from one ``retry_s`` after ``t_exec``."""
+        if drone in issued.results:
+            return None
+        last = issued.last_sent.get(drone)
+        if last is None:
+            return issued.t_issued
+        if drone in issued.acked:
+            return max(last, issued.command.t_exec) + self.retry_s
+        return last + self.retry_s
+
     def due(self, *, now: float) -> list[tuple[str, Command]]:
         """(drone, command) pairs to send now; marks them sent."""
         out: list[tuple[str, Command]] = []
@@ -317,25 +418,22 @@ class MissionManager:
             if not self._live(issued, now):
                 continue
             for drone in self.drones:
-                if drone in issued.acked:
-                    continue
-                last = issued.last_sent.get(drone)
-                if last is None or now >= last + self.retry_s:
+                issued.targets.add(drone)
+                t = self._next_send(issued, drone)
+                if t is not None and now >= t:
+                    issued.first_sent.setdefault(drone, now)
                     issued.last_sent[drone] = now
                     out.append((drone, issued.command))
         return out
 
     def get_timer(self) -> float | None:
-        """Next time :meth:`due` has something to resend, or None."""
+        """Next time :meth:`due` has something to send, or None."""
         deadline: float | None = None
         for issued in self.commands.values():
             expiry = issued.command.t_exec + self.command_ttl_s
             for drone in self.drones:
-                if drone in issued.acked:
-                    continue
-                last = issued.last_sent.get(drone)
-                t = issued.t_issued if last is None else last + self.retry_s
-                if t <= expiry and (deadline is None or t < deadline):
+                t = self._next_send(issued, drone)
+                if t is not None and t <= expiry and (deadline is None or t < deadline):
                     deadline = t
         return deadline
 
@@ -355,5 +453,5 @@ class MissionManager:
             "drones": sorted(self.drones),
             "reports": dict(self.report_counts),
             "report_drones": {k: sorted(v) for k, v in self.report_drones.items()},
-            "commands": [i.as_json() for i in list(self.commands.values())[-20:]],
+            "commands": [i.as_json(now) for i in list(self.commands.values())[-20:]],
         }

@@ -220,7 +220,11 @@ class GroundLink:
         self.fleet.apply_data(state, status.info, now=now)
         self.reports.on_datagram(event.sender, t_sent=event.t_sent, t_rcv=event.t_rcv)
         self.missions.on_status(
-            event.sender, state=status.state, command_id=status.command_id, now=now
+            event.sender,
+            state=status.state,
+            command_id=status.command_id,
+            now=now,
+            info=status.info,
         )
         self.counters["statuses"] += 1
         if status.state == "error":
@@ -356,7 +360,14 @@ class GroundLink:
             self._next_tick = now + TICK_S
             point = self.fleet.tick(now=now)
             self._flush_alerts()
-            self.broadcaster.publish("tick", {"point": point, "stats": self.stats(now=now)})
+            self.broadcaster.publish(
+                "tick",  # with the mission: phases and command results change with time
+                {
+                    "point": point,
+                    "stats": self.stats(now=now),
+                    "mission": self.missions.state(now=now),
+                },
+            )
         self._arm()
 
     def kick(self) -> None:

@@ -1,8 +1,10 @@
 """``uav-ground-station shell``: the interactive mission manager of thesis fig. 3.7.
 
 It talks to a running ground station over its JSON API (with the control token), so the
-terminal and the dashboard drive the same mission manager. Commands: s, e, p, n, r, rr,
-l, h, c, q (``h`` prints them).
+terminal and the dashboard drive the same mission manager. Commands: start, end, params,
+report, wait, drones, reset, sleep, status, help, close, quit, with the thesis' letters
+(s, e, p, r, n, rr, l, h, c, q) as aliases. Every wait ends after ``wait_timeout_s`` and
+names the drones that did not answer; a command waits for its per-drone results.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import datetime as dt
 import sys
+import time
 from collections.abc import Callable, Iterable
 from typing import Any, TextIO
 
@@ -20,6 +23,8 @@ from ground_station.missions import HELP, MissionError, ShellCommand, parse_shel
 __all__ = ["ApiClient", "MissionShell", "run_shell"]
 
 POLL_S = 0.25
+WAIT_TIMEOUT_S = 30.0
+"""Default bound of every wait (``--timeout``): a silent drone must not hang the shell."""
 
 
 class ApiClient:
@@ -56,13 +61,30 @@ def _stamp(t: float) -> str:
     return "@" + dt.datetime.fromtimestamp(t).isoformat(sep=" ")
 
 
+class WaitTimeout(MissionError):
+    """A wait ran out of time; the text names who did not answer."""
+
+
+def _result_line(drone: str, entry: dict[str, Any]) -> str:
+    text = f"  {drone}: {entry['result']}"
+    if entry.get("reason"):
+        text += f" ({entry['reason']})"
+    counters = entry.get("info", {}).get("counters")
+    if isinstance(counters, dict):
+        text += " " + " ".join(f"{k}={v}" for k, v in sorted(counters.items()))
+    return text
+
+
 class MissionShell:
     """Executes parsed lines; ``out`` receives what the operator reads."""
 
-    def __init__(self, api: ApiClient, out: TextIO, *, wait_timeout_s: float | None = None):
+    def __init__(
+        self, api: ApiClient, out: TextIO, *, wait_timeout_s: float | None = WAIT_TIMEOUT_S
+    ):
         self.api = api
         self.out = out
         self.wait_timeout_s = wait_timeout_s
+        self.last_command_id: int | None = None
 
     def say(self, text: str) -> None:
         self.out.write(text + "\n")
@@ -78,9 +100,6 @@ class MissionShell:
         except MissionError as exc:
             self.say(f"error: {exc}")
             return True
-        except TimeoutError:
-            self.say("error: gave up waiting")
-            return True
 
     async def _run(self, c: ShellCommand) -> bool:
         if c.verb in ("quit", "close"):
@@ -90,52 +109,127 @@ class MissionShell:
         elif c.verb in ("start", "end"):
             self.say("Starting mission" if c.verb == "start" else "Ending mission")
             result = await self.api.issue(c.verb, {"when": c.when or "now"})
-            self._report_command(result)
+            await self._report_command(result)
         elif c.verb == "params":
             self.say("Changing parameters")
             self.say(f"Parsed parameters: {[f'{k}={v}' for k, v in c.params.items()]}")
             result = await self.api.issue("params", {"params": dict(c.params), "when": c.when})
-            self._report_command(result)
+            await self._report_command(result)
+        elif c.verb == "report":
+            self.say("Asking every drone for its counters")
+            result = await self.api.issue("report", {"when": c.when or "now"})
+            await self._report_command(result)
         elif c.verb == "wait_drones":
             assert c.count is not None
             self.say(f"Waiting for {c.count} drone(s)")
-            state = await self._wait(lambda m: len(m["drones"]) >= (c.count or 0))
+            state = await self._wait(
+                lambda m: len(m["drones"]) >= (c.count or 0),
+                lambda m: f"heard {len(m['drones'])} of {c.count}: "
+                f"{', '.join(m['drones']) or 'none'}",
+            )
             self.say(f"{len(state['drones'])} drone(s): {', '.join(state['drones'])}")
         elif c.verb == "wait_reports":
-            name = c.report or "done"
-            self.say(
-                f"Waiting for {c.count if c.count is not None else 'every drone'}'s report {name!r}"
-            )
-
-            def enough(m: dict[str, Any]) -> bool:
-                if c.count is not None:
-                    return int(m["reports"].get(name, 0)) >= c.count
-                drones = set(m["drones"])
-                return bool(drones) and drones <= set(m["report_drones"].get(name, []))
-
-            state = await self._wait(enough)
-            self.say(f"Reports {name!r}: {state['reports'].get(name, 0)}")
+            if c.count is None and c.report is None and self._latest(await self.api.mission()):
+                await self._wait_results(None)
+            else:
+                await self._wait_reports(c.count, c.report or "done")
         elif c.verb == "reset_reports":
             await self.api.reset_reports()
             self.say("Reports reset")
         elif c.verb == "sleep":
             assert c.seconds is not None
             await asyncio.sleep(c.seconds)
+        elif c.verb == "status":
+            self._print_status(await self.api.mission())
         return True
 
-    def _report_command(self, result: dict[str, Any]) -> None:
+    async def _wait_reports(self, count: int | None, name: str) -> None:
+        self.say(f"Waiting for {count if count is not None else 'every drone'}'s report {name!r}")
+
+        def enough(m: dict[str, Any]) -> bool:
+            if count is not None:
+                return int(m["reports"].get(name, 0)) >= count
+            drones = set(m["drones"])
+            return bool(drones) and drones <= set(m["report_drones"].get(name, []))
+
+        def missing(m: dict[str, Any]) -> str:
+            silent = sorted(set(m["drones"]) - set(m["report_drones"].get(name, [])))
+            got = int(m["reports"].get(name, 0))
+            return (f"{got} report(s) {name!r}"
+                    + (f"; not reported: {', '.join(silent)}" if silent else ""))
+
+        state = await self._wait(enough, missing)
+        self.say(f"Reports {name!r}: {state['reports'].get(name, 0)}")
+
+    def _latest(self, state: dict[str, Any], command_id: int | None = None) -> dict[str, Any]:
+        wanted = command_id if command_id is not None else self.last_command_id
+        commands = state.get("commands", [])
+        for command in reversed(commands):
+            if wanted is None or command["command_id"] == wanted:
+                return dict(command)
+        return {}
+
+    async def _wait_results(self, command_id: int | None) -> None:
+        """Wait until every drone has a result of the command: done, error or no reply."""
+        def finished(m: dict[str, Any]) -> bool:
+            return bool(self._latest(m, command_id).get("finished"))
+
+        def missing(m: dict[str, Any]) -> str:
+            command = self._latest(m, command_id)
+            waiting = sorted(d for d, e in command.get("results", {}).items()
+                             if e["result"] not in ("done", "error", "no reply"))
+            return f"no result yet from: {', '.join(waiting) or 'none'}"
+
+        state = await self._wait(finished, missing)
+        self._print_results(self._latest(state, command_id))
+
+    def _print_results(self, command: dict[str, Any]) -> None:
+        summary = command.get("summary", {})
+        total = summary.get("total", 0)
+        parts = [f"done {summary.get('done', 0)}/{total}"]
+        parts += [f"{k} {summary[k]}" for k in ("error", "no reply") if summary.get(k)]
+        self.say(f"#{command['command_id']} {command['name']}: {', '.join(parts)}")
+        for drone, entry in sorted(command.get("results", {}).items()):
+            if entry["result"] != "done" or entry.get("info", {}).get("counters"):
+                self.say(_result_line(drone, entry))
+
+    def _print_status(self, state: dict[str, Any]) -> None:
+        self.say(f"phase {state['phase']}; drones ({len(state['drones'])}): "
+                 f"{', '.join(state['drones']) or 'none'}")
+        for command in state.get("commands", [])[-5:]:
+            self._print_results(command)
+
+    async def _report_command(self, result: dict[str, Any]) -> None:
         command = result["command"]
         drones = result["mission"]["drones"]
+        self.last_command_id = command["command_id"]
         self.say(f"command #{command['command_id']} {command['name']} to {len(drones)} drone(s)")
         self.say(_stamp(command["t_exec"]))
+        if not drones:
+            return
+        ahead = command["t_exec"] - time.time()
+        if self.wait_timeout_s is not None and ahead > self.wait_timeout_s:
+            self.say("results after it runs: type 'wait'")
+            return
+        await self._wait_results(command["command_id"])
 
-    async def _wait(self, done: Callable[[dict[str, Any]], bool]) -> dict[str, Any]:
-        async with asyncio.timeout(self.wait_timeout_s):
-            while True:
-                state = await self.api.mission()
-                if done(state):
-                    return state
-                await asyncio.sleep(POLL_S)
+    async def _wait(
+        self, done: Callable[[dict[str, Any]], bool], missing: Callable[[dict[str, Any]], str]
+    ) -> dict[str, Any]:
+        """Poll the mission state until ``done``; on timeout say what is ``missing``."""
+        state: dict[str, Any] = {}
+        try:
+            async with asyncio.timeout(self.wait_timeout_s):
+                while True:
+                    state = await self.api.mission()
+                    if done(state):
+                        return state
+                    await asyncio.sleep(POLL_S)
+        except TimeoutError:
+            why = missing(state) if state else "no answer from the ground station"
+            raise WaitTimeout(
+                f"gave up waiting after {self.wait_timeout_s:g} s; {why}"
+            ) from None
 
     async def run(self, lines: Iterable[str] | None = None, prompt: str = "CMD >> ") -> None:
         """Run given lines, or read the terminal until ``q``/``c``/EOF."""
@@ -160,7 +254,7 @@ async def run_shell(
     *,
     lines: Iterable[str] | None = None,
     out: TextIO = sys.stdout,
-    wait_timeout_s: float | None = None,
+    wait_timeout_s: float | None = WAIT_TIMEOUT_S,
 ) -> int:
     async with aiohttp.ClientSession() as session:
         shell = MissionShell(

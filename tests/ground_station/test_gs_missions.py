@@ -105,6 +105,12 @@ def test_command_resent_until_acked_with_exact_deadlines() -> None:
     assert [d for d, _ in mm.due(now=T0 + 0.5)] == ["d2"]
     assert mm.get_timer() == T0 + 1.0
     mm.on_status("d2", state="ack", command_id=cid, now=T0 + 0.6)
+    # acknowledged by all: nothing more until the result is due (t_exec + one retry)
+    assert mm.get_timer() == T0 + 5.5
+    assert mm.due(now=T0 + 5.4) == []
+    mm.on_status("d1", state="done", command_id=cid, now=T0 + 5.1)
+    assert [d for d, _ in mm.due(now=T0 + 5.5)] == ["d2"]  # its "done" may have been lost
+    mm.on_status("d2", state="done", command_id=cid, now=T0 + 5.6)
     assert mm.get_timer() is None
     assert mm.phase(now=T0 + 1) == "scheduled"
     assert mm.phase(now=T0 + 5) == "running"
