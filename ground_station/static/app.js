@@ -104,6 +104,7 @@ function handle(msg) {
         if (d) { d.age_s = msg.point.t - d.last_heard; state.dirty.add(drone); }
       }
       renderCharts(); renderDrops();
+      if (msg.mission) { state.mission = msg.mission; renderMission(); }
       break;
     case "mission":
       state.mission = msg.mission;
@@ -295,16 +296,41 @@ function renderDrops() {
     ? "drops: " + entries.map(([r, n]) => `<span>${esc(r)} ${n}</span>`).join("")
     : `<span class="muted">no datagrams dropped</span>`;
 }
+// The phase follows the clock (same rule as MissionManager.phase), so the badge turns from
+// "scheduled" to "running" when the start time passes, without waiting for a server event.
+function missionPhase(m, t) {
+  if (!m.t_start) return "idle";
+  if (m.t_end && t >= m.t_end && m.t_end >= m.t_start) return "ended";
+  return t < m.t_start ? "scheduled" : "running";
+}
+function renderBadge() {
+  const m = state.mission;
+  if (!m) return;
+  const phase = missionPhase(m, now());
+  const badge = $("mission-phase");
+  if (badge.textContent !== phase) { badge.textContent = phase; badge.className = "badge " + phase; }
+}
+// One command: acks, then per drone done / error (with its reason) / no reply.
+function commandLine(c, known) {
+  const s = c.summary || {};
+  const total = s.total || Math.max(c.sent_to.length, known);
+  let text = `#${c.command_id} <b>${esc(c.name)}</b> @ ${fmt.time(c.t_exec)} — acked ${c.acked_by.length}/${total}` +
+    ` · <span class="${s.done === total && total ? "ok" : ""}">done ${s.done || 0}/${total}</span>`;
+  if (s.error) text += ` · <span class="err">error ${s.error}</span>`;
+  if (s["no reply"]) text += ` · <span class="err">no reply ${s["no reply"]}</span>`;
+  const bad = Object.entries(c.results || {}).filter(([, e]) => e.result === "error" || e.result === "no reply")
+    .map(([d, e]) => `<div class="cmd-detail">${esc(d)}: ${esc(e.result)}${e.reason ? " — " + esc(e.reason) : ""}</div>`).join("");
+  const counters = Object.entries(c.results || {}).filter(([, e]) => e.info && e.info.counters)
+    .map(([d, e]) => `<div class="cmd-detail">${esc(d)}: ${Object.entries(e.info.counters).map(([k, v]) => `${esc(k)} ${esc(v)}`).join(", ")}</div>`).join("");
+  return `<div class="cmd" data-command="${c.command_id}">${text}${bad}${counters}</div>`;
+}
 function renderMission() {
   const m = state.mission;
   if (!m) return;
   $("mission-name").textContent = state.config.mission || "–";
-  const badge = $("mission-phase");
-  badge.textContent = m.phase;
-  badge.className = "badge " + m.phase;
+  renderBadge();
   $("mission-times").textContent = (m.t_start ? "start " + fmt.time(m.t_start) : "") + (m.t_end ? " · end " + fmt.time(m.t_end) : "");
-  const cmds = (m.commands || []).slice(-5).reverse().map((c) =>
-    `<div>#${c.command_id} <b>${esc(c.name)}</b> @ ${fmt.time(c.t_exec)} — acked ${c.acked_by.length}/${Math.max(c.sent_to.length, m.drones.length)}</div>`).join("");
+  const cmds = (m.commands || []).slice(-5).reverse().map((c) => commandLine(c, m.drones.length)).join("");
   const reports = Object.entries(m.reports || {}).map(([k, v]) => `${esc(k)}: ${v}`).join(", ");
   const params = Object.entries(m.params || {}).map(([k, v]) => `${esc(k)}=${esc(v)}`).join(", ");
   $("mission-info").innerHTML = `<div>drones known: <b>${m.drones.length}</b></div>` +
@@ -345,6 +371,7 @@ function initButtons() {
   $("btn-start").onclick = () => command("/api/mission/start", { delay_s: Number($("start-delay").value || 0) }, "start mission");
   $("btn-end").onclick = () => command("/api/mission/end", { delay_s: Number($("start-delay").value || 0) }, "end mission");
   $("btn-params").onclick = () => command("/api/mission/params", { params: $("params").value }, "set params");
+  $("btn-report").onclick = () => command("/api/mission/report", {}, "request report");
   $("btn-reset").onclick = () => command("/api/mission/reports/reset", {}, "reports reset");
   $("g-drone").onchange = renderGallery;
   $("g-object").onchange = renderGallery;
@@ -356,5 +383,5 @@ initButtons();
 connect();
 renderGallery();
 setInterval(renderGallery, 5000);
-setInterval(() => { $("clock").textContent = new Date(now() * 1000).toLocaleTimeString(); }, 500);
+setInterval(() => { $("clock").textContent = new Date(now() * 1000).toLocaleTimeString(); renderBadge(); }, 500);
 window.addEventListener("resize", renderCharts);
