@@ -58,6 +58,8 @@ def _parser() -> argparse.ArgumentParser:
     shell.add_argument("--url", help="ground station base URL (default from the config)")
     shell.add_argument("--token", help="control token (default: read from data_dir/token)")
     shell.add_argument("-c", "--commands", help="run these ';'-separated commands and exit")
+    shell.add_argument("--timeout", type=float, default=30.0,
+                       help="seconds any wait may take before it names who did not answer")
     export = sub.add_parser("export", help="images and a geotag CSV for photogrammetry")
     _common(export)
     export.add_argument("mission", help="mission name")
@@ -146,7 +148,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"uav-ground-station: no token ({exc}); pass --token", file=sys.stderr)
         return 2
     lines = [c for c in args.commands.split(";")] if args.commands else None
-    return asyncio.run(run_shell(url, token, lines=lines))
+    if not args.timeout > 0:
+        print("uav-ground-station: --timeout must be > 0", file=sys.stderr)
+        return 2
+    return asyncio.run(run_shell(url, token, lines=lines, wait_timeout_s=args.timeout))
 
 
 if __name__ == "__main__":
