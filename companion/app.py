@@ -846,6 +846,13 @@ class MiddlewareDecider:
         constraint_changes: dict[str, float] = {}
         time_budget: float | None = None
         for key, value in params.items():
+            if key in ("mcts_iterations", *MIDDLEWARE_KEYS) and (
+                    isinstance(value, bool) or not isinstance(value, int | float)
+                    or not math.isfinite(value)):
+                raise ValueError(f"{key} must be a number, got {value!r}")
+            if key in ("mcts_iterations", "max_items", "chunk_iterations") and (
+                    not isinstance(value, int) or value < 0):
+                raise ValueError(f"{key} must be a whole number >= 0, got {value!r}")
             if key == "mcts_iterations":
                 changes["max_iterations"] = value
             elif key == "time_budget_s":
