@@ -496,7 +496,11 @@ class CompanionApp:
     # -- frames -----------------------------------------------------------------------------
 
     async def _on_frame(self, frame: Frame) -> None:
-        """Score and encode off the loop, then submit; a busy pipeline skips the frame."""
+        """Score and encode off the loop, then submit; a busy pipeline skips the frame, and
+        outside the mission window (before start, after end) no frame is scored at all."""
+        if self.mission_state != "running":
+            self.counters["not_running"] += 1
+            return
         if self._frame_busy:
             self.counters["frames_skipped"] += 1
             return

@@ -218,6 +218,8 @@ async def test_nothing_is_sent_after_end(vehicle: FakeVehicle, tmp_path: Path) -
         assert late == []
         assert not [m for m, _ in transports[0].sent
                     if m.type == "image" and m.t_sent is not None and m.t_sent > t_end]
+        # nor is a frame scored or offered to the optimiser after the end
+        assert not [m for m in decider.decided if m.type == "image" and m.t_gen > t_end]
     finally:
         app.stop()
         await asyncio.wait_for(task, 10)
