@@ -65,6 +65,10 @@ log = logging.getLogger(__name__)
 
 Clock = Callable[[], float]
 
+IDLE_STATUS_PERIOD_S = 1.0
+"""Status period outside the mission window, when status is all a drone sends: often enough
+that the ground station (``link_lost_s`` 3 s) does not take an ended mission for a lost link."""
+
 
 class DecisionLike(Protocol):
     """What the app reads from a decision (``companion.middleware`` ``Decision``)."""
@@ -212,7 +216,9 @@ class TelemetryPublisher:
                         await self._app.submit_telemetry("battery", self._battery(snap))
                 if now_mono >= t_status or self._wake.is_set():
                     self._wake.clear()
-                    t_status = now_mono + cfg.status_period_s
+                    t_status = now_mono + (cfg.status_period_s
+                                           if self._app.mission_state == "running"
+                                           else min(cfg.status_period_s, IDLE_STATUS_PERIOD_S))
                     self._status_key = self._key(snap)
                     await self._app.submit_telemetry("status", self._status(snap))
                 wait = max(0.0, min(t_pos, t_bat, t_status) - loop.time())

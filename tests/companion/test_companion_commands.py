@@ -7,6 +7,7 @@ the logging configuration; set_params is ``done`` only once the optimiser has ap
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
 import threading
 import time
@@ -14,6 +15,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from companion_fake_vehicle import FakeVehicle
 from test_companion_app import FakeDecider, _config, _make, _until
@@ -220,6 +222,30 @@ async def test_nothing_is_sent_after_end(vehicle: FakeVehicle, tmp_path: Path) -
                     if m.type == "image" and m.t_sent is not None and m.t_sent > t_end]
         # nor is a frame scored or offered to the optimiser after the end
         assert not [m for m in decider.decided if m.type == "image" and m.t_gen > t_end]
+    finally:
+        app.stop()
+        await asyncio.wait_for(task, 10)
+
+
+async def test_after_end_status_keeps_the_link_visibly_alive(
+        vehicle: FakeVehicle, tmp_path: Path) -> None:
+    """Only status goes out after end; it comes every second (not every status_period_s =
+    5 s), so the station's link-loss alarm (3 s) stays quiet."""
+    config = _config(vehicle, tmp_path, enabled=False)
+    config = dataclasses.replace(config, telemetry=dataclasses.replace(
+        config.telemetry, status_period_s=5.0))
+    app, transports = _make(config, FakeDecider())
+    task = asyncio.create_task(app.run())
+    try:
+        await _until(lambda: bool(transports))
+        _send(transports[0], Command(command_id=12, name="end", t_exec=time.time()))
+        await _until(lambda: _result(transports[0], 12) is not None)
+        t_end = time.time()
+        await asyncio.sleep(3.3)
+        after = [m for m, _ in transports[0].sent if m.t_gen > t_end]
+        assert {m.type for m in after} == {"status"}
+        gaps = np.diff([t_end] + [m.t_gen for m in after] + [time.time()])
+        assert len(after) >= 3 and max(gaps) < 1.3, gaps
     finally:
         app.stop()
         await asyncio.wait_for(task, 10)

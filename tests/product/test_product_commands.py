@@ -271,6 +271,9 @@ def test_after_end_no_new_image_is_stored(product: Product) -> None:
     late = [i for i in product.images() if i["t_gen"] > t_done]
     assert late == []
     assert len(product.images()) == stored
+    # the drones still send status, so an ended mission is not a lost link
+    alerts = product.api("GET", "/api/alerts")["alerts"]
+    assert not [a for a in alerts if a["t"] > t_done and "link lost" in a["text"]], alerts
     for path in product.logs.values():  # the drones still decide nothing is sent
         records = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
         sent_late = [r for r in records if r.get("type") == "image" and r.get("t_sent")
