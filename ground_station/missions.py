@@ -444,7 +444,8 @@ class MissionManager:
             return "ended"
         return "scheduled" if now < self.t_start else "running"
 
-    def state(self, *, now: float) -> dict[str, Any]:
+    def state(self, *, now: float, last_commands: int = 20) -> dict[str, Any]:
+        """Phase, times, parameters, drones, reports and the last commands with results."""
         return {
             "phase": self.phase(now=now),
             "t_start": self.t_start,
@@ -453,5 +454,7 @@ class MissionManager:
             "drones": sorted(self.drones),
             "reports": dict(self.report_counts),
             "report_drones": {k: sorted(v) for k, v in self.report_drones.items()},
-            "commands": [i.as_json(now) for i in list(self.commands.values())[-20:]],
+            "commands": [
+                i.as_json(now) for i in list(self.commands.values())[-last_commands:]
+            ],
         }

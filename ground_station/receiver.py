@@ -365,7 +365,7 @@ class GroundLink:
                 {
                     "point": point,
                     "stats": self.stats(now=now),
-                    "mission": self.missions.state(now=now),
+                    "mission": self.missions.state(now=now, last_commands=5),  # as drawn
                 },
             )
         self._arm()
