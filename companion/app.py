@@ -886,6 +886,8 @@ class MiddlewareDecider:
                 dataclasses.replace(self.middleware.config, **changes)
             except (MiddlewareError, TypeError) as exc:
                 raise ValueError(str(exc)) from None
+        if constraint_changes:
+            self._check_constraint(constraint_changes)
         # everything checked: apply (alpha first, the only step that builds something)
         if "alpha" in params:
             self._set_alpha(params["alpha"])
@@ -911,6 +913,24 @@ class MiddlewareDecider:
                              f"{type(self.constraint).__name__} (known: "
                              f"{', '.join(self.constraint_keys()) or 'none'})")
         return "_limit" if name == "limit_bytes_per_s" else name
+
+    def _check_constraint(self, changes: Mapping[str, float]) -> None:
+        """Build a throwaway constraint of the same kind with the new numbers: its own
+        checks (e.g. ranges) reject what the running one must not get."""
+        import inspect
+
+        kind = type(self.constraint)
+        current = {name: getattr(self.constraint, "_limit" if name == "limit_bytes_per_s"
+                                 else name, None)
+                   for name in inspect.signature(kind).parameters}
+        kwargs = {k: v for k, v in current.items()
+                  if isinstance(v, int | float) and not isinstance(v, bool)}
+        kwargs.update({"limit_bytes_per_s" if k == "_limit" else k: v
+                       for k, v in changes.items()})
+        try:
+            kind(**kwargs)
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"constraint: {exc}") from None
 
     @staticmethod
     def _constraint_value(key: str, value: Any) -> float:

@@ -183,6 +183,13 @@ async def test_a_rejected_set_params_is_an_error_with_the_reason(
         await _until(lambda: _result(transports[0], 7) is not None, 30)
         assert _result(transports[0], 7).state == "done"
         assert decider.constraint.alpha_bytes_per_s == 1000.0
+        # the constraint's own range checks apply: min above max is refused, nothing changes
+        _send(transports[0], Command(command_id=8, name="set_params", t_exec=time.time(),
+                                     args={"constraint.min_bytes_per_s": 1e9}))
+        await _until(lambda: _result(transports[0], 8) is not None, 30)
+        error = _result(transports[0], 8)
+        assert error.state == "error" and "min_bytes_per_s" in error.info["error"]
+        assert decider.constraint.min_bytes_per_s == 1250.0
     finally:
         app.stop()
         await asyncio.wait_for(task, 10)
