@@ -85,6 +85,8 @@ class MissionShell:
         self.out = out
         self.wait_timeout_s = wait_timeout_s
         self.last_command_id: int | None = None
+        self.failed = False
+        """An error was printed or a drone did not answer done (a script exits 1)."""
 
     def say(self, text: str) -> None:
         self.out.write(text + "\n")
@@ -99,6 +101,7 @@ class MissionShell:
             return await self._run(command)
         except MissionError as exc:
             self.say(f"error: {exc}")
+            self.failed = True
             return True
 
     async def _run(self, c: ShellCommand) -> bool:
@@ -183,11 +186,13 @@ class MissionShell:
         state = await self._wait(finished, missing)
         self._print_results(self._latest(state, command_id))
 
-    def _print_results(self, command: dict[str, Any]) -> None:
+    def _print_results(self, command: dict[str, Any], *, judge: bool = True) -> None:
         summary = command.get("summary", {})
         total = summary.get("total", 0)
         parts = [f"done {summary.get('done', 0)}/{total}"]
         parts += [f"{k} {summary[k]}" for k in ("error", "no reply") if summary.get(k)]
+        if judge and summary.get("done", 0) != total:
+            self.failed = True
         self.say(f"#{command['command_id']} {command['name']}: {', '.join(parts)}")
         for drone, entry in sorted(command.get("results", {}).items()):
             if entry["result"] != "done" or entry.get("info", {}).get("counters"):
@@ -197,7 +202,7 @@ class MissionShell:
         self.say(f"phase {state['phase']}; drones ({len(state['drones'])}): "
                  f"{', '.join(state['drones']) or 'none'}")
         for command in state.get("commands", [])[-5:]:
-            self._print_results(command)
+            self._print_results(command, judge=False)
 
     async def _report_command(self, result: dict[str, Any]) -> None:
         command = result["command"]
@@ -256,9 +261,11 @@ async def run_shell(
     out: TextIO = sys.stdout,
     wait_timeout_s: float | None = WAIT_TIMEOUT_S,
 ) -> int:
+    """Run the shell; scripted (``lines``), exit 1 when a line failed or a drone did not
+    answer ``done``, so ``uav-ground-station shell -c "start"`` can gate a script."""
     async with aiohttp.ClientSession() as session:
         shell = MissionShell(
             ApiClient(base_url, token, session), out, wait_timeout_s=wait_timeout_s
         )
         await shell.run(lines)
-    return 0
+    return 1 if lines is not None and shell.failed else 0

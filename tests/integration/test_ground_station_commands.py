@@ -21,7 +21,7 @@ from ground_station.app import create_app
 from ground_station.config import GroundConfig
 from ground_station.fake_drone import FakeDrone
 from ground_station.keys import LINK
-from ground_station.shell import ApiClient, MissionShell
+from ground_station.shell import ApiClient, MissionShell, run_shell
 
 KEY = b"integration-test-fleet-key-0002"
 TOKEN = "integration-token-commands"
@@ -105,6 +105,16 @@ async def test_results_per_drone_in_the_api_and_the_shell(
         command["command_id"]].results.get("silent") is not None)
     text = await shell_output(station, ["wait"], timeout_s=1.0)
     assert "done 2/3, error 1" in text  # r / wait without a name: the last command
+    # scripted (-c), a failed command is a failed script; all done is success
+    out = io.StringIO()
+    code = await run_shell(str(station.make_url("")), TOKEN, lines=["params warp=1"], out=out,
+                           wait_timeout_s=5.0)
+    assert code == 1 and "error 1" in out.getvalue()
+    drones[1].datagram_received = FakeDrone.datagram_received.__get__(drones[1])  # type: ignore[method-assign]
+    drones[1].auto_done = drones[2].auto_done = True
+    code = await run_shell(str(station.make_url("")), TOKEN, lines=["end", "status"], out=out,
+                           wait_timeout_s=5.0)
+    assert code == 0, out.getvalue()
     for drone in drones:
         drone.close()
 
