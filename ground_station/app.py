@@ -258,7 +258,7 @@ async def _issue(request: web.Request, verb: str) -> web.Response:
                 lambda s: s.mark_mission(mission, now=now, t_start=t_exec))
         elif verb == "end":
             await app[STORAGE].call_writer(lambda s: s.mark_mission(mission, now=now, t_end=t_exec))
-    except Exception as exc:  # noqa: BLE001 - full disk, SQLite errors...
+    except Exception as exc:  # full disk, SQLite errors...
         fleet.alert(Alert(t=now, level="error", kind="storage",
                           text=f"mission {verb} not stored: {exc}"))
     fleet.alert(

@@ -305,7 +305,7 @@ class Storage:
                 f"image {item.message.sender}/{item.message.seq} not stored: {reason} "
                 f"({exc.strerror or exc}) in {self.root}"
             )
-        except Exception as exc:  # noqa: BLE001 - one bad item fails alone
+        except Exception as exc:  # one bad item fails alone
             return None, f"image {item.message.sender}/{item.message.seq} not stored: {exc!r}"
         return rel, None
 
@@ -338,7 +338,7 @@ class Storage:
         ]
         try:
             self._open_bounds(items, now=now)
-        except Exception as exc:  # noqa: BLE001 - bounds are bookkeeping, the rows are in
+        except Exception as exc:  # bounds are bookkeeping, the rows are in
             result.errors.append(f"mission bounds not stored: {exc}")
         try:
             for item, done in zip(items, committed, strict=True):
@@ -363,7 +363,7 @@ class Storage:
         items the database refuses fail. Sets ``self._committed`` per item."""
         try:
             ids = self._index(items, paths, errors, now=now)
-        except Exception as exc:  # noqa: BLE001 - any refusal (full disk, a value SQLite
+        except Exception as exc:  # any refusal (full disk, a value SQLite
             # cannot hold, a closed database) must leave the writer usable
             self._rollback()
             if len(items) == 1:
@@ -379,7 +379,7 @@ class Storage:
             try:
                 ids += self._index([item], [path], [error], now=now)
                 committed.append(True)
-            except Exception as exc:  # noqa: BLE001 - as above, per item
+            except Exception as exc:  # as above, per item
                 self._rollback()
                 result.errors.append(self._index_error(item, exc))
                 ids.append(None)

@@ -169,13 +169,13 @@ class StorageService:
             if alerts:
                 try:
                     writer.write_alerts(alerts)
-                except Exception as exc:  # noqa: BLE001 - alerts never stop images
+                except Exception as exc:  # alerts never stop images
                     result.errors.append(f"alert not stored: {exc}")
             return result
 
         try:
             result = await loop.run_in_executor(self._write_pool, work)
-        except Exception as exc:  # noqa: BLE001 - a batch may fail; the writer may not
+        except Exception as exc:  # a batch may fail; the writer may not
             self.batch_failures += 1
             result = BatchResult(
                 image_ids=[None] * len(batch),
