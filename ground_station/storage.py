@@ -206,6 +206,8 @@ class Storage:
         """Missions whose end an operator command recorded in this process."""
         self._committed: list[bool] = []
         """Per item of the latest batch, whether its rows committed."""
+        self._unbounded: dict[str, float] = {}
+        """Missions whose opening ``t_start`` could not be recorded yet -> earliest t_gen."""
 
     def close(self, *, now: float | None = None) -> None:
         """Close files. A mission received in this process without an end command gets
@@ -409,7 +411,11 @@ class Storage:
                 ).fetchone()
                 if row is None or row[0] is None:
                     t_start = min(i.message.t_gen for i in items if i.mission == item.mission)
+                    # an earlier batch whose bounds failed (full disk) may have started earlier
+                    t_start = min(t_start, self._unbounded.get(item.mission, t_start))
+                    self._unbounded[item.mission] = t_start
                     self.mark_mission(item.mission, now=now, t_start=t_start)
+                self._unbounded.pop(item.mission, None)
                 self._last_rcv[item.mission] = t_rcv
             else:
                 self._last_rcv[item.mission] = max(self._last_rcv[item.mission], t_rcv)
