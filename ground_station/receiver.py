@@ -367,6 +367,8 @@ class GroundLink:
         if now >= self._next_tick:
             self._next_tick = now + TICK_S
             point = self.fleet.tick(now=now)
+            for drone in self.fleet.take_forgotten():
+                self.missions.forget(drone)
             self._flush_alerts()
             self.broadcaster.publish("tick", {"point": point, "stats": self.stats(now=now)})
         self._arm()
