@@ -146,7 +146,7 @@ def _assert_json_clean(value: Any) -> None:
     json.dumps(value, allow_nan=False, default=str)  # raises on NaN/inf
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                  HealthCheck.data_too_large])
 @given(batch=st.lists(hostile(), min_size=1, max_size=12))
 def test_signed_hostile_payloads_never_break_the_station(

@@ -7,6 +7,7 @@ first datagram, echoes never expired); 3000 churned ids made ``/api/fleet`` 2.7 
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import itertools
 import socket
 import time
@@ -145,7 +146,9 @@ async def test_reports_keep_flowing_with_100_senders_and_3000_churned_ids(
     from ground_station.app import create_app
     from tests.integration.test_ground_station_udp import TOKEN
 
-    client = await aiohttp_client(create_app(make_config(tmp_path / "gs"), token=TOKEN))
+    # the default-like report period: 100 listening drones in this process decode every report
+    config = dataclasses.replace(make_config(tmp_path / "gs"), report_interval_s=0.25)
+    client = await aiohttp_client(create_app(config, token=TOKEN))
     app = client.server.app
     link = app[LINK]
     loop = asyncio.get_running_loop()
