@@ -16,12 +16,27 @@ from __future__ import annotations
 
 import heapq
 from collections import OrderedDict, deque
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any
 
+from companion.protocol.errors import LocalProtocolError
 from companion.protocol.records import ClockEcho, Report, ReportEntry, entry_from_message
+from companion.protocol.wire import dumps_json
 from utility_specs.message import Message
 
-__all__ = ["ReportScheduler"]
+__all__ = ["MAX_ENTRY_DATA_BYTES", "ReportScheduler"]
+
+MAX_ENTRY_DATA_BYTES = 512
+"""Largest entry ``data`` (JSON bytes) reported; with the entry's other fields (at most
+~550 bytes, ids full of escaped characters included) it always fits one report datagram."""
+
+
+def _small(data: Mapping[str, Any]) -> bool:
+    try:
+        return len(dumps_json(dict(data), "entry data")) <= MAX_ENTRY_DATA_BYTES
+    except LocalProtocolError:
+        return False
 
 
 @dataclass(slots=True)
@@ -76,9 +91,17 @@ class ReportScheduler:
         """Sender -> number of the report that last carried its echo."""
         self._next = now + interval_s
         self.reports_built = 0
+        self.entries_trimmed = 0
+        """Entries whose data was too large to report (sent without it)."""
 
     def on_message(self, message: Message, *, t_rcv: float) -> None:
-        self._pending.append(_Pending(entry_from_message(message, t_rcv=t_rcv), self.repeat))
+        entry = entry_from_message(message, t_rcv=t_rcv)
+        if entry.data and not _small(entry.data):
+            # Metadata that fits a DATA fragment may not fit a report entry: reported
+            # without its data rather than blocking every report while it is pending.
+            entry = replace(entry, data={})
+            self.entries_trimmed += 1
+        self._pending.append(_Pending(entry, self.repeat))
 
     def on_datagram(self, sender: str, *, t_sent: float, t_rcv: float) -> None:
         """Remember the newest (t_sent, t_rcv) pair of ``sender`` for the clock echo."""

@@ -95,8 +95,9 @@ class Station:
     def __init__(self, data_dir: Path) -> None:
         self.loop = asyncio.new_event_loop()
         config = GroundConfig(fleet_id=9, fleet_key=KEY, data_dir=data_dir, mission="fz",
-                              udp_host="127.0.0.1", udp_port=0, report_interval_s=0.05,
-                              fsync=False)
+                              udp_host="127.0.0.1", udp_port=0, fsync=False,
+                              # the tests build the reports themselves (link.reports.due)
+                              report_interval_s=3600.0)
         self.app = create_app(config, token="fuzz-token-0123456789")
         self.runner = web.AppRunner(self.app)
         self.loop.run_until_complete(self.runner.setup())
@@ -174,3 +175,32 @@ def test_signed_hostile_payloads_never_break_the_station(
     assert any(e.sender == "legit" and e.seq == station.legit_seq for e in report.entries)
     stats = link.storage.stats()
     assert stats["batch_failures"] == 0 and stats["writer_restarts"] == 0
+
+
+def test_the_largest_metadata_a_datagram_holds_never_blocks_reports(station: Station) -> None:
+    """A message whose metadata fills its datagram (ids of escaped characters, a long
+    string) yields a report entry that would not fit a report datagram: it is reported
+    without its data, and every report still encodes."""
+    sender, msg_type = "\x01" * 32, "\x02" * 32
+    encoder = Encoder(9, sender, KEY)
+    link = station.link
+    now = link.clock()
+    for n in range(400, 0, -5):
+        message = Message(sender=sender, seq=n, type=msg_type, t_gen=now - 0.1, size=4,
+                          data={"s": "\x03" * n})
+        try:
+            datagrams = encoder.fragment(message, b"\xff\xd8ab", now)
+        except ValueError:  # LocalProtocolError: metadata does not fit, try smaller
+            continue
+        break
+    assert len(datagrams[0]) > 1100  # metadata fills the first fragment
+    station.loop.run_until_complete(station.feed(datagrams))
+    assert station.loop.run_until_complete(station.legit_image_is_stored())
+    report = link.reports.due(now=link.reports.get_timer())
+    assert report is not None
+    parts = link.encoder.encode_report(report, now)
+    assert parts and all(len(p) <= 1200 for p in parts)
+    [big] = [e for e in report.entries if e.sender == sender]
+    assert big.data == {} and link.reports.entries_trimmed >= 1
+    [legit] = [e for e in report.entries if e.sender == "legit" and e.seq == station.legit_seq]
+    assert legit.data == {"red": 0.5}
