@@ -369,6 +369,8 @@ class GroundLink:
             point = self.fleet.tick(now=now)
             for drone in self.fleet.take_forgotten():
                 self.missions.forget(drone)
+                if drone not in self.fleet.drones:  # not heard again since
+                    self.latest_jpeg.pop(drone, None)
             self._flush_alerts()
             self.broadcaster.publish("tick", {"point": point, "stats": self.stats(now=now)})
         self._arm()

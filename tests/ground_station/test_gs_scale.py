@@ -22,9 +22,10 @@ from hypothesis import strategies as st
 from companion.protocol import ClockEcho, Decoder, Encoder, Report, ReportReceived, Status
 from companion.protocol.wire import MAX_DATAGRAM_BYTES
 from ground_station.fleet import FleetView
-from ground_station.keys import FLEET, LINK, MISSIONS
+from ground_station.keys import FLEET, LATEST_JPEG, LINK, MISSIONS
 from ground_station.reports import ReportScheduler
 from tests.integration.test_ground_station_udp import AUTH, KEY, make_config
+from utility_specs.message import Message
 
 T0 = 1_700_000_000.0
 
@@ -187,6 +188,16 @@ async def test_reports_keep_flowing_with_100_senders_and_3000_churned_ids(
         if i % 100 == 0:
             await asyncio.sleep(0.005)  # paced: no loss in the socket buffer
     await until(lambda: link.counters["statuses"] >= 3000 + 100, timeout=30)
+    # and 300 more ids send an image each: the latest JPEG kept per drone is bounded too
+    for i in range(300):
+        encoder = Encoder(3, f"imager{i}", KEY)
+        message = Message(sender=f"imager{i}", seq=1, type="image", t_gen=time.time(),
+                          size=20_000, data={"red": 0.1})
+        for datagram in encoder.fragment(message, bytes(20_000), time.time()):
+            churn.sendto(datagram, ground)
+        await asyncio.sleep(0.002)
+    await until(lambda: link.counters["images"] >= 300, timeout=30)
+    await until(lambda: len(app[LATEST_JPEG]) <= 128, timeout=5)  # pruned on the next tick
 
     # the 100 drones keep hearing: a fresh status, then a report with their echo
     for listener in (lis for _, lis, _, _ in drones):
@@ -201,7 +212,7 @@ async def test_reports_keep_flowing_with_100_senders_and_3000_churned_ids(
     body = await response.read()
     elapsed = time.perf_counter() - started
     snapshot = await response.json()
-    assert len(snapshot["drones"]) <= 128 and snapshot["forgotten"] >= 3100 - 128
+    assert len(snapshot["drones"]) <= 128 and snapshot["forgotten"] >= 3400 - 128
     assert len(body) < 400_000, len(body)
     assert elapsed < 1.0, elapsed
     assert len(app[MISSIONS].drones) <= 128 + 100
