@@ -204,8 +204,6 @@ class Storage:
         """Per mission written to in this process, the newest t_rcv (for the log's t_end)."""
         self._ended: set[str] = set()
         """Missions whose end an operator command recorded in this process."""
-        self._committed: list[bool] = []
-        """Per item of the latest batch, whether its rows committed."""
         self._unbounded: dict[str, float] = {}
         """Missions whose opening ``t_start`` could not be recorded yet -> earliest t_gen."""
 
@@ -332,8 +330,8 @@ class Storage:
             errors.append(None)
             result.images_stored += 1
         self._sync_dirs(dirs)
-        result.image_ids = self._index_isolating(items, paths, errors, result, now=now)
-        committed = self._committed
+        result.image_ids, committed = self._index_isolating(items, paths, errors, result,
+                                                            now=now)
         result.stored = [
             done and (item.payload is None or path is not None)
             for done, item, path in zip(committed, items, paths, strict=True)
@@ -360,9 +358,10 @@ class Storage:
         result: BatchResult,
         *,
         now: float,
-    ) -> list[int | None]:
+    ) -> tuple[list[int | None], list[bool]]:
         """Index the batch in one transaction; if that fails, item by item, so only the
-        items the database refuses fail. Sets ``self._committed`` per item."""
+        items the database refuses fail. Returns the image ids and, per item, whether its
+        rows committed."""
         try:
             ids = self._index(items, paths, errors, now=now)
         except Exception as exc:  # any refusal (full disk, a value SQLite
@@ -370,11 +369,9 @@ class Storage:
             self._rollback()
             if len(items) == 1:
                 result.errors.append(self._index_error(items[0], exc))
-                self._committed = [False]
-                return [None]
+                return [None], [False]
         else:
-            self._committed = [True] * len(items)
-            return ids
+            return ids, [True] * len(items)
         ids = []
         committed = []
         for item, path, error in zip(items, paths, errors, strict=True):
@@ -386,8 +383,7 @@ class Storage:
                 result.errors.append(self._index_error(item, exc))
                 ids.append(None)
                 committed.append(False)
-        self._committed = committed
-        return ids
+        return ids, committed
 
     def _index_error(self, item: StoreItem, exc: Exception) -> str:
         m = item.message
