@@ -269,3 +269,27 @@ async def test_a_signed_size_of_2_63_costs_nothing_else(
     rows = [json.loads(line) for line in
             (tmp_path / "gs" / "missions" / "it" / "mission_log.jsonl").read_text().splitlines()]
     assert {r["seq"] for r in rows if "seq" in r} == set(seqs)
+
+
+async def test_back_pressure_refuses_visibly_and_never_reports(
+    station: TestClient[Any, Any],
+) -> None:
+    """A backlog at its bound (here: no room at all) refuses new messages: counted, alerted,
+    never reported; with room again the next images are stored and reported."""
+    storage = station.server.app[STORAGE]
+    link = station.server.app[LINK]
+    bound = storage.max_backlog_bytes
+    storage.max_backlog_bytes = 0
+    drone = await drone_for(station)
+    refused = await send_paced(drone, 5)
+    await until(lambda: link.counters["images"] == 5)
+    s = await stats(station)
+    assert s["storage"]["refused"] == 5 and s["storage"]["submitted"] == 0
+    assert any("backlog full" in text for text in await storage_alerts(station))
+    storage.max_backlog_bytes = bound
+    accepted = await send_paced(drone, 5)
+    await until(lambda: reported(drone) >= set(accepted))
+    await asyncio.sleep(0.2)
+    assert reported(drone) == set(accepted) == await stored_seqs(station)
+    assert not set(refused) & reported(drone)
+    drone.close()
