@@ -1,12 +1,14 @@
-"""Load benchmark of the ground station (issue 6 acceptance).
+"""Load benchmark of the ground station (issue 6 and issue 13 acceptance).
 
-10 simulated drones x 10 images/s x 30 KB on loopback for 60 s (``--duration`` to shorten).
+Two rows: 10 and 50 simulated drones (``--drones 10,50``), each x 10 images/s x 30 KB on
+loopback for 60 s (``--duration`` to shorten), each against a fresh station.
 The station runs as its own process (``uav-ground-station run``), the senders in another
 one, and this process watches the dashboard WebSocket like a browser would. Reported:
 images sent / received / stored, images lost by the ground station itself (must be 0:
 on loopback nothing else can lose them), dashboard update lag (generation -> WebSocket
-delivery, p50/p95 must be < 1 s), CPU of the station and the senders. Prints a table,
-writes CSV and PNG under artifacts/bench_ground/, exits non-zero on a miss.
+delivery, p50/p95 must be < 1 s), CPU of the station and the senders. Prints a table
+with a column per row, writes CSV and PNGs under artifacts/bench_ground/, exits non-zero
+when any row misses.
 """
 
 from __future__ import annotations
@@ -45,13 +47,13 @@ def sender_main(args: argparse.Namespace) -> int:
     payloads = [rng.randbytes(args.size) for _ in range(8)]
     ground = ("127.0.0.1", args.udp_port)
     drones = []
-    for i in range(args.drones):
+    for i in range(int(args.drones)):
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.bind(("127.0.0.1", 0))
         sock.setblocking(False)
         drones.append((f"uav{i + 1:02d}", Encoder(FLEET_ID, f"uav{i + 1:02d}", KEY.encode()), sock))
     period = 1.0 / args.rate
-    slot = period / args.drones
+    slot = period / int(args.drones)
     sent_images = sent_datagrams = 0
     cpu0 = time.process_time()
     t_start = time.time() + 0.2
@@ -172,6 +174,38 @@ async def get_stats(http: str, token: str) -> dict[str, Any]:
 async def bench(args: argparse.Namespace) -> int:
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
+    counts = [int(n) for n in str(args.drones).split(",") if n.strip()]
+    columns: list[list[tuple[str, str, str]]] = []
+    verdicts: list[bool] = []
+    for drones in counts:
+        rows, ok = await bench_row(argparse.Namespace(**{**vars(args), "drones": drones}),
+                                   out_dir)
+        columns.append(rows)
+        verdicts.append(ok)
+    names = [name for name, _, _ in columns[0]]
+    heads = [f"{n} drones" for n in counts]
+    width = max(len(n) for n in names)
+    print(f"\n{'measure':<{width}}" + "".join(f"  {h:>22}" for h in heads) + "  target")
+    for i, name in enumerate(names):
+        values = "".join(f"  {column[i][1]:>22}" for column in columns)
+        print(f"{name:<{width}}{values}  {columns[0][i][2]}")
+    print("".ljust(width) + "".join(f"  {'PASS' if ok else 'FAIL':>22}" for ok in verdicts))
+    with open(out_dir / "bench_ground.csv", "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["measure", *heads, "target"])
+        for i, name in enumerate(names):
+            writer.writerow([name, *(column[i][1] for column in columns), columns[0][i][2]])
+    ok = all(verdicts)
+    print(f"\n{'PASS' if ok else 'FAIL'} (table: {out_dir / 'bench_ground.csv'}, "
+          f"plots: {out_dir / 'bench_ground_lag_*.png'})")
+    return 0 if ok else 1
+
+
+async def bench_row(
+    args: argparse.Namespace, out_dir: Path
+) -> tuple[list[tuple[str, str, str]], bool]:
+    """One row: a fresh station, ``args.drones`` senders; (table rows, pass)."""
+    load = os.getloadavg()[0]
     work = Path(tempfile.mkdtemp(prefix="bench-ground-"))
     udp_port, http_port = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_STREAM)
     config = work / "gs.toml"
@@ -284,6 +318,10 @@ async def bench(args: argparse.Namespace) -> int:
         ),
         ("  UDP receive-buffer drops (host-wide)", f"{rcvbuf_errors}", ""),
         ("  storage errors", f"{stats['storage']['errors']}", ""),
+        ("  not stored (visible, never reported)", f"{stats['storage'].get('not_stored', 0)}",
+         ""),
+        ("  refused by back-pressure", f"{stats['storage'].get('refused', 0)}", ""),
+        ("receiver reports sent", f"{stats['link'].get('reports_sent', 0)}", ""),
         ("datagrams sent", f"{sent['datagrams']}", ""),
         ("goodput received", f"{received * args.size / wall / 1e6:.2f} MB/s", ""),
         ("dashboard lag p50", f"{p50 * 1000:.0f} ms", f"< {LAG_TARGET_S * 1000:.0f} ms"),
@@ -292,22 +330,12 @@ async def bench(args: argparse.Namespace) -> int:
         ("station CPU", f"{100 * cpu_station / wall:.0f} % of one core", ""),
         ("senders CPU", f"{100 * sent['cpu_s'] / sent['wall_s']:.0f} % of one core", ""),
         ("machine", f"{os.cpu_count()} cores, fsync={'on' if args.fsync else 'off'}", ""),
+        ("load average before / after", f"{load:.1f} / {os.getloadavg()[0]:.1f}", ""),
     ]
-    width = max(len(r[0]) for r in rows)
-    print(f"\n{'measure':<{width}}  {'value':>22}  target")
-    for name, value, target in rows:
-        print(f"{name:<{width}}  {value:>22}  {target}")
-    with open(out_dir / "bench_ground.csv", "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(["measure", "value", "target"])
-        writer.writerows(rows)
-    plot(lags, t0, out_dir / "bench_ground_lag.png")
+    plot(lags, t0, out_dir / f"bench_ground_lag_{args.drones}.png")
     ok = lost == 0 and p95 < LAG_TARGET_S and p50 < LAG_TARGET_S and len(lags) > 0
-    print(
-        f"\n{'PASS' if ok else 'FAIL'} (table: {out_dir / 'bench_ground.csv'}, "
-        f"plot: {out_dir / 'bench_ground_lag.png'})"
-    )
-    return 0 if ok else 1
+    print(f"  {args.drones} drones: {'PASS' if ok else 'FAIL'}", flush=True)
+    return rows, ok
 
 
 def plot(lags: list[tuple[float, float]], t0: float, path: Path) -> None:
@@ -331,7 +359,8 @@ def plot(lags: list[tuple[float, float]], t0: float, path: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=60.0, help="seconds of load")
-    parser.add_argument("--drones", type=int, default=10)
+    parser.add_argument("--drones", default="10,50",
+                        help="drone counts, one row each (comma-separated)")
     parser.add_argument("--rate", type=float, default=10.0, help="images per second per drone")
     parser.add_argument("--size", type=int, default=30_000, help="image bytes")
     parser.add_argument("--no-fsync", dest="fsync", action="store_false")

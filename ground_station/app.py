@@ -251,11 +251,16 @@ async def _issue(request: web.Request, verb: str) -> web.Response:
     except MissionError as exc:
         return _json({"error": str(exc)}, status=400)
     mission = app[CONFIG].mission
-    if verb == "start":
-        await app[STORAGE].call_writer(lambda s: s.mark_mission(mission, now=now, t_start=t_exec))
-    elif verb == "end":
-        await app[STORAGE].call_writer(lambda s: s.mark_mission(mission, now=now, t_end=t_exec))
     fleet = app[FLEET]
+    try:  # the command is issued either way; a storage failure is shown, not a 500
+        if verb == "start":
+            await app[STORAGE].call_writer(
+                lambda s: s.mark_mission(mission, now=now, t_start=t_exec))
+        elif verb == "end":
+            await app[STORAGE].call_writer(lambda s: s.mark_mission(mission, now=now, t_end=t_exec))
+    except Exception as exc:  # full disk, SQLite errors...
+        fleet.alert(Alert(t=now, level="error", kind="storage",
+                          text=f"mission {verb} not stored: {exc}"))
     fleet.alert(
         Alert(
             t=now,

@@ -20,6 +20,9 @@ __all__ = ["Alert", "DroneState", "FleetView", "LatestImage"]
 RATE_WINDOW_S = 5.0
 """Frames per second and goodput share are measured over this trailing window."""
 
+SNAPSHOT_SERIES_VALUES = 2000
+"""Per-drone chart values a snapshot carries at most (bounds ``/api/fleet`` by fleet size)."""
+
 _NUMBER = (int, float)
 
 
@@ -114,6 +117,11 @@ class FleetView:
         Images whose utility weight reaches this get ``high = True`` (red border, fig. 7.5).
     link_lost_s
         Silence after which a drone is flagged lost (alert once, cleared when heard again).
+    forget_after_s
+        Silence after which a drone's tile is dropped (counted in ``forgotten``): the view
+        holds the fleet that flies now, not every sender id ever heard.
+    max_drones
+        Most tiles held; a new drone beyond this evicts the least recently heard one.
     """
 
     def __init__(
@@ -123,9 +131,18 @@ class FleetView:
         link_lost_s: float,
         series_len: int = 600,
         alerts_len: int = 500,
+        forget_after_s: float = 600.0,
+        max_drones: int = 128,
     ) -> None:
+        if max_drones < 1 or not forget_after_s > 0:
+            raise ValueError("max_drones must be >= 1 and forget_after_s > 0")
         self.high_utility = high_utility
         self.link_lost_s = link_lost_s
+        self.forget_after_s = forget_after_s
+        self.max_drones = max_drones
+        self.forgotten = 0
+        """Tiles dropped so far (silent too long, or evicted by newer drones)."""
+        self._forgotten_ids: list[str] = []
         self.drones: dict[str, DroneState] = {}
         self.alerts: deque[Alert] = deque(maxlen=alerts_len)
         self.series: deque[dict[str, Any]] = deque(maxlen=series_len)
@@ -137,6 +154,8 @@ class FleetView:
     def heard(self, drone: str, *, now: float, addr: tuple[str, int] | None = None) -> DroneState:
         state = self.drones.get(drone)
         if state is None:
+            if len(self.drones) >= self.max_drones:
+                self._forget(min(self.drones.values(), key=lambda s: s.last_heard).drone)
             state = DroneState(drone=drone, first_heard=now, last_heard=now, addr=addr)
             self.drones[drone] = state
         state.last_heard = max(state.last_heard, now)
@@ -262,6 +281,22 @@ class FleetView:
         self.alerts.append(alert)
         self._new_alerts.append(alert)
 
+    def _forget(self, drone: str) -> None:
+        del self.drones[drone]
+        self.forgotten += 1
+        self._forgotten_ids.append(drone)
+
+    def forget_silent(self, *, now: float) -> None:
+        """Drop the tiles of drones silent for ``forget_after_s``."""
+        for drone in [d for d, s in self.drones.items()
+                      if now - s.last_heard > self.forget_after_s]:
+            self._forget(drone)
+
+    def take_forgotten(self) -> list[str]:
+        """Drones forgotten since the last call (the shell forgets them elsewhere too)."""
+        out, self._forgotten_ids = self._forgotten_ids, []
+        return out
+
     def take_new_alerts(self) -> list[Alert]:
         """Alerts raised since the last call (the shell broadcasts and stores them)."""
         out, self._new_alerts = self._new_alerts, []
@@ -270,6 +305,7 @@ class FleetView:
     # -- periodic -----------------------------------------------------------------------
     def tick(self, *, now: float) -> dict[str, Any]:
         """Sample the link charts and check for link loss; returns the new series point."""
+        self.forget_silent(now=now)
         goodput_total = 0.0
         point_drones: dict[str, dict[str, float | None]] = {}
         latencies: list[float] = []
@@ -306,8 +342,15 @@ class FleetView:
         return point
 
     # -- outputs ------------------------------------------------------------------------
-    def drone_json(self, state: DroneState, *, now: float) -> dict[str, Any]:
-        goodput_total = sum(s.goodput_bytes_per_s(now) for s in self.drones.values())
+    def goodput_total(self, *, now: float) -> float:
+        return sum(s.goodput_bytes_per_s(now) for s in self.drones.values())
+
+    def drone_json(
+        self, state: DroneState, *, now: float, goodput_total: float | None = None
+    ) -> dict[str, Any]:
+        """One tile; pass ``goodput_total`` when building many (it costs a pass over all)."""
+        if goodput_total is None:
+            goodput_total = self.goodput_total(now=now)
         own = state.goodput_bytes_per_s(now)
         out: dict[str, Any] = {
             "drone": state.drone,
@@ -341,10 +384,26 @@ class FleetView:
         return out
 
     def snapshot(self, *, now: float) -> dict[str, Any]:
+        total = self.goodput_total(now=now)
         return {
             "t": now,
-            "drones": [self.drone_json(s, now=now) for s in self.drones.values()],
+            "drones": [self.drone_json(s, now=now, goodput_total=total)
+                       for s in self.drones.values()],
+            "forgotten": self.forgotten,
             "drops": dict(self.drops),
             "alerts": [asdict(a) for a in list(self.alerts)[-50:]],
-            "series": list(self.series)[-120:],
+            "series": self._recent_series(),
         }
+
+    def _recent_series(self) -> list[dict[str, Any]]:
+        """The latest chart points (at most 120) within ``SNAPSHOT_SERIES_VALUES`` per-drone
+        values: with many drones the snapshot carries a shorter history, not more bytes."""
+        out: list[dict[str, Any]] = []
+        budget = SNAPSHOT_SERIES_VALUES
+        for point in reversed(self.series):
+            budget -= max(1, len(point["drones"]))
+            if len(out) == 120 or (budget < 0 and len(out) >= 2):
+                break
+            out.append(point)
+        out.reverse()
+        return out

@@ -326,6 +326,12 @@ class MissionManager:
         self.drones[drone] = now
         return True
 
+    def forget(self, drone: str) -> None:
+        """Drop a drone the fleet view forgot (silent for long): no more commands to it;
+        heard again, it is a new drone."""
+        self.drones.pop(drone, None)
+        self.last_state.pop(drone, None)
+
     def issue(
         self, verb: str, *, t_exec: float, now: float, args: Mapping[str, Any] | None = None
     ) -> IssuedCommand:

@@ -191,17 +191,21 @@ class GroundLink:
         report = message.data.get("report")
         if isinstance(report, str) and report:
             self.missions.on_report(message.sender, report, now=now)
-        self.reports.on_message(message, t_rcv=event.t_rcv)
         if message.t_sent is not None:
             self.reports.on_datagram(message.sender, t_sent=message.t_sent, t_rcv=event.t_rcv)
-        self.storage.submit(
+        # Reported delivered only once durable: the report entry is added by
+        # on_storage_batch when the storage says the item is stored.
+        accepted = self.storage.submit(
             StoreItem(
                 mission=self.config.mission,
                 message=message,
                 payload=event.payload if image else None,
                 utility=utility,
+                t_rcv=event.t_rcv,
             )
         )
+        if not accepted:
+            self._storage_alert(now, "storage backlog full: a message was not stored")
         self.counters["messages"] += 1
         if image:
             self.counters["images"] += 1
@@ -247,18 +251,26 @@ class GroundLink:
 
     # -- storage feedback ----------------------------------------------------------------
     def on_storage_batch(self, items: Sequence[StoreItem], result: BatchResult) -> None:
-        """Called by the storage service after each batch (on the event loop)."""
+        """Called by the storage service after each batch (on the event loop): what is now
+        durable goes into the receiver reports; failures are counted and alerted."""
+        stored = result.stored if len(result.stored) == len(items) else [False] * len(items)
+        for item, durable in zip(items, stored, strict=True):
+            if durable:
+                t_rcv = item.t_rcv if item.t_rcv is not None else item.message.t_rcv
+                self.reports.on_message(item.message, t_rcv=t_rcv if t_rcv is not None else 0.0)
+            else:
+                self.counters["not_stored"] += 1
         if not result.errors:
             return
-        now = self.clock()
         self.counters["storage_errors"] += len(result.errors)
+        more = f" (+{len(result.errors) - 1} more)" if len(result.errors) > 1 else ""
+        self._storage_alert(self.clock(), result.errors[0] + more)
+
+    def _storage_alert(self, now: float, text: str) -> None:
         # One alert per few seconds: a full disk must be visible but not flood the list.
         if now - self._last_storage_alert >= 5.0:
             self._last_storage_alert = now
-            more = f" (+{len(result.errors) - 1} more)" if len(result.errors) > 1 else ""
-            self.fleet.alert(
-                Alert(t=now, level="error", kind="storage", text=result.errors[0] + more)
-            )
+            self.fleet.alert(Alert(t=now, level="error", kind="storage", text=text))
             self._flush_alerts()
 
     # -- output -------------------------------------------------------------------------
@@ -359,6 +371,10 @@ class GroundLink:
         if now >= self._next_tick:
             self._next_tick = now + TICK_S
             point = self.fleet.tick(now=now)
+            for drone in self.fleet.take_forgotten():
+                self.missions.forget(drone)
+                if drone not in self.fleet.drones:  # not heard again since
+                    self.latest_jpeg.pop(drone, None)
             self._flush_alerts()
             self.broadcaster.publish(
                 "tick",  # with the mission: phases and command results change with time

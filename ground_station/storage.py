@@ -5,6 +5,12 @@ one owned executor thread for writes and another for reads; WAL lets them run co
 Image files are written to a temp file, fsync'd, then ``os.replace``'d into place, so a crash
 never leaves half an image under its final name. A failing image write (full disk) is
 reported in :class:`BatchResult` and the rest of the batch, telemetry included, still lands.
+
+``BatchResult.stored`` says, per item, whether it is durable (its row committed and, for an
+image, its file fsync'd under its final name): the receiver reports exactly those as
+delivered (docs/ground_station.md, "What a receiver report promises"). An item the database
+refuses (a value SQLite cannot hold) fails alone: a failed batch transaction is retried item
+by item, so one poisoned message never takes its batch with it.
 """
 
 from __future__ import annotations
@@ -121,6 +127,8 @@ class StoreItem:
     payload: bytes | None = None
     utility: float | None = None
     """Image utility weight (eq. 7.1/7.2); only for images."""
+    t_rcv: float | None = None
+    """The link's reception time, unclamped (for the receiver report's entry)."""
 
 
 @dataclass(slots=True, kw_only=True)
@@ -131,6 +139,9 @@ class BatchResult:
     """Human-readable storage errors (e.g. disk full) raised while writing this batch."""
     images_stored: int = 0
     """Image files that reached the disk."""
+    stored: list[bool] = field(default_factory=list)
+    """Per item, True when it is durable: its row committed and, for an image, its file
+    written under its final name. Only these may be reported delivered."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -193,6 +204,8 @@ class Storage:
         """Per mission written to in this process, the newest t_rcv (for the log's t_end)."""
         self._ended: set[str] = set()
         """Missions whose end an operator command recorded in this process."""
+        self._unbounded: dict[str, float] = {}
+        """Missions whose opening ``t_start`` could not be recorded yet -> earliest t_gen."""
 
     def close(self, *, now: float | None = None) -> None:
         """Close files. A mission received in this process without an end command gets
@@ -292,6 +305,8 @@ class Storage:
                 f"image {item.message.sender}/{item.message.seq} not stored: {reason} "
                 f"({exc.strerror or exc}) in {self.root}"
             )
+        except Exception as exc:  # one bad item fails alone
+            return None, f"image {item.message.sender}/{item.message.seq} not stored: {exc!r}"
         return rel, None
 
     def write_batch(self, items: Sequence[StoreItem], *, now: float) -> BatchResult:
@@ -315,22 +330,70 @@ class Storage:
             errors.append(None)
             result.images_stored += 1
         self._sync_dirs(dirs)
-        try:
-            result.image_ids = self._index(items, paths, errors, now=now)
-        except (sqlite3.Error, OSError) as exc:
-            result.errors.append(f"database write failed: {exc} ({self.db_path})")
-            result.image_ids = [None] * len(items)
-            with contextlib.suppress(sqlite3.Error):
-                self.db.execute("ROLLBACK")
+        result.image_ids, committed = self._index_isolating(items, paths, errors, result,
+                                                            now=now)
+        result.stored = [
+            done and (item.payload is None or path is not None)
+            for done, item, path in zip(committed, items, paths, strict=True)
+        ]
         try:
             self._open_bounds(items, now=now)
-            for item in items:
-                self._log(item.mission).write(json.dumps(log_record(item.message)) + "\n")
+        except Exception as exc:  # bounds are bookkeeping, the rows are in
+            result.errors.append(f"mission bounds not stored: {exc}")
+        try:
+            for item, done in zip(items, committed, strict=True):
+                if done:
+                    self._log(item.mission).write(json.dumps(log_record(item.message)) + "\n")
             for handle in self._logs.values():
                 handle.flush()
-        except OSError as exc:
+        except (OSError, ValueError, TypeError) as exc:
             result.errors.append(f"mission log write failed: {exc}")
         return result
+
+    def _index_isolating(
+        self,
+        items: Sequence[StoreItem],
+        paths: list[str | None],
+        errors: list[str | None],
+        result: BatchResult,
+        *,
+        now: float,
+    ) -> tuple[list[int | None], list[bool]]:
+        """Index the batch in one transaction; if that fails, item by item, so only the
+        items the database refuses fail. Returns the image ids and, per item, whether its
+        rows committed."""
+        try:
+            ids = self._index(items, paths, errors, now=now)
+        except Exception as exc:  # any refusal (full disk, a value SQLite
+            # cannot hold, a closed database) must leave the writer usable
+            self._rollback()
+            if len(items) == 1:
+                result.errors.append(self._index_error(items[0], exc))
+                return [None], [False]
+        else:
+            return ids, [True] * len(items)
+        ids = []
+        committed = []
+        for item, path, error in zip(items, paths, errors, strict=True):
+            try:
+                ids += self._index([item], [path], [error], now=now)
+                committed.append(True)
+            except Exception as exc:  # as above, per item
+                self._rollback()
+                result.errors.append(self._index_error(item, exc))
+                ids.append(None)
+                committed.append(False)
+        return ids, committed
+
+    def _index_error(self, item: StoreItem, exc: Exception) -> str:
+        m = item.message
+        reason = "disk full" if "full" in str(exc) else f"{type(exc).__name__}: {exc}"
+        return f"database write of {m.sender}/{m.seq} failed: {reason} ({self.db_path})"
+
+    def _rollback(self) -> None:
+        if self.db.in_transaction:
+            with contextlib.suppress(sqlite3.Error):
+                self.db.execute("ROLLBACK")
 
     def _open_bounds(self, items: Sequence[StoreItem], *, now: float) -> None:
         """A mission's first messages open it: ``t_start`` = earliest t_gen, unless an
@@ -344,7 +407,11 @@ class Storage:
                 ).fetchone()
                 if row is None or row[0] is None:
                     t_start = min(i.message.t_gen for i in items if i.mission == item.mission)
+                    # an earlier batch whose bounds failed (full disk) may have started earlier
+                    t_start = min(t_start, self._unbounded.get(item.mission, t_start))
+                    self._unbounded[item.mission] = t_start
                     self.mark_mission(item.mission, now=now, t_start=t_start)
+                self._unbounded.pop(item.mission, None)
                 self._last_rcv[item.mission] = t_rcv
             else:
                 self._last_rcv[item.mission] = max(self._last_rcv[item.mission], t_rcv)

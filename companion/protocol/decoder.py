@@ -199,10 +199,22 @@ def _number(value: Any, what: str) -> float:
     return result
 
 
+MAX_SIZE = 0xFFFF_FFFF
+"""Largest message or version size, bytes (the wire's 32-bit total length)."""
+
+
 def _integer(value: Any, what: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise MalformedPacket(f"{what} must be an integer")
     return value
+
+
+def _count(value: Any, what: str, *, most: int = MAX_SIZE) -> int:
+    """A size, index or sequence number: an integer in 0..``most``."""
+    result = _integer(value, what)
+    if not 0 <= result <= most:
+        raise MalformedPacket(f"{what} {result} not in 0..{most}")
+    return result
 
 
 def _string(value: Any, what: str) -> str:
@@ -415,7 +427,7 @@ class Decoder:
         *, t_rcv: float | None,
     ) -> Message:
         meta = loads_json_object(raw, "message metadata")
-        size = _integer(meta.get("z", 0), "metadata size")
+        size = _count(meta.get("z", 0), "metadata size")
         data = _object(meta.get("d", {}), "metadata data")
         try:
             versions = _versions(meta.get("v", []))
@@ -431,7 +443,7 @@ class Decoder:
                 t_rcv=t_rcv,
                 data=data,
                 versions=versions,
-                version=None if version is None else _integer(version, "metadata version"),
+                version=None if version is None else _count(version, "metadata version"),
             )
         except MessageError as exc:
             raise MalformedPacket(f"metadata describes an invalid message: {exc}") from exc
@@ -579,7 +591,7 @@ def _versions(raw: Any) -> tuple[Version, ...]:
         versions.append(
             Version(
                 name=_string(item[0], "version name"),
-                size=_integer(item[1], "version size"),
+                size=_count(item[1], "version size"),
                 quality=_number(item[2], "version quality"),
             )
         )
@@ -602,13 +614,13 @@ def _report_entry(raw: Any) -> ReportEntry:
     sender, seq, msg_type, t_gen, t_sent, t_rcv, size, version, quality, data = raw
     return ReportEntry(
         sender=_string(sender, "entry sender"),
-        seq=_integer(seq, "entry seq"),
+        seq=_count(seq, "entry seq"),
         type=_string(msg_type, "entry type"),
         t_gen=_number(t_gen, "entry t_gen"),
         t_sent=None if t_sent is None else _number(t_sent, "entry t_sent"),
         t_rcv=_number(t_rcv, "entry t_rcv"),
-        size=_integer(size, "entry size"),
-        version=None if version is None else _integer(version, "entry version"),
+        size=_count(size, "entry size"),
+        version=None if version is None else _count(version, "entry version"),
         quality=_number(quality, "entry quality"),
         data=_object(data, "entry data"),
     )

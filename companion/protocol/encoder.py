@@ -153,39 +153,42 @@ class Encoder:
         return datagrams
 
     def encode_report(self, report: Report, now: float) -> list[bytes]:
-        """One report as one or more self-contained datagrams (echoes in the first one)."""
+        """One report as one or more self-contained datagrams.
+
+        Echoes go first (part 0 while they fit, then on into the next parts), then entries:
+        any number of echoes and entries fits, each part is a complete JSON object.
+        """
         self._report_number = self._report_number % _MAX_U32 + 1
         budget = self._body_budget - REPORT_FIXED.size
-        echoes = b",".join(dumps_json(_echo_json(e), "clock echo") for e in report.echoes)
+        echoes = [dumps_json(_echo_json(e), "clock echo") for e in report.echoes]
         entries = [dumps_json(_entry_json(e), "report entry") for e in report.entries]
         # {"e":[...],"c":[...]}: 15 bytes of structure around the two lists.
-        parts: list[tuple[list[bytes], bytes]] = []
-        current: list[bytes] = []
-        current_echoes = echoes
-        used = 15 + len(current_echoes)
-        if used > budget:
-            raise LocalProtocolError(f"{len(report.echoes)} clock echoes do not fit one datagram")
-        for raw in entries:
-            extra = len(raw) + (1 if current else 0)
-            if 15 + len(raw) > budget:
-                raise LocalProtocolError(f"report entry of {len(raw)} bytes does not fit")
-            if used + extra > budget:
-                parts.append((current, current_echoes))
-                current, current_echoes, used = [], b"", 15
-                extra = len(raw)
-            current.append(raw)
-            used += extra
-        parts.append((current, current_echoes))
+        parts: list[tuple[list[bytes], list[bytes]]] = []
+        current: tuple[list[bytes], list[bytes]] = ([], [])
+        used = 15
+        for which, raws in ((1, echoes), (0, entries)):
+            for raw in raws:
+                if 15 + len(raw) > budget:
+                    what = "clock echo" if which else "report entry"
+                    raise LocalProtocolError(f"{what} of {len(raw)} bytes does not fit")
+                extra = len(raw) + (1 if current[which] else 0)
+                if used + extra > budget:
+                    parts.append(current)
+                    current, used = ([], []), 15
+                    extra = len(raw)
+                current[which].append(raw)
+                used += extra
+        parts.append(current)
         if len(parts) > _MAX_U16:
             raise LocalProtocolError("report too large")
         datagrams = []
-        for index, (chunk, echo_raw) in enumerate(parts):
+        for index, (chunk, echo_chunk) in enumerate(parts):
             body = (
                 REPORT_FIXED.pack(self._report_number, index, len(parts))
                 + b'{"e":['
                 + b",".join(chunk)
                 + b'],"c":['
-                + echo_raw
+                + b",".join(echo_chunk)
                 + b"]}"
             )
             datagrams.append(self._pack(PacketKind.REPORT, body, now))

@@ -91,7 +91,7 @@ class Report:
     """A receiver report (ground -> drones): what arrived, plus clock echoes.
 
     The encoder may split one report into several self-contained datagrams; each decodes to
-    a ``Report`` with a share of the entries (the echoes travel in the first part).
+    a ``Report`` with a share of the echoes and entries (echoes first, from part 0 on).
     """
 
     entries: tuple[ReportEntry, ...] = ()
