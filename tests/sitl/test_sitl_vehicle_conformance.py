@@ -11,7 +11,8 @@ from __future__ import annotations
 import os
 
 import pytest
-from autopilot_checks import run_all_checks  # type: ignore[import-not-found]
+
+from tests.autopilot_checks import run_all_checks
 
 
 @pytest.mark.timeout(120)
