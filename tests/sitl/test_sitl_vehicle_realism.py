@@ -352,3 +352,24 @@ def test_px4_integer_params_stay_bytewise(make_gcs):
     gcs.send(M.MAVLink_param_request_read_message(1, 1, b"GF_ACTION", -1))
     value = gcs.of_type("PARAM_VALUE")[-1]
     assert struct.unpack("<i", struct.pack("<f", value.param_value))[0] == 2
+
+
+# ---------------------------------------------------------------------------------- CLI
+
+
+def test_cli_first_fix_default_flag_and_bad_value():
+    import subprocess
+    import sys
+
+    from sitl.vehicle.cli import build_configs, parse_args
+
+    assert build_configs(parse_args([]))[0].first_fix_s == DEFAULT_FIRST_FIX_S
+    assert build_configs(parse_args(["--first-fix", "0"]))[0].first_fix_s == 0.0
+    auto = build_configs(parse_args(["--pattern", "orbit", "--autostart"]))[0]
+    assert auto.autostart and auto.mission
+    proc = subprocess.run([sys.executable, "-m", "sitl.cli", "vehicle", "--first-fix", "-1"],
+                          capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1] == (
+        "uav-sitl vehicle: error: --first-fix must be a number of seconds >= 0")
+    assert "Traceback" not in proc.stderr
