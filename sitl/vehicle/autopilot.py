@@ -60,6 +60,10 @@ SEV_INFO = 6
 
 Vec3 = tuple[float, float, float]
 
+PREARM_FIRST_REPORT_S = 2.0
+PREARM_REPORT_PERIOD_S = 30.0
+"""ArduPilot reports failing pre-arm checks ("PreArm: ...") every 30 s while disarmed."""
+
 
 class AutopilotEvent:
     """Base of the events the flight controller reports. Don't subclass these elsewhere."""
@@ -175,6 +179,7 @@ class FlightController:
         self.first_fix_s = first_fix_s
         """Simulated seconds from boot to a GPS fix and estimator origin (0: at boot)."""
         self._fix_reported = first_fix_s <= 0.0
+        self._next_prearm_report_s = PREARM_FIRST_REPORT_S
         self.home_ned_m: Vec3 = (0.0, 0.0, 0.0)
         """Home relative to the estimator origin (DO_SET_HOME moves it; RTL returns here)."""
         self.servo_pwm: list[int] = [0] * 16
@@ -270,13 +275,16 @@ class FlightController:
         self._disarm("Disarmed by external command")
         return CommandResult(result=ACCEPTED)
 
-    def _no_position_text(self) -> str:
-        """What the real stacks say when asked to arm before the estimator has a position."""
+    def _no_position_text(self, prefix: str = "Arm") -> str:
+        """What the real stacks say when asked to arm before the estimator has a position.
+
+        ArduPilot prefixes the checks it runs on an arm command with "Arm:" and the ones it
+        reports every 30 s while disarmed with "PreArm:"."""
         if self.flavour.name == "px4":
             return "Preflight Fail: No valid global position"
         if self.mode in (Mode.MANUAL,):
-            return "PreArm: AHRS: waiting for home"
-        return "PreArm: Need Position Estimate"
+            return f"{prefix}: AHRS: waiting for home"
+        return f"{prefix}: Need Position Estimate"
 
     def _refusal(self) -> int:
         return FAILED if self.flavour.name == "ardupilot" else DENIED
@@ -653,6 +661,10 @@ class FlightController:
         if not self._fix_reported and self.has_fix:
             self._fix_reported = True
             self._events.append(FixAcquired())
+        elif (not self._fix_reported and not st.armed and self.flavour.name == "ardupilot"
+              and t >= self._next_prearm_report_s):
+            self._next_prearm_report_s = t + PREARM_REPORT_PERIOD_S
+            self._text(SEV_CRITICAL, self._no_position_text("PreArm"))
         if self.mode is Mode.TAKEOFF and self._dist(self._target)[1] < 0.3:
             if self.flavour.name == "ardupilot":
                 self._set_mode(Mode.GUIDED)

@@ -49,19 +49,24 @@ def test_ardupilot_before_its_fix_reports_no_position_and_refuses_to_arm(make_gc
     assert pos and all((p.lat, p.lon) == (0, 0) for p in pos)
     ekf = gcs.of_type("EKF_STATUS_REPORT")
     assert ekf and all(not e.flags & EKF_POSITION for e in ekf)
-    assert all(e.flags & M.EKF_CONST_POS_MODE for e in ekf)
+    # 167: attitude, velocities, vertical position, constant-position mode (what a real
+    # ArduCopter reports without horizontal position).
+    assert {e.flags for e in ekf} == {167}
     status = gcs.of_type("SYS_STATUS")
     assert status and all(s.onboard_control_sensors_present & GPS_BIT for s in status)
     assert all(not s.onboard_control_sensors_health & (GPS_BIT | PREARM_BIT) for s in status)
     assert not gcs.of_type("HOME_POSITION") and not gcs.of_type("GPS_GLOBAL_ORIGIN")
     assert gcs.command(M.MAV_CMD_GET_HOME_POSITION).result == M.MAV_RESULT_FAILED
     assert gcs.command(M.MAV_CMD_REQUEST_MESSAGE, 242).result == M.MAV_RESULT_FAILED
+    # Failing pre-arm checks are reported while disarmed (at 2 s, then every 30 s)...
+    assert _texts(gcs) == ["PreArm: AHRS: waiting for home"]
+    # ...and an arm command runs them again, with ArduPilot's "Arm:" prefix.
     ack = gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
     assert ack.result == M.MAV_RESULT_FAILED
-    assert _texts(gcs)[-1] == "PreArm: AHRS: waiting for home"  # STABILIZE
+    assert _texts(gcs)[-1] == "Arm: AHRS: waiting for home"  # STABILIZE
     gcs.command(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4)  # GUIDED
     assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_FAILED
-    assert _texts(gcs)[-1] == "PreArm: Need Position Estimate"
+    assert _texts(gcs)[-1] == "Arm: Need Position Estimate"
     assert not gcs.core.fc.state.armed
     assert gcs.command(M.MAV_CMD_DO_SET_HOME, 1).result == M.MAV_RESULT_FAILED
 
