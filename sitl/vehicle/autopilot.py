@@ -281,7 +281,7 @@ class FlightController:
         ArduPilot prefixes the checks it runs on an arm command with "Arm:" and the ones it
         reports every 30 s while disarmed with "PreArm:"."""
         if self.flavour.name == "px4":
-            return "Preflight Fail: No valid global position"
+            return "Navigation error: No valid global position estimate"
         if self.mode in (Mode.MANUAL,):
             return f"{prefix}: AHRS: waiting for home"
         return f"{prefix}: Need Position Estimate"
@@ -318,8 +318,7 @@ class FlightController:
         """Climb vertically to ``alt_rel_m`` above home (None: the takeoff-altitude setting)."""
         px4 = self.flavour.name == "px4"
         if not self.has_fix:
-            return CommandResult(result=self._refusal(), text=(
-                "Takeoff denied: no valid global position" if px4 else self._no_position_text()))
+            return CommandResult(result=self._refusal(), text=self._no_position_text())
         if not self.state.armed and not px4:
             # PX4 takes NAV_TAKEOFF while disarmed: it switches to Takeoff and climbs once armed.
             return CommandResult(result=self._refusal(), text="Takeoff: not armed")
