@@ -21,8 +21,11 @@ from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as m
 
-m = mavutil.mavlink
+# pymavlink's dialect is process-wide: other tests switch it to "common", which cannot decode
+# ArduPilot's EKF_STATUS_REPORT or WIND, so every connection here names its dialect.
+DIALECT = "ardupilotmega"
 
 __all__ = ["Autopilot", "run_all_checks"]
 
@@ -44,7 +47,8 @@ class Autopilot:
 
     @classmethod
     def connect(cls, url: str, timeout_s: float = 30.0) -> Autopilot:
-        conn = mavutil.mavlink_connection(url, source_system=255, source_component=190)
+        conn = mavutil.mavlink_connection(url, source_system=255, source_component=190,
+                                          dialect=DIALECT)
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             conn.mav.heartbeat_send(m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, 0)
