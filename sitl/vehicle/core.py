@@ -102,8 +102,9 @@ class VehicleConfig:
     first_fix_s: float = DEFAULT_FIRST_FIX_S
     """Simulated seconds from boot to a 3D fix and estimator origin. Before it, as on a real
     ArduCopter or PX4 just booted: GPS_RAW_INT fix_type 1 at 0/0, no home or origin, EKF flags
-    without horizontal position, arming refused with a PreArm/Preflight STATUSTEXT (and on
-    ArduPilot GLOBAL_POSITION_INT at 0/0; PX4 sends none). 0 for tests that fly at once."""
+    without horizontal position, arming refused with the stack's STATUSTEXT (ArduPilot
+    "Arm:"/"PreArm: ...", PX4 "Navigation error: ...") and on ArduPilot GLOBAL_POSITION_INT
+    at 0/0 (PX4 sends none). 0 for tests that fly at once."""
     autostart: bool = False
     """Arm and start the preloaded mission as soon as the vehicle can arm (after the fix)."""
 
