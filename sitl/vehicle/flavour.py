@@ -116,7 +116,8 @@ class Flavour:
     unknown_param_read_text: bool = False
     """PX4 answers a PARAM_REQUEST_READ of an unknown index with STATUSTEXT "[pm] unknown param
     ID: N" and a PARAM_SET of an unknown name with "[pm] unknown param: NAME"; ArduPilot 4.5
-    drops both silently (its GCS_Param returns when AP_Param::find fails)."""
+    drops both silently (its GCS_Param returns when AP_Param::find fails). Releases from late
+    2025 on answer with PARAM_ERROR instead (ArduPilot PR 31062, PX4 PR 25699)."""
 
     def custom_mode(self, mode: Mode) -> int:
         return self.modes[mode]
