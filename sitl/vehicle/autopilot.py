@@ -432,7 +432,9 @@ class FlightController:
         return CommandResult(result=ACCEPTED)
 
     def set_relay(self, instance: int, on: bool) -> CommandResult:
-        if not 0 <= instance < 6:
+        """DO_SET_RELAY: only a relay with a function (RELAYn_FUNCTION > 0) switches."""
+        name = f"RELAY{instance + 1}_FUNCTION"
+        if instance < 0 or name not in self.params or self.params.get(name) <= 0:
             return CommandResult(result=FAILED)
         self.relays[instance] = on
         return CommandResult(result=ACCEPTED)

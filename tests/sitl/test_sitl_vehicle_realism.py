@@ -146,6 +146,8 @@ def test_ardupilot_accepts_servo_relay_camera_and_fence_commands(make_gcs):
     assert _texts(gcs)[-1] == "ServoRelayEvent: Channel 1 is already in use"
     assert gcs.command(M.MAV_CMD_DO_SET_RELAY, 0, 1).result == M.MAV_RESULT_ACCEPTED
     assert gcs.core.fc.relays == {0: True}
+    # Relay 2 has no function (RELAY2_FUNCTION 0), so it does not switch.
+    assert gcs.command(M.MAV_CMD_DO_SET_RELAY, 1, 1).result == M.MAV_RESULT_FAILED
     assert gcs.command(M.MAV_CMD_DO_DIGICAM_CONTROL, 0, 0, 0, 0, 1).result == 0
     assert gcs.core.fc.camera_triggers == 1
     gcs.clear()
