@@ -255,12 +255,12 @@ class FlightController:
         if self.state.armed:
             return CommandResult(result=ACCEPTED)
         if not force and not self.has_fix:
-            return CommandResult(result=self._refusal(), text=self._no_position_text())
+            return CommandResult(result=self._arm_refusal(), text=self._no_position_text())
         if not force and self.mode in self.flavour.unarmable_modes:
-            return CommandResult(result=self._refusal(),
+            return CommandResult(result=self._arm_refusal(),
                                  text=f"Arm: Mode not armable ({self.mode.value})")
         if not force and self.state.battery_remaining < 0.1:
-            return CommandResult(result=self._refusal(), text="Arm: Battery too low")
+            return CommandResult(result=self._arm_refusal(), text="Arm: Battery too low")
         self.state = replace(self.state, armed=True)
         self._armed_idle_since = self.state.t_s
         self._landed_since = None
@@ -271,7 +271,7 @@ class FlightController:
         if not self.state.armed:
             return CommandResult(result=ACCEPTED)
         if not force and not self.state.on_ground:
-            return CommandResult(result=self._refusal(), text="Disarm: not landed")
+            return CommandResult(result=self._arm_refusal(), text="Disarm: not landed")
         self._disarm("Disarmed by external command")
         return CommandResult(result=ACCEPTED)
 
@@ -285,6 +285,10 @@ class FlightController:
         if self.mode in (Mode.MANUAL,):
             return f"{prefix}: AHRS: waiting for home"
         return f"{prefix}: Need Position Estimate"
+
+    def _arm_refusal(self) -> int:
+        """PX4's commander answers a denied arming transition TEMPORARILY_REJECTED."""
+        return FAILED if self.flavour.name == "ardupilot" else TEMPORARILY_REJECTED
 
     def _refusal(self) -> int:
         return FAILED if self.flavour.name == "ardupilot" else DENIED
@@ -318,7 +322,10 @@ class FlightController:
         """Climb vertically to ``alt_rel_m`` above home (None: the takeoff-altitude setting)."""
         px4 = self.flavour.name == "px4"
         if not self.has_fix:
-            return CommandResult(result=self._refusal(), text=self._no_position_text())
+            if px4:  # the switch to Takeoff needs a global position
+                return CommandResult(result=TEMPORARILY_REJECTED,
+                                     text="Takeoff denied! Please disarm and retry")
+            return CommandResult(result=FAILED, text=self._no_position_text())
         if not self.state.armed and not px4:
             # PX4 takes NAV_TAKEOFF while disarmed: it switches to Takeoff and climbs once armed.
             return CommandResult(result=self._refusal(), text="Takeoff: not armed")

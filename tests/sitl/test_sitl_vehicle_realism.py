@@ -95,11 +95,12 @@ def test_px4_before_its_fix_sends_no_global_position_and_refuses_to_arm(make_gcs
     est = gcs.of_type("ESTIMATOR_STATUS")
     assert est and all(not e.flags & EKF_POSITION for e in est)
     ack = gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
-    assert ack.result == M.MAV_RESULT_DENIED
+    assert ack.result == M.MAV_RESULT_TEMPORARILY_REJECTED  # PX4 commander's answer
     # (51 characters: the 50 of one STATUSTEXT arrive)
     assert _texts(gcs)[-1] == "Navigation error: No valid global position estimate"[:50]
     ack = gcs.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, math.nan)
-    assert ack.result == M.MAV_RESULT_DENIED
+    assert ack.result == M.MAV_RESULT_TEMPORARILY_REJECTED
+    assert _texts(gcs)[-1] == "Takeoff denied! Please disarm and retry"
     gcs.clear()
     gcs.run_until(6.0)
     assert gcs.of_type("GLOBAL_POSITION_INT") and gcs.of_type("HOME_POSITION")
