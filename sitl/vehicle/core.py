@@ -497,11 +497,10 @@ class VehicleCore:
                 return CommandResult(result=FAILED)
             return fc.condition_yaw(p[0], p[2], relative=p[3] == 1.0)
         if command == mavlink.MAV_CMD_DO_SET_HOME:
-            if p[0] >= 0.5:
+            # param1 = 1, or lat/lon both 0: here (as ArduPilot reads it).
+            if p[0] >= 0.5 or (p[4] == 0.0 and p[5] == 0.0):
                 return fc.set_home(None)
             lat, lon = _lat_lon(p[4], p[5])
-            if lat == 0.0 and lon == 0.0:
-                return CommandResult(result=FAILED)
             alt_amsl = p[6] if math.isfinite(p[6]) else self.config.home.alt_m
             return fc.set_home(self._geo_to_ned(lat, lon, alt_amsl - self.config.home.alt_m))
         if command == mavlink.MAV_CMD_DO_DIGICAM_CONTROL:
