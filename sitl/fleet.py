@@ -165,6 +165,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
         p.error("--drones must be in 1..64")
     if args.duration < 0:
         p.error("--duration must be >= 0")
+    if not 0.0 <= args.first_fix < 1e6:
+        p.error("--first-fix must be a number of seconds >= 0")
     if not 0.0 <= args.drop_probability <= 1.0:
         p.error("--drop-probability must be in [0, 1]")
     if args.link_rate <= 0:
