@@ -201,6 +201,9 @@ def check_first_fix_and_home(ap: Autopilot, timeout_s: float = 90.0) -> None:
             continue
     assert home.latitude != 0 and home.longitude != 0
     ap.home = (home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0)
+    gps = m.MAV_SYS_STATUS_SENSOR_GPS
+    ap.wait("SYS_STATUS", 10.0, cond=lambda st: st.onboard_control_sensors_present & gps
+            and st.onboard_control_sensors_health & gps)
     pos = ap.wait("GLOBAL_POSITION_INT", 10.0, cond=lambda p: p.lat != 0)
     assert abs(pos.lat / 1e7 - ap.home[0]) < 0.001 and abs(pos.lon / 1e7 - ap.home[1]) < 0.001
     if ap.ardupilot:
@@ -296,6 +299,8 @@ def check_arm_and_takeoff(ap: Autopilot, alt_m: float) -> None:
         assert time.monotonic() < deadline, f"did not climb to {alt_m} m"
     hb = ap.wait("HEARTBEAT", 3.0)
     assert ap.armed(hb)
+    ap.wait("EXTENDED_SYS_STATE", 5.0,
+            cond=lambda e: e.landed_state == m.MAV_LANDED_STATE_IN_AIR)
 
 
 def check_mission_progress(ap: Autopilot, first_wp: int) -> None:
