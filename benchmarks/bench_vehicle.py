@@ -38,7 +38,8 @@ def main(argv: list[str]) -> int:
     scene = load_scene("demo")
     mission = survey(scene.home, width_m=scene.width_m / 4, height_m=scene.height_m * 0.9,
                      spacing_m=30.0, alt_m=30.0, speed_m_s=8.0, center_en_m=(30.0, 0.0))
-    core = VehicleCore(VehicleConfig(home=scene.home, mission=tuple(mission)), now=0.0)
+    core = VehicleCore(VehicleConfig(home=scene.home, mission=tuple(mission), first_fix_s=0.0),
+                       now=0.0)
     core.fc.arm()
     core.fc.set_mode(Mode.MISSION)
     track: list[tuple[float, float, float, float, float]] = []

@@ -133,6 +133,10 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--spec", default="image_streaming", help="mission spec name or TOML path")
     p.add_argument("--speedup", type=float, default=1.0, help="vehicle simulation speed-up")
     p.add_argument("--flavour", choices=("px4", "ardupilot"), default="px4")
+    p.add_argument("--first-fix", type=float, default=2.0, metavar="S",
+                   help="vehicle seconds from boot to a GPS fix; until then no position and"
+                        " no arming, as on a real autopilot (default 2; `uav-sitl vehicle`"
+                        " defaults to an ArduCopter-like 15)")
     p.add_argument("--pattern", choices=("survey", "orbit"), default="survey")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--ready-timeout", type=float, default=90.0,
@@ -161,6 +165,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
         p.error("--drones must be in 1..64")
     if args.duration < 0:
         p.error("--duration must be >= 0")
+    if not 0.0 <= args.first_fix < 1e6:
+        p.error("--first-fix must be a number of seconds >= 0")
     if not 0.0 <= args.drop_probability <= 1.0:
         p.error("--drop-probability must be in [0, 1]")
     if args.link_rate <= 0:
@@ -874,6 +880,7 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
                  "--port", "0", "--host", plan.drone_bind_host, "--scene", plan.scene,
                  "--pattern", args.pattern, "--autostart", "--speedup", str(args.speedup),
                  "--flavour", args.flavour, "--seed", str(args.seed),
+                 "--first-fix", str(args.first_fix),
                  "--ready-file", str(ready_file)]
         for slot in plan.drones:
             vargv += ["--out", f"{mavlink_host(plan, slot)}:{slot.mavlink_port}"]

@@ -35,8 +35,10 @@ __all__ = [
     "AutopilotEvent",
     "CommandResult",
     "CurrentItemChanged",
+    "FixAcquired",
     "FlightController",
     "GuidedTarget",
+    "HomeChanged",
     "ItemReached",
     "ModeChanged",
     "StatusText",
@@ -58,6 +60,10 @@ SEV_INFO = 6
 
 Vec3 = tuple[float, float, float]
 
+PREARM_FIRST_REPORT_S = 2.0
+PREARM_REPORT_PERIOD_S = 30.0
+"""ArduPilot reports failing pre-arm checks ("PreArm: ...") every 30 s while disarmed."""
+
 
 class AutopilotEvent:
     """Base of the events the flight controller reports. Don't subclass these elsewhere."""
@@ -76,6 +82,16 @@ class ItemReached(AutopilotEvent):
 @dataclass(frozen=True, slots=True, kw_only=True)
 class CurrentItemChanged(AutopilotEvent):
     seq: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FixAcquired(AutopilotEvent):
+    """GPS fix and estimator origin: home is set, positions become valid."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class HomeChanged(AutopilotEvent):
+    """DO_SET_HOME moved home (the estimator origin stays)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -132,6 +148,7 @@ class FlightController:
         airframe: Airframe | None = None,
         dt_s: float = 0.02,
         gust_fraction: float = 0.2,
+        first_fix_s: float = 0.0,
     ) -> None:
         if not 0.0 < dt_s <= 0.05:
             raise ValueError(f"dt_s must be in (0, 0.05], got {dt_s}")
@@ -159,6 +176,22 @@ class FlightController:
         self._was_airborne = False
         self.roi_ned_m: Vec3 | None = None
         """Region of interest (DO_SET_ROI_*): the nose points at it while navigating."""
+        self.first_fix_s = first_fix_s
+        """Simulated seconds from boot to a GPS fix and estimator origin (0: at boot)."""
+        self._fix_reported = first_fix_s <= 0.0
+        self._next_prearm_report_s = PREARM_FIRST_REPORT_S
+        self.home_ned_m: Vec3 = (0.0, 0.0, 0.0)
+        """Home relative to the estimator origin (DO_SET_HOME moves it; RTL returns here)."""
+        self.servo_pwm: list[int] = [0] * 16
+        """PWM of SERVO1..16 as DO_SET_SERVO left them (motors 1-4 come from the state)."""
+        self.relays: dict[int, bool] = {}
+        self.camera_triggers = 0
+        self._yaw_target_rad: float | None = None
+
+    @property
+    def has_fix(self) -> bool:
+        """A 3D fix and an estimator origin: positions are valid, arming is possible."""
+        return self.state.t_s >= self.first_fix_s - 1e-9
 
     # ----------------------------------------------------------------- settings and events
 
@@ -221,11 +254,13 @@ class FlightController:
     def arm(self, *, force: bool = False) -> CommandResult:
         if self.state.armed:
             return CommandResult(result=ACCEPTED)
+        if not force and not self.has_fix:
+            return CommandResult(result=self._arm_refusal(), text=self._no_position_text())
         if not force and self.mode in self.flavour.unarmable_modes:
-            return CommandResult(result=self._refusal(),
+            return CommandResult(result=self._arm_refusal(),
                                  text=f"Arm: Mode not armable ({self.mode.value})")
         if not force and self.state.battery_remaining < 0.1:
-            return CommandResult(result=self._refusal(), text="Arm: Battery too low")
+            return CommandResult(result=self._arm_refusal(), text="Arm: Battery too low")
         self.state = replace(self.state, armed=True)
         self._armed_idle_since = self.state.t_s
         self._landed_since = None
@@ -236,9 +271,24 @@ class FlightController:
         if not self.state.armed:
             return CommandResult(result=ACCEPTED)
         if not force and not self.state.on_ground:
-            return CommandResult(result=self._refusal(), text="Disarm: not landed")
+            return CommandResult(result=self._arm_refusal(), text="Disarm: not landed")
         self._disarm("Disarmed by external command")
         return CommandResult(result=ACCEPTED)
+
+    def _no_position_text(self, prefix: str = "Arm") -> str:
+        """What the real stacks say when asked to arm before the estimator has a position.
+
+        ArduPilot prefixes the checks it runs on an arm command with "Arm:" and the ones it
+        reports every 30 s while disarmed with "PreArm:"."""
+        if self.flavour.name == "px4":
+            return "Navigation error: No valid global position estimate"
+        if self.mode in (Mode.MANUAL,):
+            return f"{prefix}: AHRS: waiting for home"
+        return f"{prefix}: Need Position Estimate"
+
+    def _arm_refusal(self) -> int:
+        """PX4's commander answers a denied arming transition TEMPORARILY_REJECTED."""
+        return FAILED if self.flavour.name == "ardupilot" else TEMPORARILY_REJECTED
 
     def _refusal(self) -> int:
         return FAILED if self.flavour.name == "ardupilot" else DENIED
@@ -270,7 +320,14 @@ class FlightController:
 
     def takeoff(self, alt_rel_m: float | None) -> CommandResult:
         """Climb vertically to ``alt_rel_m`` above home (None: the takeoff-altitude setting)."""
-        if not self.state.armed:
+        px4 = self.flavour.name == "px4"
+        if not self.has_fix:
+            if px4:  # the switch to Takeoff needs a global position
+                return CommandResult(result=TEMPORARILY_REJECTED,
+                                     text="Takeoff denied! Please disarm and retry")
+            return CommandResult(result=FAILED, text=self._no_position_text())
+        if not self.state.armed and not px4:
+            # PX4 takes NAV_TAKEOFF while disarmed: it switches to Takeoff and climbs once armed.
             return CommandResult(result=self._refusal(), text="Takeoff: not armed")
         if self.flavour.takeoff_needs_guided and self.mode is not Mode.GUIDED:
             return CommandResult(result=FAILED, text="Takeoff: mode must be GUIDED")
@@ -278,12 +335,22 @@ class FlightController:
             return CommandResult(result=FAILED, text="Takeoff: already flying")
         alt = self.setting("takeoff_alt_m") if alt_rel_m is None or not math.isfinite(
             alt_rel_m) else alt_rel_m
-        alt = max(alt, 1.0)
+        alt = self._min_takeoff_alt(alt)
         p = self.state.position_ned_m
         self._target = (p[0], p[1], -alt)
         self._set_mode(Mode.TAKEOFF)
         self._text(SEV_INFO, f"Takeoff to {alt:.1f} m")
         return CommandResult(result=ACCEPTED)
+
+    def _min_takeoff_alt(self, alt: float) -> float:
+        """PX4 climbs at least MIS_TAKEOFF_ALT (and says so); ArduPilot at least 1 m."""
+        if self.flavour.name != "px4":
+            return max(alt, 1.0)
+        floor = self.setting("takeoff_alt_m")
+        if alt < floor:
+            self._text(SEV_INFO, f"Using minimum takeoff altitude: {floor:.2f} m")
+            return floor
+        return alt
 
     def land(self) -> CommandResult:
         self._set_mode(Mode.LAND)
@@ -361,6 +428,52 @@ class FlightController:
             self._hold_ned = target_ned_m
         return CommandResult(result=ACCEPTED)
 
+    def set_servo(self, channel: int, pwm: int) -> CommandResult:
+        """DO_SET_SERVO: ArduCopter drives only channels no function owns (not the motors)."""
+        if not 1 <= channel <= 16:
+            return CommandResult(result=FAILED)
+        if channel <= 4:
+            return CommandResult(result=FAILED,
+                                 text=f"ServoRelayEvent: Channel {channel} is already in use")
+        self.servo_pwm[channel - 1] = pwm
+        return CommandResult(result=ACCEPTED)
+
+    def set_relay(self, instance: int, on: bool) -> CommandResult:
+        """DO_SET_RELAY: only a relay with a function (RELAYn_FUNCTION > 0) switches."""
+        name = f"RELAY{instance + 1}_FUNCTION"
+        if instance < 0 or name not in self.params or self.params.get(name) <= 0:
+            return CommandResult(result=FAILED)
+        self.relays[instance] = on
+        return CommandResult(result=ACCEPTED)
+
+    def trigger_camera(self) -> CommandResult:
+        self.camera_triggers += 1
+        return CommandResult(result=ACCEPTED)
+
+    def condition_yaw(self, angle_deg: float, direction: float, relative: bool) -> CommandResult:
+        """CONDITION_YAW as ArduCopter: 0..360 deg, absolute or relative; flown in GUIDED and
+        AUTO (the other modes ignore it, but the command is still accepted)."""
+        if not (math.isfinite(angle_deg) and 0.0 <= angle_deg <= 360.0):
+            return CommandResult(result=FAILED)
+        if relative:
+            sign = -1.0 if direction < 0 else 1.0
+            yaw = self.state.yaw_rad + sign * math.radians(angle_deg)
+        else:
+            yaw = math.radians(angle_deg)
+        self._yaw_target_rad = math.atan2(math.sin(yaw), math.cos(yaw))
+        if self.mode is Mode.GUIDED and self._guided is not None:
+            self._guided = replace(self._guided, yaw_rad=self._yaw_target_rad)
+        return CommandResult(result=ACCEPTED)
+
+    def set_home(self, home_ned_m: Vec3 | None) -> CommandResult:
+        """DO_SET_HOME (None: here). Refused until the estimator has an origin."""
+        if not self.has_fix:
+            return CommandResult(result=FAILED)
+        p = self.state.position_ned_m
+        self.home_ned_m = (p[0], p[1], p[2]) if home_ned_m is None else home_ned_m
+        self._events.append(HomeChanged())
+        return CommandResult(result=ACCEPTED)
+
     # ----------------------------------------------------------------------- simulation
 
     def advance_to(self, now: float) -> None:
@@ -433,7 +546,7 @@ class FlightController:
         if self._phase == "return":
             return Setpoint(position_ned_m=self._target, speed_m_s=self._cruise(),
                             yaw_to_travel=True)
-        return self._descend((0.0, 0.0))
+        return self._descend((self.home_ned_m[0], self.home_ned_m[1]))
 
     def _guided_setpoint(self) -> Setpoint:
         g = self._guided
@@ -464,7 +577,7 @@ class FlightController:
         here = self.state.position_ned_m
         if item.command == CMD_TAKEOFF:
             alt = item.alt_rel_m(self.home)
-            self._target = (here[0], here[1], -max(alt, 1.0))
+            self._target = (here[0], here[1], -self._min_takeoff_alt(alt))
         elif item.command == CMD_LAND:
             t = item.target_ned_m(self.home, here)
             self._target = (t[0], t[1], here[2])
@@ -553,6 +666,13 @@ class FlightController:
     def _after_step(self) -> None:
         st = self.state
         t = st.t_s
+        if not self._fix_reported and self.has_fix:
+            self._fix_reported = True
+            self._events.append(FixAcquired())
+        elif (not self._fix_reported and not st.armed and self.flavour.name == "ardupilot"
+              and t >= self._next_prearm_report_s):
+            self._next_prearm_report_s = t + PREARM_REPORT_PERIOD_S
+            self._text(SEV_CRITICAL, self._no_position_text("PreArm"))
         if self.mode is Mode.TAKEOFF and self._dist(self._target)[1] < 0.3:
             if self.flavour.name == "ardupilot":
                 self._set_mode(Mode.GUIDED)
@@ -565,7 +685,7 @@ class FlightController:
                                        and self.mission[self.mission_current].command == CMD_RTL):
             if self._phase == "climb" and self._dist(self._target)[1] < 0.5:
                 self._phase = "return"
-                self._target = (0.0, 0.0, self._target[2])
+                self._target = (self.home_ned_m[0], self.home_ned_m[1], self._target[2])
             elif self._phase == "return" and self._dist(self._target)[0] < 1.0:
                 self._phase = "land"
         if self.mode is Mode.MISSION:

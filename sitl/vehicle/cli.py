@@ -78,7 +78,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--radius", type=float, default=20.0, help="orbit radius (m)")
     p.add_argument("--speed", type=float, default=5.0, help="pattern cruise speed (m/s)")
     p.add_argument("--autostart", action="store_true",
-                   help="arm and start the preloaded mission right away")
+                   help="arm and start the preloaded mission as soon as the vehicle can arm"
+                        " (after its first fix)")
+    p.add_argument("--first-fix", type=float, default=None, metavar="S",
+                   help="simulated seconds from boot to a GPS fix and estimator origin; until"
+                        " then positions are 0/0 and arming is refused, as on a real autopilot"
+                        " (default 15; 0 for tests that fly at once)")
     p.add_argument("--out", type=_addr, action="append", default=None,
                    help="also send to HOST:PORT (one per vehicle; repeat or give once for"
                         " PORT+i)")
@@ -93,6 +98,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.count < 1 or args.count > 250:
         p.error("--count must be in 1..250")
+    if args.first_fix is not None and not (0.0 <= args.first_fix < 1e6):
+        p.error("--first-fix must be a number of seconds >= 0")
     if args.pattern:
         kind = args.pattern[0]
         if kind not in ("survey", "orbit", "waypoints"):
@@ -144,14 +151,14 @@ def build_configs(args: argparse.Namespace) -> list[VehicleConfig]:
             else:
                 mission = load_waypoints(Path(args.pattern[1]), home=home, default_alt_m=alt,
                                          item0_is_home=ap)
+        fix = {} if args.first_fix is None else {"first_fix_s": args.first_fix}
         configs.append(VehicleConfig(system_id=args.sysid + i, flavour=flavour, home=home,
                                      params=params, mission=tuple(mission),
-                                     seed=args.seed + i))
+                                     seed=args.seed + i, autostart=args.autostart, **fix))
     return configs
 
 
 async def _serve(args: argparse.Namespace) -> int:
-    from sitl.vehicle.flavour import Mode
     from sitl.vehicle.shell import start_vehicles
 
     configs = build_configs(args)
@@ -170,9 +177,6 @@ async def _serve(args: argparse.Namespace) -> int:
                                      speedup=args.speedup, outs=outs)
     records = []
     for ep, cfg in zip(endpoints, configs, strict=True):
-        if args.autostart and cfg.mission:
-            ep.core.fc.arm()
-            ep.core.fc.set_mode(Mode.MISSION)
         rec = {"sysid": cfg.system_id, "host": ep.address[0], "port": ep.address[1],
                "flavour": cfg.flavour.name, "home": [cfg.home.lat_deg, cfg.home.lon_deg,
                                                      cfg.home.alt_m],

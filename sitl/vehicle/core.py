@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sitl.geo import GeoPoint, enu_from_geo
 from sitl.vehicle.autopilot import (
@@ -31,13 +31,15 @@ from sitl.vehicle.autopilot import (
     UNSUPPORTED,
     CommandResult,
     CurrentItemChanged,
+    FixAcquired,
     FlightController,
     GuidedTarget,
+    HomeChanged,
     ItemReached,
     ModeChanged,
     StatusText,
 )
-from sitl.vehicle.flavour import PX4, Flavour, decode_param_value, encode_param_value
+from sitl.vehicle.flavour import PX4, Flavour, Mode, decode_param_value, encode_param_value
 from sitl.vehicle.mission import (
     GLOBAL_FRAMES,
     RELATIVE_FRAMES,
@@ -47,9 +49,15 @@ from sitl.vehicle.mission import (
 )
 from sitl.vehicle.params import ParamTable
 from sitl.vehicle.physics import Airframe
-from sitl.vehicle.telemetry import DEFAULT_INTERVALS_S, MSG_HEARTBEAT, STREAM_GROUPS, Telemetry
+from sitl.vehicle.telemetry import (
+    DEFAULT_INTERVALS_S,
+    MSG_HEARTBEAT,
+    PX4_EXTRA_INTERVALS_S,
+    STREAM_GROUPS,
+    Telemetry,
+)
 
-__all__ = ["DEFAULT_HOME", "VehicleConfig", "VehicleCore"]
+__all__ = ["DEFAULT_FIRST_FIX_S", "DEFAULT_HOME", "VehicleConfig", "VehicleCore"]
 
 DEFAULT_HOME = GeoPoint(lat_deg=47.397742, lon_deg=8.545594, alt_m=488.0)
 
@@ -59,6 +67,9 @@ MISSION_NO_SPACE = 4
 MISSION_INVALID_SEQUENCE = 13
 MISSION_CANCELLED = 15
 MAX_MISSION_ITEMS = 1000
+
+DEFAULT_FIRST_FIX_S = 15.0
+"""ArduCopter SITL reports an EKF origin 10-20 s after boot; PX4 SIH in a similar time."""
 
 CONTROL_PERIOD_S = 0.1
 """The core wakes at least this often (sim s) so mission events are never late by more."""
@@ -88,12 +99,22 @@ class VehicleConfig:
     boot_unix_s: float = 1_700_000_000.0
     """Unix time at simulated t = 0 (SYSTEM_TIME = boot_unix_s + now)."""
     seed: int = 0
+    first_fix_s: float = DEFAULT_FIRST_FIX_S
+    """Simulated seconds from boot to a 3D fix and estimator origin. Before it, as on a real
+    ArduCopter or PX4 just booted: GPS_RAW_INT fix_type 1 at 0/0, no home or origin, EKF flags
+    without horizontal position, arming refused with the stack's STATUSTEXT (ArduPilot
+    "Arm:"/"PreArm: ...", PX4 "Navigation error: ...") and on ArduPilot GLOBAL_POSITION_INT
+    at 0/0 (PX4 sends none). 0 for tests that fly at once."""
+    autostart: bool = False
+    """Arm and start the preloaded mission as soon as the vehicle can arm (after the fix)."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.system_id <= 255:
             raise ValueError(f"system_id must be in 1..255, got {self.system_id}")
         if not self.speedup > 0.0:
             raise ValueError(f"speedup must be > 0, got {self.speedup}")
+        if not (math.isfinite(self.first_fix_s) and self.first_fix_s >= 0.0):
+            raise ValueError(f"first_fix_s must be >= 0, got {self.first_fix_s}")
 
 
 @dataclass(slots=True, kw_only=True)
@@ -164,14 +185,15 @@ class VehicleCore:
         self.params = ParamTable(self.flavour.params, overrides)
         self.fc = FlightController(flavour=self.flavour, params=self.params, home=config.home,
                                    airframe=config.airframe, dt_s=config.physics_dt_s,
-                                   gust_fraction=config.gust_fraction)
+                                   gust_fraction=config.gust_fraction,
+                                   first_fix_s=config.first_fix_s)
         self.fc.advance_to(now)
         self._tx = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
         self._rx = self._new_parser()
         self._out: list[bytes] = []
         self.counters: Counter[str] = Counter()
         self._intervals: dict[int, float] = (
-            dict(DEFAULT_INTERVALS_S) if self.flavour.streams_unrequested
+            {**DEFAULT_INTERVALS_S, **PX4_EXTRA_INTERVALS_S} if self.flavour.streams_unrequested
             else {MSG_HEARTBEAT: 1.0}
         )
         self._next_due: dict[int, float] = dict.fromkeys(self._intervals, now)
@@ -209,7 +231,9 @@ class VehicleCore:
         self._upload: _Upload | None = None
         self._last_control = now
         self.gcs_heard = False
+        self._autostart_pending = config.autostart and bool(config.mission)
         self._drain_events(now)
+        self._try_autostart()
 
     def _new_parser(self) -> Any:
         parser = mavlink.MAVLink(None, srcSystem=self.config.system_id, srcComponent=1)
@@ -241,7 +265,9 @@ class VehicleCore:
         for msg_id, due in list(self._next_due.items()):
             if due <= now + 1e-9:
                 interval = self._intervals[msg_id] * self.config.speedup
-                self._send(self._builders[msg_id](now))
+                built = self._builders[msg_id](now)
+                if built is not None:  # None: not available yet (no home before the fix)
+                    self._send(built)
                 # Keep the cadence, but never queue a backlog after a stall.
                 self._next_due[msg_id] = max(due + interval, now + 0.5 * interval)
         up = self._upload
@@ -293,6 +319,16 @@ class VehicleCore:
         self.fc.advance_to(now)
         self._last_control = now
         self._drain_events(now)
+        self._try_autostart()
+
+    def _try_autostart(self) -> None:
+        """``autostart``: arm and fly the preloaded mission once pre-arm checks pass."""
+        if not self._autostart_pending or not self.fc.has_fix:
+            return
+        self._autostart_pending = False
+        if self.fc.arm().ok:
+            self.fc.set_mode(Mode.MISSION)
+        self._drain_events(self.fc.state.t_s)
 
     def _send(self, msg: Any) -> None:
         self._out.append(msg.pack(self._tx))
@@ -311,6 +347,15 @@ class VehicleCore:
                 self._send(self.telemetry.mission_current(now))
             elif isinstance(ev, ModeChanged):
                 self._send(self.telemetry.heartbeat(now))
+            elif isinstance(ev, FixAcquired):
+                # Both stacks announce home and origin to every link when they are set.
+                if self.flavour.name == "ardupilot":
+                    self.statustext(6, "EKF3 IMU0 is using GPS")
+                    self.statustext(6, "EKF3 IMU0 origin set")
+                self._send(self.telemetry.gps_global_origin(now))
+                self._send(self.telemetry.home_position(now))
+            elif isinstance(ev, HomeChanged):
+                self._send(self.telemetry.home_position(now))
 
     def _geo_to_ned(self, lat_deg: float, lon_deg: float, alt_rel_m: float
                     ) -> tuple[float, float, float]:
@@ -405,7 +450,7 @@ class VehicleCore:
             if interval_us < 0:
                 interval: float | None = None
             elif interval_us == 0:
-                interval = DEFAULT_INTERVALS_S.get(msg_id, 1.0)
+                interval = {**DEFAULT_INTERVALS_S, **PX4_EXTRA_INTERVALS_S}.get(msg_id, 1.0)
             else:
                 interval = interval_us / 1e6
             ok = self.set_interval(msg_id, interval, now)
@@ -421,20 +466,52 @@ class VehicleCore:
                 res = CommandResult(result=UNSUPPORTED)
         elif command == mavlink.MAV_CMD_REQUEST_MESSAGE:
             builder = self._builders.get(_int(p[0], "message_id"))
-            res = CommandResult(result=ACCEPTED if builder else UNSUPPORTED)
             follow_up = builder(now) if builder else None
+            res = CommandResult(result=UNSUPPORTED if builder is None else
+                                FAILED if follow_up is None else ACCEPTED)
         elif command == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             res = CommandResult(result=ACCEPTED)
             follow_up = self.telemetry.autopilot_version(now)
         elif command == mavlink.MAV_CMD_GET_HOME_POSITION:
-            res = CommandResult(result=ACCEPTED)
             follow_up = self.telemetry.home_position(now)
+            res = CommandResult(result=FAILED if follow_up is None else ACCEPTED)
+        elif command in self.flavour.accepted_commands:
+            res = self._peripheral_command(command, p, frame)
         else:
             self.counters["unsupported_command"] += 1
             res = CommandResult(result=UNSUPPORTED)
         self._ack(msg, command, res)
         if follow_up is not None:
             self._send(follow_up)
+
+    def _peripheral_command(self, command: int, p: list[float], frame: int | None
+                            ) -> CommandResult:
+        """Servo, relay, yaw, home, camera and fence commands (``Flavour.accepted_commands``)."""
+        fc = self.fc
+        if command == mavlink.MAV_CMD_DO_SET_SERVO:
+            return fc.set_servo(_int(p[0], "instance"), _int(p[1], "pwm"))
+        if command == mavlink.MAV_CMD_DO_SET_RELAY:
+            return fc.set_relay(_int(p[0], "instance"), p[1] >= 0.5)
+        if command == mavlink.MAV_CMD_CONDITION_YAW:
+            if not math.isfinite(p[3]) or p[3] not in (0.0, 1.0):
+                return CommandResult(result=FAILED)
+            return fc.condition_yaw(p[0], p[2], relative=p[3] == 1.0)
+        if command == mavlink.MAV_CMD_DO_SET_HOME:
+            # param1 = 1, or lat/lon both 0: here (as ArduPilot reads it).
+            if p[0] >= 0.5 or (p[4] == 0.0 and p[5] == 0.0):
+                return fc.set_home(None)
+            lat, lon = _lat_lon(p[4], p[5])
+            alt_amsl = p[6] if math.isfinite(p[6]) else self.config.home.alt_m
+            return fc.set_home(self._geo_to_ned(lat, lon, alt_amsl - self.config.home.alt_m))
+        if command == mavlink.MAV_CMD_DO_DIGICAM_CONTROL:
+            return fc.trigger_camera()
+        if command == mavlink.MAV_CMD_DO_FENCE_ENABLE:
+            action = _int(p[0], "enable")
+            if action not in (0, 1, 2):
+                return CommandResult(result=FAILED)
+            self.params.set("FENCE_ENABLE", 1.0 if action == 1 else 0.0)
+            return CommandResult(result=ACCEPTED)
+        return CommandResult(result=UNSUPPORTED)
 
     def _set_mode_from(self, base_mode: int, custom: int, sub: int) -> CommandResult:
         if not base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
@@ -474,6 +551,8 @@ class VehicleCore:
             msg.param_id)
         if name is None or name not in self.params:
             self.counters["unknown_param"] += 1
+            if self.flavour.unknown_param_read_text and msg.param_index >= 0:
+                self.statustext(6, f"[pm] unknown param ID: {msg.param_index}")
             return
         self._send(self._param_value(name))
 
@@ -481,6 +560,8 @@ class VehicleCore:
         name = _text(msg.param_id)
         if name not in self.params:
             self.counters["unknown_param"] += 1
+            if self.flavour.unknown_param_read_text:
+                self.statustext(6, f"[pm] unknown param: {name}")
             return
         spec = self.params.spec(name)
         value = decode_param_value(msg.param_value, spec.param_type,

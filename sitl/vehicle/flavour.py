@@ -15,9 +15,12 @@ from __future__ import annotations
 
 import enum
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Literal
+
+from sitl.vehicle.param_tables import ParamRow, ardupilot_extra_params, px4_extra_params
 
 __all__ = [
     "ARDUPILOT",
@@ -108,6 +111,13 @@ class Flavour:
     flight_sw_version: int
     settings: MappingProxyType[str, tuple[str | None, float]]
     """Setting -> (parameter, scale to SI) or (None, constant): how this flavour spells it."""
+    accepted_commands: frozenset[int] = frozenset()
+    """Peripheral/auxiliary MAV_CMDs this stack accepts (the rest get UNSUPPORTED)."""
+    unknown_param_read_text: bool = False
+    """PX4 answers a PARAM_REQUEST_READ of an unknown index with STATUSTEXT "[pm] unknown param
+    ID: N" and a PARAM_SET of an unknown name with "[pm] unknown param: NAME"; ArduPilot 4.5
+    drops both silently (its GCS_Param returns when AP_Param::find fails). Releases from late
+    2025 on answer with PARAM_ERROR instead (ArduPilot PR 31062, PX4 PR 25699)."""
 
     def custom_mode(self, mode: Mode) -> int:
         return self.modes[mode]
@@ -201,6 +211,16 @@ _ARDUPILOT_PARAMS = (
     ParamSpec(name="SR0_EXT_STAT", default=0, param_type=PARAM_INT16),
 )
 
+def _with_extras(core: tuple[ParamSpec, ...], extras: Callable[[set[str]], tuple[ParamRow, ...]]
+                 ) -> tuple[ParamSpec, ...]:
+    """The simulation's own parameters first (stable indices), then the realistic rest."""
+    rows = extras({p.name for p in core})
+    return core + tuple(ParamSpec(name=n, default=d, param_type=t) for n, d, t in rows)
+
+
+_PX4_PARAMS = _with_extras(_PX4_PARAMS, px4_extra_params)
+_ARDUPILOT_PARAMS = _with_extras(_ARDUPILOT_PARAMS, ardupilot_extra_params)
+
 PX4 = Flavour(
     name="px4",
     autopilot=12,
@@ -231,6 +251,9 @@ PX4 = Flavour(
         "wind_speed_m_s": ("SIM_WIND_SPD", 1.0),
         "wind_from_deg": ("SIM_WIND_DIR", 1.0),
     }),
+    # DO_SET_HOME 179, DO_DIGICAM_CONTROL 203 (camera trigger)
+    accepted_commands=frozenset({179, 203}),
+    unknown_param_read_text=True,
 )
 
 ARDUPILOT = Flavour(
@@ -263,6 +286,9 @@ ARDUPILOT = Flavour(
         "wind_speed_m_s": ("SIM_WIND_SPD", 1.0),
         "wind_from_deg": ("SIM_WIND_DIR", 1.0),
     }),
+    # CONDITION_YAW 115, DO_SET_HOME 179, DO_SET_RELAY 181, DO_SET_SERVO 183,
+    # DO_DIGICAM_CONTROL 203, DO_FENCE_ENABLE 207
+    accepted_commands=frozenset({115, 179, 181, 183, 203, 207}),
 )
 
 FLAVOURS: MappingProxyType[str, Flavour] = MappingProxyType(

@@ -2,8 +2,10 @@
 
 aioquic-shaped: every entry point calls the core with ``now`` from a :class:`SimClock`, then
 ``transmit()`` sends what the core produced and re-arms exactly one timer. The vehicle sends
-to every peer heard in the last ``peer_ttl_s`` wall seconds (at least the last one heard) and
-to a fixed ``out`` address if configured.
+to every peer it has heard (the ``max_peers`` most recent) and to a fixed ``out`` address if
+configured. A peer that went quiet keeps its stream, as on ArduPilot, where each link streams
+whatever its client does, and a listener that only listens (MAVProxy's ``--out``, a logger)
+must not be starved because another client talks.
 """
 
 from __future__ import annotations
@@ -46,11 +48,10 @@ class VehicleProtocol(asyncio.DatagramProtocol):
     """Feeds datagrams and timers into one core and sends its output."""
 
     def __init__(self, core: VehicleCore, clock: SimClock, *, out: Addr | None = None,
-                 peer_ttl_s: float = 10.0, max_peers: int = 8) -> None:
+                 max_peers: int = 8) -> None:
         self.core = core
         self.clock = clock
         self.out = out
-        self.peer_ttl_s = peer_ttl_s
         self.max_peers = max_peers
         self.peers: dict[Addr, float] = {}
         self.transport: asyncio.DatagramTransport | None = None
@@ -81,13 +82,10 @@ class VehicleProtocol(asyncio.DatagramProtocol):
             self._timer = None
 
     def destinations(self) -> list[Addr]:
-        now_wall = self.clock.loop.time()
-        recent = [a for a, t in self.peers.items() if now_wall - t <= self.peer_ttl_s]
-        if not recent and self.peers:
-            recent = [next(reversed(self.peers))]
-        if self.out is not None and self.out not in recent:
-            recent.append(self.out)
-        return recent
+        dests = list(self.peers)
+        if self.out is not None and self.out not in dests:
+            dests.append(self.out)
+        return dests
 
     def transmit(self) -> None:
         if self.transport is None or self.transport.is_closing():

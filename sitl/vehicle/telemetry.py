@@ -13,14 +13,15 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sitl.geo import Enu, GeoPoint, geo_from_enu
 from sitl.vehicle.autopilot import FlightController
 from sitl.vehicle.flavour import Flavour, Mode
 from sitl.vehicle.physics import gps_reading
 
-__all__ = ["DEFAULT_INTERVALS_S", "MSG_HEARTBEAT", "STREAM_GROUPS", "Telemetry"]
+__all__ = ["DEFAULT_INTERVALS_S", "MSG_HEARTBEAT", "PX4_EXTRA_INTERVALS_S", "STREAM_GROUPS",
+           "Telemetry"]
 
 MSG_HEARTBEAT = 0
 MSG_SYS_STATUS = 1
@@ -35,6 +36,21 @@ MSG_BATTERY_STATUS = 147
 MSG_AUTOPILOT_VERSION = 148
 MSG_HOME_POSITION = 242
 MSG_EXTENDED_SYS_STATE = 245
+MSG_RAW_IMU = 27
+MSG_SCALED_PRESSURE = 29
+MSG_SERVO_OUTPUT_RAW = 36
+MSG_GPS_GLOBAL_ORIGIN = 49
+MSG_NAV_CONTROLLER_OUTPUT = 62
+MSG_RC_CHANNELS = 65
+MSG_POWER_STATUS = 125
+MSG_MEMINFO = 152
+MSG_FENCE_STATUS = 162
+MSG_AHRS = 163
+MSG_WIND = 168
+MSG_AHRS2 = 178
+MSG_EKF_STATUS_REPORT = 193
+MSG_ESTIMATOR_STATUS = 230
+MSG_VIBRATION = 241
 
 # Default rates (interval in s) of a PX4 "normal" link; also what interval 0 restores.
 DEFAULT_INTERVALS_S: Mapping[int, float] = {
@@ -52,14 +68,39 @@ DEFAULT_INTERVALS_S: Mapping[int, float] = {
     MSG_EXTENDED_SYS_STATE: 1.0,
 }
 
-# ArduPilot REQUEST_DATA_STREAM groups (MAV_DATA_STREAM) -> the messages we have of each.
+# ArduCopter's REQUEST_DATA_STREAM groups (MAV_DATA_STREAM, its GCS_Mavlink.cpp stream tables)
+# -> the messages we have of each.
 STREAM_GROUPS: Mapping[int, tuple[int, ...]] = {
-    2: (MSG_SYS_STATUS, MSG_GPS_RAW_INT, MSG_MISSION_CURRENT, MSG_EXTENDED_SYS_STATE),
+    1: (MSG_RAW_IMU, MSG_SCALED_PRESSURE),
+    2: (MSG_SYS_STATUS, MSG_POWER_STATUS, MSG_MEMINFO, MSG_MISSION_CURRENT, MSG_GPS_RAW_INT,
+        MSG_NAV_CONTROLLER_OUTPUT, MSG_FENCE_STATUS, MSG_EXTENDED_SYS_STATE),
+    3: (MSG_SERVO_OUTPUT_RAW, MSG_RC_CHANNELS),
     6: (MSG_GLOBAL_POSITION_INT, MSG_LOCAL_POSITION_NED),
-    10: (MSG_ATTITUDE,),
+    10: (MSG_ATTITUDE, MSG_AHRS2),
     11: (MSG_VFR_HUD,),
-    12: (MSG_SYSTEM_TIME, MSG_BATTERY_STATUS),
+    12: (MSG_AHRS, MSG_SYSTEM_TIME, MSG_WIND, MSG_BATTERY_STATUS, MSG_EKF_STATUS_REPORT,
+         MSG_VIBRATION),
 }
+
+# PX4's "normal" link streams beyond DEFAULT_INTERVALS_S (interval in s).
+PX4_EXTRA_INTERVALS_S: Mapping[int, float] = {
+    MSG_ESTIMATOR_STATUS: 2.0,
+    MSG_NAV_CONTROLLER_OUTPUT: 1.0,
+    MSG_RC_CHANNELS: 0.2,
+    MSG_SERVO_OUTPUT_RAW: 1.0,
+    MSG_VIBRATION: 2.0,
+}
+
+# ArduPilot-only messages (ardupilotmega.xml): a PX4 vehicle has no builder for them.
+_ARDUPILOT_ONLY = frozenset({MSG_MEMINFO, MSG_FENCE_STATUS, MSG_AHRS, MSG_WIND, MSG_AHRS2,
+                             MSG_EKF_STATUS_REPORT, MSG_POWER_STATUS})
+
+_SENSOR_GPS = 32
+_SENSOR_AHRS = 1 << 21
+_SENSOR_PREARM = 1 << 28
+_EKF_ALWAYS = 1 | 2 | 4 | 32  # attitude, horizontal and vertical velocity, vertical position
+_EKF_POSITION = 8 | 16 | 256 | 512  # (predicted) horizontal position, relative and absolute
+_EKF_CONST_POS_MODE = 128
 
 _SENSORS = (1 | 2 | 4 | 8 | 32 | 1024 | 2048 | 4096 | 8192 | 16384 | 32768 | (1 << 21)
             | (1 << 25) | (1 << 28))
@@ -90,7 +131,7 @@ class Telemetry:
         self.gps_sigma_h_m = gps_sigma_h_m
         self.rng = rng
         self.mission_total = mission_total
-        self.builders: Mapping[int, Callable[[float], Any]] = {
+        builders: dict[int, Callable[[float], Any]] = {
             MSG_HEARTBEAT: self.heartbeat,
             MSG_SYS_STATUS: self.sys_status,
             MSG_SYSTEM_TIME: self.system_time,
@@ -104,7 +145,28 @@ class Telemetry:
             MSG_AUTOPILOT_VERSION: self.autopilot_version,
             MSG_HOME_POSITION: self.home_position,
             MSG_EXTENDED_SYS_STATE: self.extended_sys_state,
+            MSG_RAW_IMU: self.raw_imu,
+            MSG_SCALED_PRESSURE: self.scaled_pressure,
+            MSG_SERVO_OUTPUT_RAW: self.servo_output_raw,
+            MSG_GPS_GLOBAL_ORIGIN: self.gps_global_origin,
+            MSG_NAV_CONTROLLER_OUTPUT: self.nav_controller_output,
+            MSG_RC_CHANNELS: self.rc_channels,
+            MSG_POWER_STATUS: self.power_status,
+            MSG_MEMINFO: self.meminfo,
+            MSG_FENCE_STATUS: self.fence_status,
+            MSG_AHRS: self.ahrs,
+            MSG_WIND: self.wind,
+            MSG_AHRS2: self.ahrs2,
+            MSG_EKF_STATUS_REPORT: self.ekf_status_report,
+            MSG_ESTIMATOR_STATUS: self.estimator_status,
+            MSG_VIBRATION: self.vibration,
         }
+        if flavour.name == "px4":
+            for msg_id in _ARDUPILOT_ONLY:
+                del builders[msg_id]
+        else:
+            del builders[MSG_ESTIMATOR_STATUS]
+        self.builders: Mapping[int, Callable[[float], Any]] = builders
 
     def ned_to_geo(self, ned: tuple[float, float, float]) -> GeoPoint:
         return geo_from_enu(Enu(east_m=ned[1], north_m=ned[0], up_m=-ned[2]), self.home)
@@ -131,8 +193,11 @@ class Telemetry:
 
     def sys_status(self, now: float) -> Any:
         st = self.fc.state
+        health = _SENSORS
+        if not self.fc.has_fix:  # GPS present but unhealthy, pre-arm checks failing
+            health &= ~(_SENSOR_GPS | _SENSOR_PREARM)
         return mavlink.MAVLink_sys_status_message(
-            _SENSORS, _SENSORS, _SENSORS, 250, int(st.battery_voltage_v * 1000),
+            _SENSORS, _SENSORS, health, 250, int(st.battery_voltage_v * 1000),
             int(st.battery_current_a * 100), round(st.battery_remaining * 100),
             0, 0, 0, 0, 0, 0)
 
@@ -141,6 +206,11 @@ class Telemetry:
             int((self.boot_unix_s + now) * 1e6), self.boot_ms(now))
 
     def gps_raw_int(self, now: float) -> Any:
+        if not self.fc.has_fix:
+            # A receiver still searching: NO_FIX at 0/0, accuracies unknown (UINT16_MAX).
+            return mavlink.MAVLink_gps_raw_int_message(
+                int((self.boot_unix_s + now) * 1e6), 1, 0, 0, 0, 65535, 65535, 0, 65535,
+                min(3, int(now)), 0, 0, 0, 0, 0, 0)
         fix = gps_reading(self.fc.state, self.rng, sigma_h_m=self.gps_sigma_h_m)
         geo = self.ned_to_geo(fix.position_ned_m)
         vn, ve = fix.velocity_ned_m_s[0], fix.velocity_ned_m_s[1]
@@ -163,8 +233,15 @@ class Telemetry:
         return mavlink.MAVLink_local_position_ned_message(
             self.boot_ms(now), p[0], p[1], p[2], v[0], v[1], v[2])
 
-    def global_position_int(self, now: float) -> Any:
+    def global_position_int(self, now: float) -> Any | None:
         st = self.fc.state
+        if not self.fc.has_fix:
+            if self.flavour.name == "px4":
+                return None  # PX4 publishes no global position before the estimator has one
+            # ArduPilot sends its (empty) location: lat/lon 0/0, altitude relative to boot.
+            return mavlink.MAVLink_global_position_int_message(
+                self.boot_ms(now), 0, 0, round(st.alt_m * 1000), round(st.alt_m * 1000),
+                0, 0, 0, round(math.degrees(st.yaw_rad) % 360.0 * 100) % 36000)
         geo = self.ned_to_geo(st.position_ned_m)
         v = st.velocity_ned_m_s
         hdg = round(math.degrees(st.yaw_rad) % 360.0 * 100) % 36000
@@ -218,12 +295,113 @@ class Telemetry:
             caps, self.flavour.flight_sw_version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0x26AC,
             0x0011, 0x5349_544C_0000 + self.system_id, [0] * 18)
 
-    def home_position(self, now: float) -> Any:
-        home = self.home
+    def home_position(self, now: float) -> Any | None:
+        """HOME_POSITION, or None before home is set (no fix yet)."""
+        if not self.fc.has_fix:
+            return None
+        h = self.fc.home_ned_m
+        home = self.ned_to_geo(h)
         return mavlink.MAVLink_home_position_message(
             round(home.lat_deg * 1e7), round(home.lon_deg * 1e7),
-            round(home.alt_m * 1000), 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
+            round(home.alt_m * 1000), h[0], h[1], h[2], [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
             int((self.boot_unix_s + now) * 1e6))
+
+    def gps_global_origin(self, now: float) -> Any | None:
+        if not self.fc.has_fix:
+            return None
+        o = self.home
+        return mavlink.MAVLink_gps_global_origin_message(
+            round(o.lat_deg * 1e7), round(o.lon_deg * 1e7), round(o.alt_m * 1000),
+            int((self.boot_unix_s + now) * 1e6))
+
+    def raw_imu(self, now: float) -> Any:
+        st = self.fc.state
+        # Level and still: 1 g down (mG), no rotation; the magnetometer sees a fixed field.
+        return mavlink.MAVLink_raw_imu_message(
+            int(now * 1e6), round(-st.pitch_rad * 1000), round(st.roll_rad * 1000), -1000,
+            0, 0, round(st.yaw_rate_rad_s * 1000), 200, 0, 400)
+
+    def scaled_pressure(self, now: float) -> Any:
+        alt = self.home.alt_m + self.fc.state.alt_m
+        press_hpa = 1013.25 * (1.0 - 2.25577e-5 * alt) ** 5.25588
+        return mavlink.MAVLink_scaled_pressure_message(self.boot_ms(now), press_hpa, 0.0, 2500)
+
+    def servo_output_raw(self, now: float) -> Any:
+        st = self.fc.state
+        motor = 1000 if not st.armed else (1150 if st.on_ground else 1500)
+        pwm = [motor] * 4 + self.fc.servo_pwm[4:]
+        return mavlink.MAVLink_servo_output_raw_message(int(now * 1e6) & 0xFFFFFFFF, 0, *pwm)
+
+    def rc_channels(self, now: float) -> Any:
+        # Sticks centred, throttle low, switches low: what a bench transmitter sends.
+        chans = [1500, 1500, 1000, 1500] + [1000] * 4 + [0] * 10
+        return mavlink.MAVLink_rc_channels_message(self.boot_ms(now), 8, *chans, 255)
+
+    def nav_controller_output(self, now: float) -> Any:
+        fc = self.fc
+        st = fc.state
+        p = st.position_ned_m
+        target = st.setpoint.position_ned_m or p
+        dn, de = target[0] - p[0], target[1] - p[1]
+        bearing = round(math.degrees(math.atan2(de, dn))) % 360 if math.hypot(dn, de) > 0.1 \
+            else round(math.degrees(st.yaw_rad)) % 360
+        return mavlink.MAVLink_nav_controller_output_message(
+            math.degrees(st.roll_rad), math.degrees(st.pitch_rad), bearing, bearing,
+            min(round(math.hypot(dn, de)), 65535), p[2] - target[2], 0.0, 0.0)
+
+    def power_status(self, now: float) -> Any:
+        return mavlink.MAVLink_power_status_message(5000, 0, 1 | 2)
+
+    def meminfo(self, now: float) -> Any:
+        return mavlink.MAVLink_meminfo_message(0, 65535, 131072)
+
+    def fence_status(self, now: float) -> Any | None:
+        """ArduPilot streams FENCE_STATUS only while a fence is enabled."""
+        if self.fc.params.get("FENCE_ENABLE") < 0.5:
+            return None
+        return mavlink.MAVLink_fence_status_message(0, 0, 0, 0, 0)
+
+    def ahrs(self, now: float) -> Any:
+        return mavlink.MAVLink_ahrs_message(0.0, 0.0, 0.0, 0.0, 0.0, 0.01, 0.01)
+
+    def ahrs2(self, now: float) -> Any:
+        st = self.fc.state
+        if self.fc.has_fix:
+            geo = self.ned_to_geo(st.position_ned_m)
+            lat, lon = round(geo.lat_deg * 1e7), round(geo.lon_deg * 1e7)
+        else:
+            lat = lon = 0
+        return mavlink.MAVLink_ahrs2_message(st.roll_rad, st.pitch_rad, st.yaw_rad,
+                                             self.home.alt_m + st.alt_m, lat, lon)
+
+    def wind(self, now: float) -> Any:
+        w = self.fc.state.wind_ned_m_s
+        speed = math.hypot(w[0], w[1])
+        # WIND.direction is where the wind blows *from*, degrees.
+        direction = math.degrees(math.atan2(-w[1], -w[0])) % 360.0 if speed > 0 else 0.0
+        return mavlink.MAVLink_wind_message(direction, speed, -w[2])
+
+    def _estimator_flags(self) -> int:
+        if self.fc.has_fix:
+            return _EKF_ALWAYS | _EKF_POSITION
+        return _EKF_ALWAYS | _EKF_CONST_POS_MODE
+
+    def ekf_status_report(self, now: float) -> Any:
+        pos_var = 0.02 if self.fc.has_fix else 0.0
+        return mavlink.MAVLink_ekf_status_report_message(
+            self._estimator_flags(), 0.02, pos_var, 0.01, 0.03, 0.0, 0.0)
+
+    def estimator_status(self, now: float) -> Any:
+        ok = self.fc.has_fix
+        return mavlink.MAVLink_estimator_status_message(
+            int(now * 1e6), self._estimator_flags(), 0.05, 0.05 if ok else 0.0, 0.05, 0.05,
+            0.0, 0.0, 0.5 if ok else 999.0, 0.8)
+
+    def vibration(self, now: float) -> Any:
+        airborne = not self.fc.state.on_ground
+        level = 3.0 if airborne else 0.2
+        return mavlink.MAVLink_vibration_message(int(now * 1e6), level, level, level * 1.5,
+                                                 0, 0, 0)
 
     def extended_sys_state(self, now: float) -> Any:
         return mavlink.MAVLink_extended_sys_state_message(0, self.fc.landed_state)

@@ -42,7 +42,7 @@ async def test_companion_with_sitl_vehicle_and_synthetic_camera(
     companion_port = _free_udp_port()
     out = ["--out", f"127.0.0.1:{companion_port}"] if link == "udpin" else []
     vehicle = subprocess.Popen([str(SITL), "vehicle", "--port", "0", "--flavour", flavour,
-                                "--pattern", "orbit", "--autostart", *out],
+                                "--pattern", "orbit", "--autostart", "--first-fix", "0", *out],
                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     try:
         assert vehicle.stdout is not None

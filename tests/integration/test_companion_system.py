@@ -4,7 +4,8 @@
 * the vehicle disappears and returns: the companion reconnects without restarting;
 * under a low constraint the drone whose camera sees red gets more images through than the
   one that sees none (thesis fig. 7.3);
-* opt-in: the MAVLink layer against an external autopilot SITL (``UAV_TEST_MAVLINK_URL``).
+* opt-in: the MAVLink layer against an external autopilot SITL (``UAV_TEST_MAVLINK_URL``);
+  the companion and ground station flying with one are in ``test_real_autopilot.py``.
 
 The vehicle is ``tests/companion/companion_fake_vehicle.py`` in its own process (until
 ``sitl.vehicle`` is wired in); the receiver below decodes with ``companion.protocol`` and
@@ -332,7 +333,8 @@ async def test_red_stream_gets_more_images_through_a_low_constraint(
                            "tcp:127.0.0.1:5760) to test against an ArduPilot/PX4 SITL")
 @pytest.mark.timeout(90)
 def test_mavlink_layer_against_external_autopilot() -> None:
-    """Telemetry, a parameter read and a mode change confirmed by HEARTBEAT on a real SITL."""
+    """Telemetry and a parameter read through the companion's MAVLink layer on a real SITL
+    (the flight with mode changes, arming and a restart: ``test_real_autopilot.py``)."""
     import threading
 
     from companion.mavlink import MavlinkReader, MavlinkSettings, ParamReadCommand

@@ -201,3 +201,13 @@ def test_random_baseline_drops_at_its_rate_and_picks_any_version() -> None:
     assert never.decide(status, 0.0).send  # the station must still hear the drone
     with pytest.raises(ValueError):
         RandomDropAnyVersion(1.5, rng=np.random.default_rng(0))
+
+
+def test_first_fix_option() -> None:
+    """The fleet's vehicles boot without a fix for a short while (issue 17); bad values stop
+    the launcher with a usage error."""
+    assert parse_args([]).first_fix == 2.0
+    assert parse_args(["--first-fix", "0"]).first_fix == 0.0
+    for bad in (["--first-fix", "-1"], ["--first-fix", "nan"]):
+        with pytest.raises(SystemExit):
+            parse_args(bad)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import pytest
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sitl.vehicle.core import VehicleConfig, VehicleCore
 
@@ -73,6 +73,8 @@ class MemoryGcs:
 @pytest.fixture
 def make_gcs() -> Callable[..., MemoryGcs]:
     def make(**config: Any) -> MemoryGcs:
+        # These tests fly at once; the boot without a fix has its own tests.
+        config.setdefault("first_fix_s", 0.0)
         return MemoryGcs(VehicleCore(VehicleConfig(**config), now=0.0))
 
     return make
@@ -95,9 +97,10 @@ def vehicle_process() -> Iterator[Callable[..., VehicleProcess]]:
 
     def start(*args: str, count: int = 1) -> VehicleProcess:
         env = dict(os.environ, MAVLINK20="1", PYTHONUNBUFFERED="1")
+        fix = [] if "--first-fix" in args else ["--first-fix", "0"]
         proc = subprocess.Popen(
             [sys.executable, "-m", "sitl.cli", "vehicle", "--port", "0", "--count", str(count),
-             *args],
+             *fix, *args],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         started.append(proc)
         records = []

@@ -111,7 +111,7 @@ def test_orbit_flown_keeps_the_target_in_a_tilted_cameras_view(flavour):
     mission = orbit(scene.home, center_en_m=(target.east_m, target.north_m), radius_m=20.0,
                     alt_m=25.0, speed_m_s=5.0, item0_is_home=ap)
     core = VehicleCore(VehicleConfig(home=scene.home, mission=tuple(mission),
-                                     flavour=FLAVOURS[flavour]))
+                                     flavour=FLAVOURS[flavour], first_fix_s=0.0))
     core.fc.arm()
     core.fc.set_mode(Mode.MISSION)
     camera = SyntheticCamera(scene, mount_pitch_deg=-50.0, gimbal_stabilised=True,

@@ -64,9 +64,10 @@ def messages(draw: st.DrawFn):
 
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(flavour=st.sampled_from([PX4, ARDUPILOT]), msgs=st.lists(messages(), min_size=1,
-                                                                max_size=12))
-def test_random_messages_never_raise_and_state_stays_finite(flavour, msgs):
-    core = VehicleCore(VehicleConfig(flavour=flavour), now=0.0)
+                                                                max_size=12),
+       first_fix_s=st.sampled_from([0.0, 2.0]))
+def test_random_messages_never_raise_and_state_stays_finite(flavour, msgs, first_fix_s):
+    core = VehicleCore(VehicleConfig(flavour=flavour, first_fix_s=first_fix_s), now=0.0)
     codec = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
     now = 0.0
     for msg in msgs:

@@ -15,6 +15,8 @@ import time
 
 import pytest
 
+from sitl.vehicle.flavour import ARDUPILOT
+
 MAVPROXY = os.environ.get("UAV_SITL_MAVPROXY") or shutil.which("mavproxy.py")
 pytestmark = pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy is not installed")
 
@@ -80,7 +82,7 @@ def test_mavproxy_reads_params_loads_and_flies_a_mission_and_lands(vehicle_proce
     try:
         mp = Expect(proc)
         mp.expect("online system 1")
-        mp.expect("Received 20 parameters")
+        mp.expect(f"Received {len(ARDUPILOT.params)} parameters")  # all of them
         mp.send(f"wp load {wp}")
         mp.expect("MISSION_ACK: TYPE_MISSION: ACCEPTED")
         mp.send("mode loiter")
