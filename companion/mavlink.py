@@ -693,6 +693,8 @@ def describe_connect_error(url: str, exc: BaseException) -> str:
         return f"{code}Connection refused: nothing listens at {url.partition(':')[2]}"
     if isinstance(exc, OverflowError):
         return f"bad port in {url}: {exc}"
+    if serial and "Inappropriate ioctl" in str(exc):  # pyserial hides this errno in its text
+        return f"[Errno {errno.ENOTTY}] {device} is not a serial device"
     return str(exc) or type(exc).__name__
 
 

@@ -166,8 +166,8 @@ def build_configs(args: argparse.Namespace) -> list[VehicleConfig]:
 
 async def _serve(args: argparse.Namespace) -> int:
     from sitl.vehicle.flavour import Mode
-    from sitl.vehicle.serial_pty import PtySerialLink
-    from sitl.vehicle.shell import start_vehicles
+    from sitl.vehicle.serial_pty import PtySerialLink, start_serial_vehicle
+    from sitl.vehicle.shell import VehicleEndpoint, start_vehicles
 
     configs = build_configs(args)
     ports = [0 if args.port == 0 else args.port + i for i in range(args.count)]
@@ -181,14 +181,13 @@ async def _serve(args: argparse.Namespace) -> int:
         else:
             print("uav-sitl vehicle: give --out once or once per vehicle", file=sys.stderr)
             return 2
+    endpoints: list[VehicleEndpoint | PtySerialLink]
     if args.serial:
-        from sitl.vehicle.serial_pty import start_serial_vehicle
-
         endpoints = [start_serial_vehicle(configs[0], baud=args.baud, link=args.serial_link,
                                           speedup=args.speedup)]
     else:
-        endpoints = await start_vehicles(configs, host=args.host, ports=ports,
-                                         speedup=args.speedup, outs=outs)
+        endpoints = list(await start_vehicles(configs, host=args.host, ports=ports,
+                                              speedup=args.speedup, outs=outs))
     records = []
     for ep, cfg in zip(endpoints, configs, strict=True):
         if args.autostart and cfg.mission:
@@ -222,6 +221,8 @@ async def _serve(args: argparse.Namespace) -> int:
         for ep in endpoints:
             ep.close()
     bad: dict[str, int] = {k: v for ep in endpoints for k, v in ep.core.counters.items()}
+    bad.update({f"serial_{k}": v for ep in endpoints if isinstance(ep, PtySerialLink)
+                for k, v in ep.counters.items() if k == "tx_dropped_frames" and v})
     if bad:
         print("counters: " + json.dumps(bad, sort_keys=True), file=sys.stderr)
     return 0

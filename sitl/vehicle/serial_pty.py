@@ -140,10 +140,11 @@ class PtySerialLink:
 
 
 def start_serial_vehicle(config: VehicleConfig, *, baud: int = 115200, link: Path | None = None,
-                         speedup: float = 1.0) -> PtySerialLink:
+                         speedup: float = 1.0,
+                         tx_buffer_bytes: int = TX_BUFFER_BYTES) -> PtySerialLink:
     """One vehicle on a new pseudo-terminal, served by the running loop."""
     clock = SimClock(asyncio.get_running_loop(), speedup)
     core = VehicleCore(replace(config, speedup=speedup), now=clock())
-    serial = PtySerialLink(core, clock, baud=baud, link=link)
+    serial = PtySerialLink(core, clock, baud=baud, link=link, tx_buffer_bytes=tx_buffer_bytes)
     serial.start()
     return serial
