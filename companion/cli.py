@@ -251,6 +251,8 @@ def _probe_camera(config: Any, snapshot: Any) -> tuple[list[str], bool]:
 def _install(args: argparse.Namespace) -> int:
     from companion.service import DEFAULT_UNIT_DIR, install_service
 
+    if _load(args.config) is None:  # a unit that starts a broken config only restarts forever
+        return 2
     config_path = Path(args.config).resolve()
     unit_dir = Path(args.unit_dir) if args.unit_dir else DEFAULT_UNIT_DIR
     try:

@@ -141,11 +141,16 @@ def _mission_choice(text: str) -> str:
 def _plot(args: argparse.Namespace) -> int:
     from utility_specs.plots import KINDS, plot
 
-    if args.kind == "all":
-        for kind in KINDS:
-            print(plot(kind, args.out / f"{kind}.png"))
-        return 0
-    print(plot(args.kind, args.out))
+    try:
+        if args.kind == "all":
+            for kind in KINDS:
+                print(plot(kind, args.out / f"{kind}.png"))
+            return 0
+        print(plot(args.kind, args.out))
+    except OSError as exc:  # an unwritable or missing --out folder
+        print(f"uav-utility: error: cannot write {args.out}: {exc.strerror or exc}",
+              file=sys.stderr)
+        return 1
     return 0
 
 

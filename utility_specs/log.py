@@ -168,6 +168,8 @@ def parse_log(
                 state_records.setdefault(state["agent"], []).append((t, fields))
             else:
                 log.messages.append(message_from_record(record))
+        except RecursionError:
+            raise LogError(f"{source}:{number}: JSON nested too deeply") from None
         except (json.JSONDecodeError, MessageError) as exc:
             if allow_torn_tail and isinstance(exc, json.JSONDecodeError) and not raw.endswith("\n"):
                 log.torn_last_line = number  # only a file's last line lacks its newline

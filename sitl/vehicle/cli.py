@@ -103,6 +103,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         p.error("--count must be in 1..250")
     if not 0 <= args.port <= 65535:
         p.error(f"--port must be in 0..65535, got {args.port}")
+    if not args.speedup > 0:
+        p.error(f"--speedup must be > 0, got {args.speedup}")
     if args.serial and args.count != 1:
         p.error("--serial serves one vehicle (--count 1)")
     if args.baud < 50 or args.baud > 12_000_000:
@@ -204,8 +206,15 @@ async def _serve(args: argparse.Namespace) -> int:
         print("READY " + json.dumps(rec), flush=True)
     if args.ready_file:
         tmp = args.ready_file.with_suffix(".tmp")
-        tmp.write_text(json.dumps(records))
-        os.replace(tmp, args.ready_file)
+        try:
+            tmp.write_text(json.dumps(records))
+            os.replace(tmp, args.ready_file)
+        except OSError as exc:
+            for ep in endpoints:
+                ep.close()
+            print(f"uav-sitl vehicle: cannot write --ready-file {args.ready_file}: "
+                  f"{exc.strerror or exc}", file=sys.stderr)
+            return 1
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
