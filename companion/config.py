@@ -250,10 +250,9 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
     base = Path(source).parent if source != "<memory>" else Path.cwd()
 
     drone = root.table("drone")
-    id_rule = f"a printable sender id of 1..{MAX_ID_BYTES} UTF-8 bytes"
-    if "id" not in drone.raw:
-        drone.fail("id", id_rule, None)
-    drone_id = str(drone.get("id", None, id_rule, _is_sender_id))
+    drone_id = str(drone.string("id", None, required=True))
+    if not _is_sender_id(drone_id):  # what the wire carries; `run` would refuse it later
+        drone.fail("id", f"a printable sender id of 1..{MAX_ID_BYTES} UTF-8 bytes", drone_id)
     drone.done()
 
     mav = root.table("mavlink")
