@@ -516,5 +516,8 @@ def test_make_demo_recipe() -> None:
     result = subprocess.run(["make", "demo", "DEMO_DRONES=1", "DEMO_DURATION=4"], cwd=ROOT,
                             env=_env(), capture_output=True, text=True, timeout=280,
                             check=False)
+    run = re.search(r"^run folder: (.+)$", result.stdout, re.M)
+    if run is not None and Path(run.group(1)).resolve().is_relative_to(ROOT / "out"):
+        shutil.rmtree(run.group(1), ignore_errors=True)  # make demo writes into out/fleet/
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     assert "fleet summary" in result.stdout and "total utility" in result.stdout
