@@ -105,18 +105,6 @@ async def test_companion_flies_the_vehicle_over_a_pty_serial_line(
     assert not link.exists(), "the vehicle removes its symlink when it stops"
 
 
-@pytest.mark.timeout(60)
-def test_check_over_serial_reports_the_autopilot(tmp_path: Path) -> None:
-    link = tmp_path / "ttyACM9"
-    vehicle, _ready = _serial_vehicle(link, "--baud", "921600")
-    try:
-        result = _check(_mini_config(tmp_path, str(link), baud=921600), "--timeout", "10")
-    finally:
-        _end(vehicle)
-    assert result.returncode == 0, result.stdout + result.stderr
-    assert f"mavlink: {link}: px4 autopilot, vehicle type 2" in result.stdout
-
-
 def test_check_names_a_missing_serial_device(tmp_path: Path) -> None:
     device = tmp_path / "ttyAMA7"
     result = _check(_mini_config(tmp_path, str(device)), "--timeout", "2")
