@@ -460,20 +460,30 @@ class MavlinkReader:
         """One round: commands, own heartbeat, one receive, timers. Returns the connection
         to keep (``None`` to reopen)."""
         now = self._clock()
-        self._drain_commands(conn, now)
-        if now >= self._t_next_heartbeat:
-            conn.mav.heartbeat_send(MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0,
-                                    MAV_STATE_ACTIVE)
-            self._t_next_heartbeat = now + self.settings.heartbeat_interval_s
+        try:
+            # A write fails too when the line goes away (a USB autopilot unplugged, a serial
+            # adapter re-enumerating, the pty's other end closed): lose the link, reopen.
+            self._drain_commands(conn, now)
+            if now >= self._t_next_heartbeat:
+                conn.mav.heartbeat_send(MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0,
+                                        0, MAV_STATE_ACTIVE)
+                self._t_next_heartbeat = now + self.settings.heartbeat_interval_s
+        except OSError as exc:
+            log.warning("mavlink send failed: %s", exc)
+            return self._lose(conn, f"send failed: {exc}")
         try:
             msg = conn.recv_match(blocking=True, timeout=self.settings.recv_timeout_s)
         except OSError as exc:
             log.warning("mavlink receive failed: %s", exc)
             return self._lose(conn, f"receive failed: {exc}")
         now = self._clock()
-        if msg is not None:
-            self._handle(conn, msg, now)
-        return self._check_timers(conn, now)
+        try:
+            if msg is not None:
+                self._handle(conn, msg, now)  # may answer (stream requests)
+            return self._check_timers(conn, now)
+        except OSError as exc:
+            log.warning("mavlink send failed: %s", exc)
+            return self._lose(conn, f"send failed: {exc}")
 
     def _handle(self, conn: Any, msg: Any, now: float) -> None:
         self.counters["messages"] += 1

@@ -96,13 +96,25 @@ async def test_companion_flies_the_vehicle_over_a_pty_serial_line(
             # It flies its orbit (--autostart): the reported position moves.
             assert (first.data["lat_deg"], first.data["lon_deg"]) != \
                 (last.data["lat_deg"], last.data["lon_deg"])
+            # The autopilot goes away (a USB cable pulled: the line hangs up, the device
+            # node disappears) and comes back on the same path: the companion keeps running
+            # and flies on without a restart.
+            _end(vehicle)
+            assert not link.exists(), "the vehicle removes its symlink when it stops"
+            await _until(lambda: rx.of("d1", "status")[-1].data["connected"] is False, 30,
+                         proc)
+            vehicle, _ = _serial_vehicle(link, "--baud", "57600", "--flavour", "ardupilot")
+            seen = len(rx.of("d1", "position"))
+            await _until(lambda: len(rx.of("d1", "position")) > seen + 1
+                         and rx.of("d1", "status")[-1].data["connected"] is True, 60, proc)
         finally:
             code, err = _stop(proc)
         assert code == 0, err[-3000:]
-        assert f"mavlink connection opened: {link}" in err
+        assert err.count(f"mavlink connection opened: {link}") == 2, err[-3000:]
+        assert "mavlink link lost" in err
+        assert f"no such device {link}" in err
     finally:
         _end(vehicle)
-    assert not link.exists(), "the vehicle removes its symlink when it stops"
 
 
 def test_check_names_a_missing_serial_device(tmp_path: Path) -> None:
