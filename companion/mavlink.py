@@ -446,8 +446,12 @@ class MavlinkReader:
         except (OSError, ValueError, OverflowError, ImportError) as exc:
             # refused, no such device, port in use, no permission, pyserial missing...
             self.counters["connect_errors"] += 1
-            self.last_error = describe_connect_error(self.settings.url, exc)
-            log.warning("mavlink connect %s failed: %s", self.settings.url, self.last_error)
+            error = describe_connect_error(self.settings.url, exc)
+            # Once per cause, not once per retry: a Pi waiting for its autopilot would
+            # otherwise write a warning a second to the journal for hours.
+            level = logging.DEBUG if error == self.last_error else logging.WARNING
+            log.log(level, "mavlink connect %s failed: %s", self.settings.url, error)
+            self.last_error = error
             return None
         self.last_error = None
         self.counters["connects"] += 1
