@@ -196,7 +196,10 @@ def _probe_mavlink(config: Any, timeout_s: float) -> tuple[Any, list[str], bool]
         snap = state.snapshot()
     url = config.mavlink.url
     if not snap.connected and snap.t_heartbeat is None:
-        return snap, [f"mavlink: {url}: no autopilot HEARTBEAT within {timeout_s:g} s"], False
+        if reader.last_error is not None:
+            return snap, [f"mavlink: {url}: cannot open: {reader.last_error}"], False
+        return snap, [f"mavlink: {url}: no autopilot HEARTBEAT within {timeout_s:g} s "
+                      f"({_silence_hint(url)})"], False
     lines = [f"mavlink: {url}: {snap.autopilot} autopilot, vehicle type {snap.vehicle_type}, "
              f"mode {snap.mode}, {'armed' if snap.armed else 'disarmed'}"]
     if snap.lat_deg is not None:
@@ -209,6 +212,17 @@ def _probe_mavlink(config: Any, timeout_s: float) -> tuple[Any, list[str], bool]
                      else f"{100 * snap.battery_remaining:.0f} %")
         lines.append(f"mavlink: battery {snap.battery_v:.2f} V, {remaining}")
     return snap, lines, True
+
+
+def _silence_hint(url: str) -> str:
+    """What usually explains an open link that stays silent."""
+    scheme, _, rest = url.partition(":")
+    if scheme == "udpin":
+        return (f"nothing sent MAVLink to {rest}: point the autopilot's telemetry output, "
+                f"mavlink-router or the SITL's --out at this port")
+    if scheme in ("udpout", "udp", "tcp"):
+        return f"nothing answered at {rest}: is the autopilot or SITL running there?"
+    return "the line is open but silent: check the wiring, the baud rate and SERIALn_PROTOCOL"
 
 
 def _probe_camera(config: Any, snapshot: Any) -> tuple[list[str], bool]:
@@ -237,6 +251,8 @@ def _probe_camera(config: Any, snapshot: Any) -> tuple[list[str], bool]:
 def _install(args: argparse.Namespace) -> int:
     from companion.service import DEFAULT_UNIT_DIR, install_service
 
+    if _load(args.config) is None:  # a unit that starts a broken config only restarts forever
+        return 2
     config_path = Path(args.config).resolve()
     unit_dir = Path(args.unit_dir) if args.unit_dir else DEFAULT_UNIT_DIR
     try:

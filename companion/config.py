@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.mavlink import DEFAULT_STREAM_RATES_HZ, MavlinkSettings
-from companion.protocol.wire import DEMO_FLEET_KEY, MIN_KEY_BYTES
+from companion.protocol.wire import DEMO_FLEET_KEY, MAX_ID_BYTES, MIN_KEY_BYTES
 from companion.scoring import ArucoSettings, HogSettings, RedShareSettings
 
 __all__ = [
@@ -185,6 +185,33 @@ def _is_number(value: Any) -> bool:
         value)
 
 
+def _is_sender_id(value: Any) -> bool:
+    """What the wire protocol can carry (and ``run`` would otherwise refuse later)."""
+    if not isinstance(value, str) or not value or not value.isprintable():
+        return False
+    return len(value.encode("utf-8", "surrogatepass")) <= MAX_ID_BYTES
+
+
+_NETWORK_SCHEMES = ("udpin", "udpout", "udp", "udpbcast", "tcp", "tcpin")
+_OTHER_SCHEMES = ("mcast", "ws", "wsserver", "wss")
+
+
+def _is_mavlink_url(value: Any) -> bool:
+    """A network URL with a real port, or a serial device path (``PATH[,BAUD]``)."""
+    if not isinstance(value, str) or not value or not value.isprintable():
+        return False
+    scheme, sep, rest = value.partition(":")
+    if sep and scheme in _NETWORK_SCHEMES:
+        host, sep, port = rest.rpartition(":")
+        return bool(sep and host and port.isdigit() and 1 <= int(port) <= 65535)
+    if sep and scheme in _OTHER_SCHEMES:
+        return True
+    if value.startswith(("/", "COM")):  # serial: /dev/serial0, /dev/ttyACM0,921600
+        _path, _, baud = value.partition(",")
+        return not baud or (baud.isdigit() and 0 < int(baud) <= 12_000_000)
+    return False
+
+
 def _hsv(t: _Table, name: str, default: tuple[int, int, int]) -> tuple[int, int, int]:
     value = t.get(name, default, "[H 0..179, S 0..255, V 0..255]",
                   lambda v: isinstance(v, list | tuple) and len(v) == 3
@@ -223,11 +250,15 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
     base = Path(source).parent if source != "<memory>" else Path.cwd()
 
     drone = root.table("drone")
-    drone_id = drone.string("id", None, required=True)
+    drone_id = str(drone.string("id", None, required=True))
+    if not _is_sender_id(drone_id):  # what the wire carries; `run` would refuse it later
+        drone.fail("id", f"a printable sender id of 1..{MAX_ID_BYTES} UTF-8 bytes", drone_id)
     drone.done()
 
     mav = root.table("mavlink")
-    url = mav.string("url", "udpin:0.0.0.0:14550")
+    url = mav.get("url", "udpin:0.0.0.0:14550", "a pymavlink URL: udpin:HOST:PORT, "
+                  "udpout:HOST:PORT, tcp:HOST:PORT (port 1..65535) or a serial device "
+                  "path like /dev/serial0", _is_mavlink_url)
     rates = mav.get("stream_rates_hz", dict(DEFAULT_STREAM_RATES_HZ),
                     f"a table of message names ({', '.join(DEFAULT_STREAM_RATES_HZ)}) to Hz",
                     lambda v: isinstance(v, Mapping) and all(
@@ -359,10 +390,18 @@ def load_config(path: str | Path = DEFAULT_CONFIG_PATH) -> CompanionConfig:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such configuration file (use --config PATH)") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a folder, not a configuration file") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not a text file (byte {exc.start} is not UTF-8); "
+                          "expected TOML") from None
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid TOML (arrays or tables nested too deeply)") \
+            from None
     return parse_config(raw, source=str(path))

@@ -27,6 +27,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import errno
 import logging
 import math
 import queue
@@ -63,6 +64,7 @@ __all__ = [
     "ParamReadCommand",
     "SetModeCommand",
     "decode_param_value",
+    "describe_connect_error",
 ]
 
 log = logging.getLogger(__name__)
@@ -375,6 +377,8 @@ class MavlinkReader:
         self._commands: queue.Queue[Command] = queue.Queue()
         self._thread: threading.Thread | None = None
         self.done: concurrent.futures.Future[None] = concurrent.futures.Future()
+        self.last_error: str | None = None
+        """Why the last attempt to open the link failed, in plain words (None: it opened)."""
         self.counters: dict[str, int] = {
             "connects": 0, "connect_errors": 0, "heartbeat_losses": 0, "messages": 0,
             "samples": 0, "bad_messages": 0, "stream_requests": 0, "stream_fallbacks": 0,
@@ -439,10 +443,17 @@ class MavlinkReader:
     def _open(self) -> Any:
         try:
             conn = self._connect(self.settings)
-        except (OSError, ValueError) as exc:  # refused, no such device, port in use...
+        except (OSError, ValueError, OverflowError, ImportError) as exc:
+            # refused, no such device, port in use, no permission, pyserial missing...
             self.counters["connect_errors"] += 1
-            log.warning("mavlink connect %s failed: %s", self.settings.url, exc)
+            error = describe_connect_error(self.settings.url, exc)
+            # Once per cause, not once per retry: a Pi waiting for its autopilot would
+            # otherwise write a warning a second to the journal for hours.
+            level = logging.DEBUG if error == self.last_error else logging.WARNING
+            log.log(level, "mavlink connect %s failed: %s", self.settings.url, error)
+            self.last_error = error
             return None
+        self.last_error = None
         self.counters["connects"] += 1
         self._t_opened = self._clock()
         self._t_next_heartbeat = 0.0
@@ -453,20 +464,30 @@ class MavlinkReader:
         """One round: commands, own heartbeat, one receive, timers. Returns the connection
         to keep (``None`` to reopen)."""
         now = self._clock()
-        self._drain_commands(conn, now)
-        if now >= self._t_next_heartbeat:
-            conn.mav.heartbeat_send(MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0,
-                                    MAV_STATE_ACTIVE)
-            self._t_next_heartbeat = now + self.settings.heartbeat_interval_s
+        try:
+            # A write fails too when the line goes away (a USB autopilot unplugged, a serial
+            # adapter re-enumerating, the pty's other end closed): lose the link, reopen.
+            self._drain_commands(conn, now)
+            if now >= self._t_next_heartbeat:
+                conn.mav.heartbeat_send(MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0,
+                                        0, MAV_STATE_ACTIVE)
+                self._t_next_heartbeat = now + self.settings.heartbeat_interval_s
+        except OSError as exc:
+            log.warning("mavlink send failed: %s", exc)
+            return self._lose(conn, f"send failed: {exc}")
         try:
             msg = conn.recv_match(blocking=True, timeout=self.settings.recv_timeout_s)
         except OSError as exc:
             log.warning("mavlink receive failed: %s", exc)
             return self._lose(conn, f"receive failed: {exc}")
         now = self._clock()
-        if msg is not None:
-            self._handle(conn, msg, now)
-        return self._check_timers(conn, now)
+        try:
+            if msg is not None:
+                self._handle(conn, msg, now)  # may answer (stream requests)
+            return self._check_timers(conn, now)
+        except OSError as exc:
+            log.warning("mavlink send failed: %s", exc)
+            return self._lose(conn, f"send failed: {exc}")
 
     def _handle(self, conn: Any, msg: Any, now: float) -> None:
         self.counters["messages"] += 1
@@ -656,6 +677,39 @@ def _describe(command: Command) -> str:
 def _fail(command: Command, text: str) -> None:
     if not command.future.done():
         command.future.set_exception(CommandError(text))
+
+
+def describe_connect_error(url: str, exc: BaseException) -> str:
+    """Why opening ``url`` failed, in words a user can act on (errno kept for searching)."""
+    if isinstance(exc, ImportError):
+        return (f"{exc} (serial links need pyserial: pip install pyserial)"
+                if "serial" in str(exc) else str(exc))
+    errno_ = getattr(exc, "errno", None)
+    device = url.partition(",")[0]
+    serial = device.startswith("/") or device.startswith("COM")
+    code = f"[Errno {errno_}] " if isinstance(errno_, int) else ""
+    if serial and errno_ == errno.ENOENT:
+        return (f"{code}no such device {device}: is the autopilot connected and the UART "
+                "enabled (Raspberry Pi: raspi-config, serial port on, login shell off)?")
+    if serial and errno_ in (errno.EACCES, errno.EPERM):
+        return (f"{code}permission denied on {device}: add the user to the dialout group "
+                "(sudo usermod -aG dialout $USER, then log in again)")
+    if serial and errno_ == errno.EBUSY:
+        return f"{code}{device} is busy: another program has it open"
+    if serial and errno_ == errno.ENOTTY:
+        return f"{code}{device} is not a serial device"
+    if errno_ == errno.EADDRINUSE:
+        return (f"{code}Address already in use: another program already listens on "
+                f"{url.partition(':')[2]}; stop it or pick another port")
+    if errno_ == errno.EADDRNOTAVAIL:
+        return f"{code}Cannot assign requested address: this machine has no such address"
+    if errno_ == errno.ECONNREFUSED:
+        return f"{code}Connection refused: nothing listens at {url.partition(':')[2]}"
+    if isinstance(exc, OverflowError):
+        return f"bad port in {url}: {exc}"
+    if serial and "Inappropriate ioctl" in str(exc):  # pyserial hides this errno in its text
+        return f"[Errno {errno.ENOTTY}] {device} is not a serial device"
+    return str(exc) or type(exc).__name__
 
 
 def _default_connect(settings: MavlinkSettings) -> Any:

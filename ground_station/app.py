@@ -156,10 +156,10 @@ async def api_images(request: web.Request) -> web.Response:
 
 async def api_image_file(request: web.Request) -> web.StreamResponse:
     app = request.app
-    try:
-        image_id = int(request.match_info["image_id"])
-    except ValueError:
-        raise web.HTTPNotFound() from None
+    text = request.match_info["image_id"]
+    if not (text.isascii() and text.isdigit() and len(text) <= 18):  # SQLite ids are int64
+        raise web.HTTPNotFound()
+    image_id = int(text)
     row = await app[STORAGE].read(lambda s: s.image(image_id))
     if row is None or row.path is None:
         raise web.HTTPNotFound()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -30,6 +31,21 @@ def _config(args: argparse.Namespace) -> GroundConfig:
     if getattr(args, "public_read", False):
         overrides["public_read"] = True
     return config.with_overrides(**overrides) if overrides else config
+
+
+def data_dir_problem(data_dir: Path) -> str | None:
+    """Why the station cannot keep its data in ``data_dir`` (None: it can), checked before
+    anything is created, so a bad folder is one line and exit 2, not a traceback later."""
+    if data_dir.exists() and not data_dir.is_dir():
+        return f"data dir {data_dir}: is a file, not a folder (--data-dir or data_dir)"
+    try:
+        data_dir.mkdir(parents=True, exist_ok=True)
+        probe = data_dir / f".write-test-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        return f"data dir {data_dir}: not writable ({exc.strerror or exc})"
+    return None
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
@@ -84,6 +100,10 @@ def _run(args: argparse.Namespace, config: GroundConfig) -> int:
     except UtilitySpecsError as exc:
         print(f"uav-ground-station: mission spec {config.spec}: {exc}", file=sys.stderr)
         return 2
+    problem = data_dir_problem(config.data_dir)
+    if problem is not None:
+        print(f"uav-ground-station: {problem}", file=sys.stderr)
+        return 2
     token, created = ensure_token(config.token_path)
     app = create_app(config, token=token)
     if created:
@@ -119,18 +139,25 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "run":
         return _run(args, config)
     if args.command == "token":
+        problem = data_dir_problem(config.data_dir)
+        if problem is not None:
+            print(f"uav-ground-station: {problem}", file=sys.stderr)
+            return 2
         token, created = ensure_token(config.token_path)
         print(token)
         if created:
             print(f"(new token stored 0600 in {config.token_path})", file=sys.stderr)
         return 0
     if args.command == "export":
-        from ground_station.export import export_mission
+        from ground_station.export import ExportError, export_mission
 
         try:
             result = export_mission(config.data_dir, args.mission, args.out)
-        except KeyError as exc:
+        except (KeyError, ExportError) as exc:
             print(f"uav-ground-station: {exc.args[0]}", file=sys.stderr)
+            return 1
+        except OSError as exc:  # an unwritable --out, a full disk...
+            print(f"uav-ground-station: export to {args.out} failed: {exc}", file=sys.stderr)
             return 1
         print(f"exported {result.images} images to {args.out} (geotags: {result.csv_path})")
         if result.missing:

@@ -186,4 +186,12 @@ def load_config(path: Path | str) -> GroundConfig:
         raise ConfigError(file, "<file>", "an existing TOML file") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(file, "<syntax>", f"valid TOML ({exc})") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(file, "<syntax>", "a UTF-8 TOML text file",
+                          f"byte {exc.start} is not UTF-8") from None
+    except RecursionError:
+        raise ConfigError(file, "<syntax>", "valid TOML", "arrays or tables nested too deeply") \
+            from None
+    except OSError as exc:  # a folder, no permission...
+        raise ConfigError(file, "<file>", "a readable TOML file", exc.strerror) from None
     return config_from_mapping(raw, file=file)

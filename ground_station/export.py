@@ -9,12 +9,17 @@ from __future__ import annotations
 
 import csv
 import shutil
+import sqlite3
 from dataclasses import dataclass
 from pathlib import Path
 
 from ground_station.storage import Storage, safe_name
 
-__all__ = ["ExportResult", "export_mission"]
+__all__ = ["ExportError", "ExportResult", "export_mission"]
+
+
+class ExportError(Exception):
+    """An export that cannot run; the text says why in one line."""
 
 COLUMNS = [
     "image",
@@ -46,9 +51,19 @@ class ExportResult:
 
 def export_mission(data_dir: Path, mission: str, out: Path) -> ExportResult:
     """Copy a mission's images into ``out/images`` and write ``out/geotags.csv``."""
-    storage = Storage(data_dir, readonly=True)
+    database = data_dir / "ground_station.sqlite3"
+    if not database.is_file():  # opening it would create an empty one
+        raise ExportError(f"no ground station database in {data_dir} (no {database.name}): "
+                          "give the station's --data-dir or --config")
     try:
-        missions = {m["name"] for m in storage.missions()}
+        storage = Storage(data_dir, readonly=True)
+    except (OSError, sqlite3.Error) as exc:
+        raise ExportError(f"cannot open {database}: {exc}") from None
+    try:
+        try:
+            missions = {m["name"] for m in storage.missions()}
+        except sqlite3.Error as exc:  # not a database, or not the station's
+            raise ExportError(f"{database}: not a ground station database ({exc})") from None
         if mission not in missions:
             known = ", ".join(sorted(missions)) or "none"
             raise KeyError(f"mission {mission!r} not found in {data_dir} (known: {known})")

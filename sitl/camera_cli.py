@@ -68,7 +68,7 @@ def main(argv: list[str]) -> int:
         try:
             lines = args.poses.read_text().splitlines()
             poses += [_pose(x.strip()) for x in lines if x.strip() and not x.startswith("#")]
-        except (OSError, argparse.ArgumentTypeError) as exc:
+        except (OSError, UnicodeDecodeError, argparse.ArgumentTypeError) as exc:
             print(f"uav-sitl camera: {args.poses}: {exc}", file=sys.stderr)
             return 2
     try:
@@ -82,7 +82,12 @@ def main(argv: list[str]) -> int:
     cam = SyntheticCamera(scene, width_px=w, height_px=h, hfov_deg=args.hfov,
                           mount_pitch_deg=args.mount_pitch, gimbal_stabilised=args.gimbal,
                           noise_std=args.noise, seed=args.seed)
-    args.out.mkdir(parents=True, exist_ok=True)
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(f"uav-sitl camera: cannot write to {args.out}: {exc.strerror or exc}",
+              file=sys.stderr)
+        return 1
     if args.texture:
         cv2.imwrite(str(args.out / "ground_texture.png"), cam.texture)
     for i, v in enumerate(poses):
@@ -93,7 +98,9 @@ def main(argv: list[str]) -> int:
         frame = cam.render(pose, t_s=args.t)
         render_ms = (time.perf_counter() - t0) * 1000
         path = args.out / f"frame_{i:04d}.png"
-        cv2.imwrite(str(path), frame)
+        if not cv2.imwrite(str(path), frame):
+            print(f"uav-sitl camera: cannot write {path}", file=sys.stderr)
+            return 1
         print(json.dumps({"file": str(path), "pose": list(v), "red_share": red_share(frame),
                           "visible": cam.visible(pose), "render_ms": round(render_ms, 2)}),
               flush=True)

@@ -10,6 +10,7 @@ from pathlib import Path
 from utility_specs.errors import UtilitySpecsError
 from utility_specs.evaluate import evaluate
 from utility_specs.files import builtin_spec, builtin_specs, load_spec, read_log
+from utility_specs.intervals import MissionInterval, intervals_of, select_intervals
 from utility_specs.log import merge_copies
 
 
@@ -35,6 +36,12 @@ def _parser() -> argparse.ArgumentParser:
     ev.add_argument("--t-start", type=float, help="mission start (default: the log's, else 0)")
     ev.add_argument("--json", action="store_true", help="print one JSON object")
     ev.add_argument(
+        "--mission", type=_mission_choice, default=None, metavar="N|last|all",
+        help="which mission interval of the logs to evaluate (numbered by start time; "
+        "default: the only one, else the last complete one, and it says so); the ground "
+        "station's log marks the mission, a drone's log only its process's lifetime",
+    )
+    ev.add_argument(
         "--ignore-unknown-types", action="store_true",
         help="skip messages whose type the spec does not define (default: error)",
     )
@@ -59,10 +66,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     spec = load_spec(spec_arg) if Path(spec_arg).suffix == ".toml" else builtin_spec(spec_arg)
     messages = []
     states = {}
-    t_end = args.t_end
-    t_start = args.t_start
-    log_t_end = None
-    log_t_start = None
+    receiver_logs: list[list[MissionInterval]] = []
+    sender_logs: list[list[MissionInterval]] = []
     for path in args.log:
         log = read_log(path)
         if log.torn_last_line is not None:
@@ -70,42 +75,82 @@ def _evaluate(args: argparse.Namespace) -> int:
                   "ignored (its writer stopped mid-line)", file=sys.stderr)
         messages.extend(log.messages)
         states.update(log.states)
-        log_t_end = log.t_end if log.t_end is not None else log_t_end
-        log_t_start = log.t_start if log.t_start is not None else log_t_start
-    t_end = t_end if t_end is not None else log_t_end if log_t_end is not None else spec.t_end
-    if t_end is None:
-        print("uav-utility: no mission end: give --t-end, a {\"mission\": {\"t_end\": ...}} "
-              "record, or mission.t_end in the spec", file=sys.stderr)
+        received_here = any(m.t_rcv is not None for m in log.messages)
+        (receiver_logs if received_here else sender_logs).append(
+            intervals_of(log.bounds, str(path)))
+    try:
+        selection = select_intervals(receiver_logs, sender_logs, args.mission)
+    except ValueError as exc:
+        print(f"uav-utility: error: {exc}", file=sys.stderr)
         return 2
-    t_start = t_start if t_start is not None else log_t_start if log_t_start is not None else 0.0
-    result = evaluate(
-        merge_copies(messages), spec, t_end=t_end, t_start=t_start, states=states,
-        ignore_unknown_types=args.ignore_unknown_types,
-    )
-    if args.json:
-        print(json.dumps(result.as_dict(), sort_keys=True))
-        return 0
+    note = sys.stderr if args.json else sys.stdout
+    if len(selection.candidates) > 1:
+        for number, interval in enumerate(selection.candidates, start=1):
+            print(f"  mission interval {number}: {interval.describe()}", file=note)
     received = sum(1 for m in messages if m.t_rcv is not None)
-    print(f"mission {spec.name!r}: [{t_start:.3f}, {t_end:.3f}] s ({t_end - t_start:.1f} s), "
-          f"{len(messages)} records, {received} received")
-    print(f"total utility  {result.total:14.6f}")
-    print("per type:")
-    for name, value in result.per_type.items():
-        print(f"  {name:<20} {value:14.6f}")
-    print("per receiver:")
-    for name, value in sorted(result.per_receiver.items()):
-        print(f"  {name:<20} {value:14.6f}")
+    if received == 0 and messages:
+        print("uav-utility: warning: no record in these logs was received (no t_rcv): they "
+              "hold only senders' records, so nothing counts as delivered and the total is 0; "
+              "add the receiver's log (the ground station's "
+              "gs-data/missions/MISSION/mission_log.jsonl)", file=sys.stderr)
+    chosen = selection.chosen or [MissionInterval(None, None, "")]
+    results = []
+    merged = list(merge_copies(messages))
+    for interval in chosen:
+        t_end = args.t_end if args.t_end is not None else interval.t_end \
+            if interval.t_end is not None else spec.t_end
+        if t_end is None:
+            print("uav-utility: no mission end: give --t-end, a {\"mission\": {\"t_end\": ...}} "
+                  "record, or mission.t_end in the spec", file=sys.stderr)
+            return 2
+        t_start = args.t_start if args.t_start is not None else interval.t_start \
+            if interval.t_start is not None else 0.0
+        why = selection.why if selection.chosen else "no mission records: spec and defaults"
+        if args.t_start is not None or args.t_end is not None:
+            why = "bounds given by --t-start/--t-end" + (
+                f" (the logs' choice was {interval.describe()})" if interval.source else "")
+        result = evaluate(merged, spec, t_end=t_end, t_start=t_start, states=states,
+                          ignore_unknown_types=args.ignore_unknown_types)
+        results.append((t_start, t_end, why, result))
+    if args.json:
+        objects = [{**r.as_dict(), "t_start": a, "t_end": b, "interval": why}
+                   for a, b, why, r in results]
+        print(json.dumps(objects[0] if args.mission != "all" else {"missions": objects},
+                         sort_keys=True))
+        return 0
+    for t_start, t_end, why, result in results:
+        print(f"mission {spec.name!r}: [{t_start:.3f}, {t_end:.3f}] s "
+              f"({t_end - t_start:.1f} s), {len(messages)} records, {received} received")
+        print(f"interval: {why}")
+        print(f"total utility  {result.total:14.6f}")
+        print("per type:")
+        for name, value in result.per_type.items():
+            print(f"  {name:<20} {value:14.6f}")
+        print("per receiver:")
+        for name, value in sorted(result.per_receiver.items()):
+            print(f"  {name:<20} {value:14.6f}")
     return 0
+
+
+def _mission_choice(text: str) -> str:
+    if text in ("last", "all") or (text.isdigit() and int(text) >= 1):
+        return text
+    raise argparse.ArgumentTypeError(f"expected a number >= 1, last or all, got {text!r}")
 
 
 def _plot(args: argparse.Namespace) -> int:
     from utility_specs.plots import KINDS, plot
 
-    if args.kind == "all":
-        for kind in KINDS:
-            print(plot(kind, args.out / f"{kind}.png"))
-        return 0
-    print(plot(args.kind, args.out))
+    try:
+        if args.kind == "all":
+            for kind in KINDS:
+                print(plot(kind, args.out / f"{kind}.png"))
+            return 0
+        print(plot(args.kind, args.out))
+    except OSError as exc:  # an unwritable or missing --out folder
+        print(f"uav-utility: error: cannot write {args.out}: {exc.strerror or exc}",
+              file=sys.stderr)
+        return 1
     return 0
 
 

@@ -25,6 +25,11 @@ def read_log(path: str | Path) -> MissionLog:
             return parse_log(f, source=str(path), allow_torn_tail=True)
     except FileNotFoundError:
         raise LogError(f"{path}: no such log file") from None
+    except UnicodeDecodeError as exc:
+        raise LogError(f"{path}: not a text file (byte {exc.start} is not UTF-8); expected "
+                       "JSON Lines") from None
+    except OSError as exc:  # a folder, no permission...
+        raise LogError(f"{path}: cannot read ({exc.strerror})") from None
 
 
 def load_spec(path: str | Path) -> MissionSpec:
@@ -36,6 +41,12 @@ def load_spec(path: str | Path) -> MissionSpec:
         raise SpecError(f"{path}: no such spec file") from None
     except tomllib.TOMLDecodeError as exc:
         raise SpecError(f"{path}: not valid TOML ({exc})") from None
+    except UnicodeDecodeError as exc:
+        raise SpecError(f"{path}: not a text file (byte {exc.start} is not UTF-8)") from None
+    except RecursionError:
+        raise SpecError(f"{path}: not valid TOML (nested too deeply)") from None
+    except OSError as exc:  # a folder, no permission...
+        raise SpecError(f"{path}: cannot read ({exc.strerror})") from None
     return parse_spec(raw, source=str(path))
 
 

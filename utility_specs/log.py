@@ -46,6 +46,8 @@ class MissionLog:
     torn_last_line: int | None = None
     """Number of an incomplete last line that was skipped: its writer stopped mid-line (a
     crash or power loss); every complete record before it counts."""
+    bounds: list[tuple[float | None, float | None]] = field(default_factory=list)
+    """Every mission record's (t_start, t_end) in file order (see ``utility_specs.intervals``)."""
 
 
 def message_to_record(m: Message, **extra: Any) -> dict[str, Any]:
@@ -147,10 +149,14 @@ def parse_log(
                 mission = record["mission"]
                 if not isinstance(mission, Mapping):
                     raise MessageError("mission must be an object")
-                if (t_end := _opt_float(mission, "t_end")) is not None:
+                t_end = _opt_float(mission, "t_end")
+                t_start = _opt_float(mission, "t_start")
+                if t_end is not None:
                     log.t_end = t_end
-                if (t_start := _opt_float(mission, "t_start")) is not None:
+                if t_start is not None:
                     log.t_start = t_start
+                if t_start is not None or t_end is not None:
+                    log.bounds.append((t_start, t_end))
             elif "state" in record:
                 state = record["state"]
                 if not isinstance(state, Mapping) or not isinstance(state.get("agent"), str):
@@ -162,6 +168,8 @@ def parse_log(
                 state_records.setdefault(state["agent"], []).append((t, fields))
             else:
                 log.messages.append(message_from_record(record))
+        except RecursionError:
+            raise LogError(f"{source}:{number}: JSON nested too deeply") from None
         except (json.JSONDecodeError, MessageError) as exc:
             if allow_torn_tail and isinstance(exc, json.JSONDecodeError) and not raw.endswith("\n"):
                 log.torn_last_line = number  # only a file's last line lacks its newline

@@ -104,6 +104,10 @@ def load_scene(name_or_path: str | Path) -> Scene:
         raise SceneError(f"{path}: cannot read scene ({exc.strerror})") from exc
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"{path}: not valid TOML ({exc})") from exc
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{path}: not a text file (byte {exc.start} is not UTF-8)") from None
+    except RecursionError:
+        raise SceneError(f"{path}: not valid TOML (nested too deeply)") from None
     f = str(path)
     home_t = data.get("home")
     if not isinstance(home_t, dict):

@@ -2,7 +2,8 @@
 
 Prints one ``READY {json}`` line per vehicle once its socket is bound (with the real port,
 so ``--port 0`` works for tests and launchers), then serves until SIGINT/SIGTERM or
-``--duration``.
+``--duration``. ``--serial`` puts one vehicle on a pseudo-terminal instead (a serial line:
+``READY`` then names the ``/dev/pts/N`` a client opens, or ``--serial-link``'s symlink).
 """
 
 from __future__ import annotations
@@ -95,11 +96,26 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0, help="seed of the GPS noise")
     p.add_argument("--ready-file", type=Path, default=None,
                    help="write the list of READY records as JSON here once all are bound")
+    p.add_argument("--serial", action="store_true",
+                   help="serve one vehicle on a serial line (a pseudo-terminal) instead of UDP")
+    p.add_argument("--serial-link", type=Path, default=None, metavar="PATH",
+                   help="with --serial: also make PATH a symlink to the /dev/pts/N device")
+    p.add_argument("--baud", type=int, default=115200,
+                   help="with --serial: line rate in bit/s; the vehicle sends at most baud/10"
+                        " bytes per second like a real UART (default 115200)")
     args = p.parse_args(argv)
     if args.count < 1 or args.count > 250:
         p.error("--count must be in 1..250")
     if args.first_fix is not None and not (0.0 <= args.first_fix < 1e6):
         p.error("--first-fix must be a number of seconds >= 0")
+    if not 0 <= args.port <= 65535:
+        p.error(f"--port must be in 0..65535, got {args.port}")
+    if not args.speedup > 0:
+        p.error(f"--speedup must be > 0, got {args.speedup}")
+    if args.serial and args.count != 1:
+        p.error("--serial serves one vehicle (--count 1)")
+    if args.baud < 50 or args.baud > 12_000_000:
+        p.error(f"--baud must be in 50..12000000, got {args.baud}")
     if args.pattern:
         kind = args.pattern[0]
         if kind not in ("survey", "orbit", "waypoints"):
@@ -159,7 +175,8 @@ def build_configs(args: argparse.Namespace) -> list[VehicleConfig]:
 
 
 async def _serve(args: argparse.Namespace) -> int:
-    from sitl.vehicle.shell import start_vehicles
+    from sitl.vehicle.serial_pty import PtySerialLink, start_serial_vehicle
+    from sitl.vehicle.shell import VehicleEndpoint, start_vehicles
 
     configs = build_configs(args)
     ports = [0 if args.port == 0 else args.port + i for i in range(args.count)]
@@ -173,11 +190,19 @@ async def _serve(args: argparse.Namespace) -> int:
         else:
             print("uav-sitl vehicle: give --out once or once per vehicle", file=sys.stderr)
             return 2
-    endpoints = await start_vehicles(configs, host=args.host, ports=ports,
-                                     speedup=args.speedup, outs=outs)
+    endpoints: list[VehicleEndpoint | PtySerialLink]
+    if args.serial:
+        endpoints = [start_serial_vehicle(configs[0], baud=args.baud, link=args.serial_link,
+                                          speedup=args.speedup)]
+    else:
+        endpoints = list(await start_vehicles(configs, host=args.host, ports=ports,
+                                              speedup=args.speedup, outs=outs))
     records = []
     for ep, cfg in zip(endpoints, configs, strict=True):
-        rec = {"sysid": cfg.system_id, "host": ep.address[0], "port": ep.address[1],
+        where = ({"serial": ep.path, "tty": ep.tty_path, "baud": ep.baud}
+                 if isinstance(ep, PtySerialLink) else
+                 {"host": ep.address[0], "port": ep.address[1]})
+        rec = {"sysid": cfg.system_id, **where,
                "flavour": cfg.flavour.name, "home": [cfg.home.lat_deg, cfg.home.lon_deg,
                                                      cfg.home.alt_m],
                "mission_items": len(cfg.mission), "speedup": args.speedup}
@@ -185,8 +210,15 @@ async def _serve(args: argparse.Namespace) -> int:
         print("READY " + json.dumps(rec), flush=True)
     if args.ready_file:
         tmp = args.ready_file.with_suffix(".tmp")
-        tmp.write_text(json.dumps(records))
-        os.replace(tmp, args.ready_file)
+        try:
+            tmp.write_text(json.dumps(records))
+            os.replace(tmp, args.ready_file)
+        except OSError as exc:
+            for ep in endpoints:
+                ep.close()
+            print(f"uav-sitl vehicle: cannot write --ready-file {args.ready_file}: "
+                  f"{exc.strerror or exc}", file=sys.stderr)
+            return 1
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -201,7 +233,9 @@ async def _serve(args: argparse.Namespace) -> int:
     finally:
         for ep in endpoints:
             ep.close()
-    bad = {k: v for ep in endpoints for k, v in ep.core.counters.items()}
+    bad: dict[str, int] = {k: v for ep in endpoints for k, v in ep.core.counters.items()}
+    bad.update({f"serial_{k}": v for ep in endpoints if isinstance(ep, PtySerialLink)
+                for k, v in ep.counters.items() if k == "tx_dropped_frames" and v})
     if bad:
         print("counters: " + json.dumps(bad, sort_keys=True), file=sys.stderr)
     return 0
@@ -219,7 +253,8 @@ def main(argv: list[str]) -> int:
         print(f"uav-sitl vehicle: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f"uav-sitl vehicle: cannot bind: {exc}", file=sys.stderr)
+        what = "cannot open the serial line" if args.serial else "cannot bind"
+        print(f"uav-sitl vehicle: {what}: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         return 0

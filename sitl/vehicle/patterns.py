@@ -127,6 +127,8 @@ def load_waypoints(path: Path, *, home: GeoPoint, default_alt_m: float,
         lines = Path(path).read_text().splitlines()
     except OSError as exc:
         raise PatternError(f"{path}: cannot read waypoint file ({exc.strerror})") from exc
+    except UnicodeDecodeError as exc:
+        raise PatternError(f"{path}: not a text file (byte {exc.start} is not UTF-8)") from None
     if lines and lines[0].startswith("QGC WPL"):
         items: list[MissionItem] = []
         for lineno, line in enumerate(lines[1:], start=2):

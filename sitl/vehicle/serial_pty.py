@@ -1,0 +1,150 @@
+"""A simulated vehicle on a serial line: a pseudo-terminal instead of a UDP socket.
+
+A Pixhawk's TELEM port wired to a Raspberry Pi UART is a byte stream, not datagrams: frames
+arrive split or glued together, and the line carries at most ``baud / 10`` bytes per second
+(8N1). :class:`PtySerialLink` gives one :class:`~sitl.vehicle.core.VehicleCore` that shape:
+the client opens the pty's slave (``/dev/pts/N``, or a stable symlink to it) through
+pyserial like a real UART; the vehicle side reads and writes the master.
+
+Like ArduPilot, which skips a stream message when the UART's transmit buffer has no room,
+frames that exceed the line's budget (a 4 KiB transmit buffer refilled at ``baud / 10`` B/s)
+are dropped and counted, never queued without bound.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import termios
+import tty
+from dataclasses import replace
+from pathlib import Path
+
+from sitl.vehicle.core import VehicleConfig, VehicleCore
+from sitl.vehicle.shell import SimClock
+
+__all__ = ["PtySerialLink", "start_serial_vehicle"]
+
+TX_BUFFER_BYTES = 4096
+_BAUD_CONSTANTS = {115200: termios.B115200, 57600: termios.B57600, 230400: termios.B230400,
+                   460800: getattr(termios, "B460800", termios.B230400),
+                   921600: getattr(termios, "B921600", termios.B230400)}
+
+
+class PtySerialLink:
+    """One vehicle behind a pseudo-terminal; ``path`` is what a client opens."""
+
+    def __init__(self, core: VehicleCore, clock: SimClock, *, baud: int = 115200,
+                 link: Path | None = None, tx_buffer_bytes: int = TX_BUFFER_BYTES) -> None:
+        if baud <= 0:
+            raise ValueError(f"baud must be > 0, got {baud}")
+        self.core = core
+        self.clock = clock
+        self.baud = baud
+        self.link = link
+        self.tx_buffer_bytes = tx_buffer_bytes
+        self.counters = {"rx_bytes": 0, "tx_bytes": 0, "tx_dropped_frames": 0}
+        self._master, self._slave = os.openpty()
+        # Raw 8N1 both ways: no echo, no line editing, no CR/LF translation of binary frames.
+        for fd in (self._master, self._slave):
+            tty.setraw(fd)
+        speed = _BAUD_CONSTANTS.get(baud)
+        if speed is not None:  # nominal on a pty, but a client reading it back sees it
+            attrs = termios.tcgetattr(self._slave)
+            attrs[4] = attrs[5] = speed
+            termios.tcsetattr(self._slave, termios.TCSANOW, attrs)
+        os.set_blocking(self._master, False)
+        # The vehicle keeps its own slave fd open: with no slave open, the master reads EIO
+        # whenever the client closes and reopens the port (a companion reconnecting).
+        self.tty_path = os.ttyname(self._slave)
+        self.path = self.tty_path
+        if link is not None:
+            with contextlib.suppress(FileNotFoundError):
+                if link.is_symlink():
+                    link.unlink()
+            link.symlink_to(self.tty_path)
+            self.path = str(link)
+        self._budget = float(tx_buffer_bytes)
+        self._t_budget = clock.loop.time()
+        self._timer: asyncio.TimerHandle | None = None
+        self._closed = False
+
+    def start(self) -> None:
+        self.clock.loop.add_reader(self._master, self._on_readable)
+        self.transmit()
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        if self._timer is not None:
+            self._timer.cancel()
+        self.clock.loop.remove_reader(self._master)
+        for fd in (self._master, self._slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        if self.link is not None:
+            with contextlib.suppress(OSError):
+                if self.link.is_symlink() and os.readlink(self.link) == self.tty_path:
+                    self.link.unlink()
+
+    def _on_readable(self) -> None:
+        try:
+            data = os.read(self._master, 4096)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:  # EIO: no reader on the other side at this instant
+            return
+        if data:
+            self.counters["rx_bytes"] += len(data)
+            self.core.receive_datagram(data, ("serial", 0), self.clock())
+            self.transmit()
+
+    def _refill(self) -> None:
+        now = self.clock.loop.time()
+        rate = self.baud / 10.0
+        self._budget = min(float(self.tx_buffer_bytes),
+                           self._budget + (now - self._t_budget) * rate)
+        self._t_budget = now
+
+    def transmit(self) -> None:
+        if self._closed:
+            return
+        frames = self.core.datagrams_to_send()
+        if frames:
+            self._refill()
+            for frame in frames:
+                if len(frame) > self._budget:
+                    self.counters["tx_dropped_frames"] += 1
+                    continue
+                try:
+                    os.write(self._master, frame)
+                except (BlockingIOError, InterruptedError):  # nobody reads: the pty is full
+                    self.counters["tx_dropped_frames"] += 1
+                    continue
+                except OSError:
+                    self.counters["tx_dropped_frames"] += 1
+                    continue
+                self._budget -= len(frame)
+                self.counters["tx_bytes"] += len(frame)
+        if self._timer is not None:
+            self._timer.cancel()
+        delay = self.clock.wall_delay(self.core.get_timer())
+        self._timer = self.clock.loop.call_later(delay, self._on_timer)
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self.core.handle_timer(self.clock())
+        self.transmit()
+
+
+def start_serial_vehicle(config: VehicleConfig, *, baud: int = 115200, link: Path | None = None,
+                         speedup: float = 1.0,
+                         tx_buffer_bytes: int = TX_BUFFER_BYTES) -> PtySerialLink:
+    """One vehicle on a new pseudo-terminal, served by the running loop."""
+    clock = SimClock(asyncio.get_running_loop(), speedup)
+    core = VehicleCore(replace(config, speedup=speedup), now=clock())
+    serial = PtySerialLink(core, clock, baud=baud, link=link, tx_buffer_bytes=tx_buffer_bytes)
+    serial.start()
+    return serial

@@ -1,0 +1,163 @@
+"""Bad input to any console script is one line on stderr and a non-zero exit, never a
+traceback (issue 13, item 7), and a bad URL never makes the ground station answer 500."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+BIN = Path(sys.executable).parent
+DEEP = 50_000  # well past Python's recursion limit
+
+
+def _tool(name: str) -> str:
+    path = BIN / name
+    if not path.exists():
+        pytest.skip(f"{name} is not installed in this environment (pip install -e .)")
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def bad(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("bad")
+    files = {
+        "binary": root / "binary.toml",
+        "deep_toml": root / "deep.toml",
+        "deep_jsonl": root / "deep.jsonl",
+        "a_file": root / "a_file",
+        "folder": root / "folder",
+        "long_id": root / "long_id.toml",
+        "port": root / "port.toml",
+        "no_db": root / "no_db",
+    }
+    files["binary"].write_bytes(bytes(range(256)) * 4)
+    files["deep_toml"].write_text("a = " + "[" * DEEP + "]" * DEEP + "\n")
+    files["deep_jsonl"].write_text('{"sender": ' + "[" * DEEP + "]" * DEEP + "}\n")
+    files["a_file"].write_text("not a folder\n")
+    files["folder"].mkdir()
+    files["long_id"].write_text(f'[drone]\nid = "{"d" * 40}"\n')
+    files["port"].write_text('[drone]\nid = "d1"\n[mavlink]\nurl = "udpin:0.0.0.0:99999"\n')
+    return files
+
+
+# (script, argv with {placeholders}, exit code, a fragment of the one-line error)
+CASES = [
+    ("uav-companion", "check --config {binary}", 2, "not a text file (byte 128 is not UTF-8)"),
+    ("uav-companion", "run --config {binary}", 2, "not a text file"),
+    ("uav-companion", "check --config {deep_toml}", 2, "nested too deeply"),
+    ("uav-companion", "check --config {folder}", 2, "is a folder, not a configuration file"),
+    ("uav-companion", "check --config {port}", 2,
+     "mavlink.url: expected a pymavlink URL"),
+    ("uav-companion", "run --config {port}", 2, "mavlink.url: expected a pymavlink URL"),
+    ("uav-companion", "check --config {long_id} --skip-mavlink --skip-camera", 2,
+     "drone.id: expected a printable sender id of 1..32 UTF-8 bytes"),
+    ("uav-companion", "run --config {long_id}", 2,
+     "drone.id: expected a printable sender id of 1..32 UTF-8 bytes"),
+    ("uav-companion", "install-service --dry-run --config {binary}", 2, "not a text file"),
+    ("uav-ground-station", "run --data-dir {a_file} --udp-port 0 --http-port 0", 2,
+     "is a file, not a folder"),
+    ("uav-ground-station", "run --data-dir /proc/uav-gs-data --udp-port 0 --http-port 0", 2,
+     "data dir /proc/uav-gs-data: not writable"),
+    ("uav-ground-station", "token --data-dir {a_file}", 2, "is a file, not a folder"),
+    ("uav-ground-station", "run --config {binary}", 2, "a UTF-8 TOML text file"),
+    ("uav-ground-station", "run --config {deep_toml}", 2, "nested too deeply"),
+    ("uav-ground-station", "run --config {folder}", 2, "a readable TOML file"),
+    ("uav-ground-station", "export m1 --data-dir {no_db} --out {folder}/x", 1,
+     "no ground station database in"),
+    ("uav-ground-station", "export m1 --data-dir {folder} --out {folder}/x", 1,
+     "no ground station database in"),
+    ("uav-sitl", "vehicle --scene {binary} --duration 1", 2, "not a text file"),
+    ("uav-sitl", "vehicle --scene {deep_toml} --duration 1", 2, "nested too deeply"),
+    ("uav-sitl", "vehicle --port 99999", 2, "--port must be in 0..65535"),
+    ("uav-sitl", "vehicle --speedup 0", 2, "--speedup must be > 0"),
+    ("uav-sitl", "vehicle --pattern waypoints {binary}", 2, "not a text file"),
+    ("uav-sitl", "vehicle --port 0 --duration 1 --ready-file /proc/nope/r.json", 1,
+     "cannot write --ready-file"),
+    ("uav-sitl", "vehicle --serial --count 2", 2, "--serial serves one vehicle"),
+    ("uav-sitl", "camera --scene {binary} --pose 1,2,3 --out {folder}/f", 2, "not a text file"),
+    ("uav-sitl", "camera --poses {binary} --out {folder}/f", 2, "can't decode"),
+    ("uav-sitl", "camera --pose 1,2,3 --out /proc/nope", 1, "cannot write to /proc/nope"),
+    ("uav-sitl", "fleet --drones 1 --duration 1 --scene {binary} --out {folder}/run", 2,
+     "not a text file"),
+    ("uav-utility", "evaluate --spec {deep_toml} {deep_jsonl}", 2, "nested too deeply"),
+    ("uav-utility", "evaluate --spec telemetry {deep_jsonl}", 2,
+     "deep.jsonl:1: JSON nested too deeply"),
+    ("uav-utility", "evaluate --spec telemetry {binary}", 2, "not a text file"),
+    ("uav-utility", "evaluate --spec {binary} {deep_jsonl}", 2, "not a text file"),
+    ("uav-utility", "evaluate --spec telemetry {folder}", 2, "cannot read (Is a directory)"),
+    ("uav-utility", "plot 4.9 --out /proc/nope/x.png", 1, "cannot write /proc/nope/x.png"),
+]
+
+
+@pytest.mark.parametrize(("script", "argv", "code", "fragment"), CASES,
+                         ids=[f"{c[0]} {c[1]}" for c in CASES])
+def test_bad_input_is_one_line_and_nonzero(bad: dict[str, Path], script: str, argv: str,
+                                           code: int, fragment: str) -> None:
+    args = argv.format(**{k: str(v) for k, v in bad.items()}).split()
+    result = subprocess.run([_tool(script), *args], capture_output=True, text=True,
+                            timeout=60, check=False)
+    assert "Traceback" not in result.stderr, result.stderr[-3000:]
+    assert result.returncode == code, result.stderr
+    errors = [line for line in result.stderr.splitlines()
+              if line.strip() and not line.startswith(("usage:", " "))]
+    assert len(errors) == 1, result.stderr
+    assert fragment in errors[0]
+
+
+def test_export_does_not_create_a_database(bad: dict[str, Path]) -> None:
+    subprocess.run([_tool("uav-ground-station"), "export", "m1", "--data-dir",
+                    str(bad["no_db"]), "--out", str(bad["folder"] / "y")],
+                   capture_output=True, timeout=60, check=False)
+    assert not bad["no_db"].exists()
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+@pytest.mark.timeout(90)
+def test_image_urls_out_of_range_are_404_not_500(tmp_path: Path) -> None:
+    http_port = _free_port()
+    proc = subprocess.Popen([_tool("uav-ground-station"), "run", "--data-dir",
+                             str(tmp_path / "gs"), "--udp-port", "0", "--http-port",
+                             str(http_port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert "control token" in line, line + proc.stderr.read() if proc.stderr else line
+        token = line.rsplit(": ", 1)[1].strip()
+        base = f"http://127.0.0.1:{http_port}"
+        deadline = time.monotonic() + 30
+        while True:
+            try:
+                urllib.request.urlopen(f"{base}/api/fleet?token={token}", timeout=2)
+                break
+            except (urllib.error.URLError, ConnectionError):
+                if time.monotonic() > deadline or proc.poll() is not None:
+                    raise
+                time.sleep(0.2)
+        for image_id in ("1" * 26, "9223372036854775808", "-1", "%D9%A3", "1_0", "007"):
+            request = urllib.request.Request(f"{base}/api/images/{image_id}.jpg",
+                                             headers={"Authorization": f"Bearer {token}"})
+            with pytest.raises(urllib.error.HTTPError) as err:
+                urllib.request.urlopen(request, timeout=5)
+            assert err.value.code == 404, image_id
+        assert proc.poll() is None
+    finally:
+        proc.terminate()
+        try:
+            _, err_text = proc.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err_text = proc.communicate()
+    assert "Traceback" not in err_text, err_text[-3000:]
