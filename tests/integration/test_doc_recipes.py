@@ -116,7 +116,7 @@ RECIPES: dict[str, str] = {
     "uav-ground-station run --config gs.toml --mission survey-1": "test_ground_station_recipes",
     "uav-ground-station token": "test_ground_station_recipes",
     "uav-ground-station shell": "test_ground_station_recipes",
-    'uav-ground-station shell -c "n 4; s +5"': "test_ground_station_recipes",
+    'uav-ground-station shell -c "drones 4; start +5"': "test_ground_station_recipes",
     "uav-ground-station export survey-1 --out ./survey-1": "test_ground_station_recipes",
     "python -m ground_station.fake_drone 127.0.0.1:14600 --drones 4":
         "test_ground_station_recipes",
@@ -424,7 +424,7 @@ def test_ground_station_recipes(tmp_path: Path) -> None:
             ("python", shlex.quote(sys.executable)), ("14600", str(udp))) + " --duration 60",
             tmp_path)
         gs = f" --config gs.toml --url http://127.0.0.1:{http}"
-        scripted = _bash(_recipe('uav-ground-station shell -c "n 4; s +5"') + gs, tmp_path,
+        scripted = _bash(_recipe('uav-ground-station shell -c "drones 4; start +5"') + gs, tmp_path,
                          timeout=90)
         assert scripted.returncode == 0, scripted.stdout + scripted.stderr
         interactive = subprocess.run(["bash", "-c", _recipe("uav-ground-station shell") + gs],
