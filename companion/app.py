@@ -25,6 +25,7 @@ import dataclasses
 import json
 import logging
 import math
+import secrets
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -861,22 +862,31 @@ def build_decider(config: CompanionConfig, *, budget_clock: Clock | None = None
 
 def build_transport_factory(config: CompanionConfig, *, clock: Clock) -> TransportFactory:
     """The UDP transport to the ground station (``companion.transport.UdpTransport``)."""
+    from companion.config import missing_keys
     from companion.transport import UdpTransport
 
     gs = config.ground_station
+    problem = missing_keys(config)
+    if problem is not None or gs.fleet_key is None:
+        raise AppSetupError(problem or "no fleet key")
+    key = gs.fleet_key
     try:
-        Encoder(gs.fleet_id, config.drone_id, gs.fleet_key)
+        Encoder(gs.fleet_id, config.drone_id, key)
     except LocalProtocolError as exc:
         raise AppSetupError(f"{config.source}: drone.id / ground_station: {exc}") from None
+    # A fresh epoch per start: commands captured during an earlier boot carry the old one.
+    epoch = secrets.randbits(63) + 1
 
     def factory(on_event: Callable[[Any], None]) -> Transport:
         return UdpTransport(
-            encoder=Encoder(gs.fleet_id, config.drone_id, gs.fleet_key),
-            decoder=Decoder(gs.fleet_id, gs.fleet_key, local_id=config.drone_id),
+            encoder=Encoder(gs.fleet_id, config.drone_id, key),
+            decoder=Decoder(gs.fleet_id, key, local_id=config.drone_id,
+                            command_key=gs.command_public_key, epoch=epoch),
             remote_addr=(gs.host, gs.port),
             local_addr=(gs.listen_host, gs.listen_port),
             clock=clock,
             on_event=on_event,
+            epoch=epoch,
         )
 
     return factory

@@ -8,7 +8,7 @@ import logging
 import sys
 from pathlib import Path
 
-from ground_station.config import ConfigError, GroundConfig, load_config
+from ground_station.config import ConfigError, GroundConfig, load_config, missing_keys
 from ground_station.token import ensure_token
 from utility_specs.errors import UtilitySpecsError
 
@@ -64,7 +64,39 @@ def _parser() -> argparse.ArgumentParser:
     export.add_argument("--out", type=Path, required=True, help="output folder")
     token = sub.add_parser("token", help="print the control token (created if missing)")
     _common(token)
+    keygen = sub.add_parser(
+        "keygen", help="make the fleet key and the command key pair (default DATA_DIR/keys)"
+    )
+    _common(keygen)
+    keygen.add_argument("--out", type=Path, help="folder for fleet.key, command.key, command.pub")
+    keygen.add_argument("--force", action="store_true", help="replace existing keys")
     return parser
+
+
+def _keygen(args: argparse.Namespace, config: GroundConfig) -> int:
+    from ground_station.keyfiles import generate_keys
+
+    folder: Path = args.out or config.data_dir / "keys"
+    try:
+        files = generate_keys(folder, replace=args.force)
+    except OSError as exc:
+        print(f"uav-ground-station: keygen: {exc}", file=sys.stderr)
+        return 1
+    print(f"wrote {files.fleet_key} (0600), {files.command_key} (0600), {files.command_pub}")
+    print("ground station: keep all three (found in DATA_DIR/keys, or set fleet_key_file and "
+          "command_key_file)")
+    print(f"each drone: copy {files.fleet_key.name} and {files.command_pub.name} (never "
+          f"{files.command_key.name}); in its companion.toml [ground_station]: "
+          'fleet_key_file = "fleet.key" and command_public_key_file = "command.pub"')
+    return 0
+
+
+def _warn_every_interface(config: GroundConfig) -> None:
+    for what, host in (("udp_host", config.udp_host), ("http_host", config.http_host)):
+        if host in ("0.0.0.0", "::", ""):
+            logging.getLogger("ground_station").warning(
+                "%s is %r: listening on every network interface", what, host
+            )
 
 
 def _run(args: argparse.Namespace, config: GroundConfig) -> int:
@@ -77,6 +109,12 @@ def _run(args: argparse.Namespace, config: GroundConfig) -> int:
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    keyed = missing_keys(config)
+    if isinstance(keyed, str):
+        print(f"uav-ground-station: {keyed}", file=sys.stderr)
+        return 2
+    config = keyed
+    _warn_every_interface(config)
     try:  # a broken spec stops us before a new token is made (it is shown only once)
         image_utility_from_spec(config.spec, alpha=config.alpha)
     except UtilitySpecsError as exc:
@@ -116,6 +154,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.command == "run":
         return _run(args, config)
+    if args.command == "keygen":
+        return _keygen(args, config)
     if args.command == "token":
         token, created = ensure_token(config.token_path)
         print(token)
