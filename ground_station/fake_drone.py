@@ -78,7 +78,9 @@ class FakeDrone(asyncio.DatagramProtocol):
         epoch: int | None = None,
     ) -> None:
         """Like a companion, it obeys only commands signed with ``command_public_key`` and
-        carrying its ``epoch`` (random per instance unless given), announced at open."""
+        carrying its ``epoch`` (random per instance unless given), announced at open; without
+        the key it obeys none (and announces nothing)."""
+        self.command_public_key = command_public_key
         self.drone_id = drone_id
         self.ground = ground
         self.clock = clock
@@ -97,7 +99,8 @@ class FakeDrone(asyncio.DatagramProtocol):
     async def open(self, host: str = "127.0.0.1") -> None:
         loop = asyncio.get_running_loop()
         await loop.create_datagram_endpoint(lambda: self, local_addr=(host, 0))
-        self.announce_epoch()
+        if self.command_public_key is not None:
+            self.announce_epoch()
 
     def announce_epoch(self) -> None:
         self.send_status(EPOCH_STATUS, info={"epoch": self.epoch})

@@ -18,6 +18,7 @@ from ground_station.app import create_app
 from ground_station.config import GroundConfig
 from ground_station.fake_drone import FakeDrone, fly_demo_fleet
 from ground_station.keys import LINK
+from tests.keys import TEST_COMMAND_KEY, TEST_COMMAND_PUB
 
 CHROMIUM = Path("/usr/bin/chromium")
 ARTIFACTS = Path(__file__).resolve().parents[2] / "artifacts" / "browser"
@@ -49,6 +50,7 @@ async def test_dashboard_live_tiles_and_start_mission(
     config = GroundConfig(
         fleet_id=21,
         fleet_key=KEY,
+        command_key=TEST_COMMAND_KEY,
         data_dir=tmp_path / "gs",
         mission="browser",
         udp_host="127.0.0.1",
@@ -65,6 +67,7 @@ async def test_dashboard_live_tiles_and_start_mission(
             ground,
             fleet_id=21,
             key=KEY,
+            command_public_key=TEST_COMMAND_PUB,
             drones=4,
             duration_s=60.0,
             images_per_s=3.0,
