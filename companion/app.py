@@ -573,7 +573,7 @@ class CompanionApp:
         loop = asyncio.get_running_loop()
         delay = max(0.0, command.t_exec - self.clock())
         log.info("command %s #%d at %.3f (in %.3f s)", command.name, command.command_id,
-                 command.t_exec, delay, extra={"event": "command", "name": command.name})
+                 command.t_exec, delay, extra={"event": "command", "command": command.name})
         handle = loop.call_later(delay, self._execute_command, command)
         self._timers.append(handle)
 
