@@ -64,6 +64,8 @@ def _parser() -> argparse.ArgumentParser:
     export.add_argument("--out", type=Path, required=True, help="output folder")
     token = sub.add_parser("token", help="print the control token (created if missing)")
     _common(token)
+    token.add_argument("--url", action="store_true",
+                       help="print a one-time dashboard login URL instead (valid 10 min)")
     keygen = sub.add_parser(
         "keygen", help="make the fleet key and the command key pair (default DATA_DIR/keys)"
     )
@@ -99,10 +101,19 @@ def _warn_every_interface(config: GroundConfig) -> None:
             )
 
 
-def _run(args: argparse.Namespace, config: GroundConfig) -> int:
-    from aiohttp import web
+def _login_url(config: GroundConfig, token: str) -> str:
+    import time
 
+    from ground_station.token import login_code
+
+    host = "127.0.0.1" if config.http_host in ("0.0.0.0", "::", "") else config.http_host
+    code = login_code(token, now=time.time())
+    return f"http://{host}:{config.http_port}/?login={code}"
+
+
+def _run(args: argparse.Namespace, config: GroundConfig) -> int:
     from ground_station.app import create_app
+    from ground_station.http_guard import raise_open_file_limit, serve
     from ground_station.utility import image_utility_from_spec
 
     logging.basicConfig(
@@ -121,20 +132,19 @@ def _run(args: argparse.Namespace, config: GroundConfig) -> int:
         print(f"uav-ground-station: mission spec {config.spec}: {exc}", file=sys.stderr)
         return 2
     token, created = ensure_token(config.token_path)
+    limits = raise_open_file_limit()
+    if limits is not None:
+        logging.getLogger("ground_station").info("open-file limit %d (hard %d)", *limits)
     app = create_app(config, token=token)
     if created:
         print(f"control token (shown once, stored 0600 in {config.token_path}): {token}")
-        print(f"dashboard: http://{config.http_host}:{config.http_port}/?token={token}")
-    else:
-        print(
-            f"dashboard: http://{config.http_host}:{config.http_port}/ "
-            f"(token: uav-ground-station token --data-dir {config.data_dir})"
-        )
+    print(f"dashboard: {_login_url(config, token)} (one-time login link, valid 10 min; "
+          f"another: uav-ground-station token --url --data-dir {config.data_dir})")
     sys.stdout.flush()
     try:
-        web.run_app(
-            app, host=config.http_host, port=config.http_port, print=None, handle_signals=True
-        )
+        serve(app, host=config.http_host, port=config.http_port,
+              max_connections=config.http_max_connections,
+              idle_timeout_s=config.http_idle_timeout_s)
     except OSError as exc:  # address in use, permission denied...
         print(f"uav-ground-station: cannot serve: {exc}", file=sys.stderr)
         return 1
@@ -158,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
         return _keygen(args, config)
     if args.command == "token":
         token, created = ensure_token(config.token_path)
-        print(token)
+        print(_login_url(config, token) if args.url else token)
         if created:
             print(f"(new token stored 0600 in {config.token_path})", file=sys.stderr)
         return 0

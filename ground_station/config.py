@@ -58,6 +58,11 @@ class GroundConfig:
     """Kernel receive buffer asked for (fragments of 100 images/s must not overflow it)."""
     http_host: str = "127.0.0.1"
     http_port: int = 8080
+    http_max_connections: int = 128
+    """Concurrent HTTP connections served; more are closed at once, so browsers and scanners
+    can never take the file descriptors the UDP receiver and the storage need."""
+    http_idle_timeout_s: float = 15.0
+    """An HTTP connection idle this long (also one that never sends a request) is closed."""
     report_interval_s: float = 0.25
     """Receiver report period (thesis ch. 6 needs a few samples per second)."""
     command_retry_s: float = 0.5
@@ -95,6 +100,8 @@ class GroundConfig:
             ("mission", bool(self.mission) and "/" not in self.mission, "a name without '/'"),
             ("udp_port", 0 <= self.udp_port < 65536, "a port 0..65535"),
             ("http_port", 0 <= self.http_port < 65536, "a port 0..65535"),
+            ("http_max_connections", self.http_max_connections >= 1, "an integer >= 1"),
+            ("http_idle_timeout_s", self.http_idle_timeout_s > 0, "a number > 0"),
             ("udp_rcvbuf_bytes", self.udp_rcvbuf_bytes >= 65536, "an integer >= 65536"),
             ("report_interval_s", self.report_interval_s > 0, "a number > 0"),
             ("command_retry_s", self.command_retry_s > 0, "a number > 0"),
@@ -130,6 +137,8 @@ _TYPES: dict[str, tuple[type | tuple[type, ...], str]] = {
     "udp_rcvbuf_bytes": (int, "an integer number of bytes"),
     "http_host": (str, "a host string"),
     "http_port": (int, "an integer port"),
+    "http_max_connections": (int, "an integer"),
+    "http_idle_timeout_s": ((int, float), "a number of seconds"),
     "report_interval_s": ((int, float), "a number of seconds"),
     "command_retry_s": ((int, float), "a number of seconds"),
     "link_lost_s": ((int, float), "a number of seconds"),

@@ -18,6 +18,7 @@ from ground_station.app import create_app
 from ground_station.config import GroundConfig
 from ground_station.fake_drone import FakeDrone, fly_demo_fleet
 from ground_station.keys import LINK
+from ground_station.token import login_code
 from tests.keys import TEST_COMMAND_KEY, TEST_COMMAND_PUB
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -87,7 +88,11 @@ async def test_dashboard_live_tiles_and_start_mission(
             )
             page = browser.pages[0] if browser.pages else await browser.new_page()
             page.on("pageerror", lambda exc: errors.append(str(exc)))
-            await page.goto(f"http://127.0.0.1:{server.port}/?token={TOKEN}")
+            # the one-time login link: exchanged for an HttpOnly cookie, then off the URL
+            code = login_code(TOKEN, now=time.time())
+            await page.goto(f"http://127.0.0.1:{server.port}/?login={code}")
+            assert page.url == f"http://127.0.0.1:{server.port}/"
+            assert await page.evaluate("document.cookie") == ""  # HttpOnly: not for scripts
             # tiles appear and keep updating from the live sender
             tile = page.locator('.tile[data-drone="uav2"]')
             await tile.wait_for(timeout=15_000)
