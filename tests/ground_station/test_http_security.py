@@ -9,10 +9,15 @@ from typing import Any
 import aiohttp
 import pytest
 from aiohttp.test_utils import TestClient
-from conftest import TOKEN, auth
 
 from ground_station.http_guard import SECURITY_HEADERS, redact
 from ground_station.token import SESSION_COOKIE, login_code, session_value
+
+TOKEN = "test-token-0123456789"  # as in conftest.gs_client
+
+
+def auth() -> dict[str, str]:
+    return {"Authorization": f"Bearer {TOKEN}"}
 
 
 def origin(client: TestClient[Any, Any]) -> str:
