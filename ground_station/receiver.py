@@ -139,12 +139,17 @@ class GroundLink:
         return str(host), int(port)
 
     def save_replay_state(self) -> None:
-        """Write the replay state now (blocking; at shutdown, or from a worker thread)."""
+        """Write the replay state now (blocking: at shutdown)."""
+        self._write_replay_state(self.decoder.replay_state(self.clock()))
+
+    def _write_replay_state(self, state: dict[str, list[float]]) -> None:
         try:
-            save_replay_state(self.replay_path, self.decoder.replay_state(self.clock()))
+            save_replay_state(self.replay_path, state)
         except OSError as exc:
             self.counters["replay_state_errors"] += 1
-            log.warning("replay state not saved: %s", exc)
+            if self.counters["replay_state_errors"] % 60 == 1:  # once a minute, not a flood
+                log.warning("replay state not saved (%d times): %s",
+                            self.counters["replay_state_errors"], exc)
 
     def _save_replay_state_soon(self) -> None:
         """Once a second, off the event loop; one write at a time."""
@@ -153,17 +158,11 @@ class GroundLink:
         self._replay_saving = True
         state = self.decoder.replay_state(self.clock())
 
-        def write() -> None:
-            try:
-                save_replay_state(self.replay_path, state)
-            except OSError as exc:
-                self.counters["replay_state_errors"] += 1
-                log.warning("replay state not saved: %s", exc)
-
         def done(_: asyncio.Future[None]) -> None:
             self._replay_saving = False
 
-        future = asyncio.get_running_loop().run_in_executor(None, write)
+        future = asyncio.get_running_loop().run_in_executor(None, self._write_replay_state,
+                                                            state)
         future.add_done_callback(done)
 
     def close(self) -> None:
