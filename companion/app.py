@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import IO, Any, Protocol
 
 from companion.camera import CameraService, Frame, FrameSource, open_source
-from companion.config import CompanionConfig
+from companion.config import CompanionConfig, missing_keys
 from companion.imaging import DEFAULT_SCALES, EncodedImage, image_message
 from companion.mavlink import MavlinkService, MavlinkSettings
 from companion.protocol import (
@@ -680,6 +680,10 @@ def check_setup(config: CompanionConfig) -> list[str]:
     lines.append(f"scoring: {', '.join(config.scoring.scorers) or 'none'}")
     gs = config.ground_station
     lines.append(f"ground station: {gs.host}:{gs.port} fleet {gs.fleet_id}")
+    problem = missing_keys(config)  # check refuses what run would refuse
+    if problem is not None:
+        raise AppSetupError(problem)
+    lines.append("keys: fleet key and the ground station's command key loaded")
     return lines
 
 
@@ -862,7 +866,6 @@ def build_decider(config: CompanionConfig, *, budget_clock: Clock | None = None
 
 def build_transport_factory(config: CompanionConfig, *, clock: Clock) -> TransportFactory:
     """The UDP transport to the ground station (``companion.transport.UdpTransport``)."""
-    from companion.config import missing_keys
     from companion.transport import UdpTransport
 
     gs = config.ground_station
