@@ -178,8 +178,9 @@ class _ReplayWindow:
     seen: int
     """Bit i set: packet number ``highest - i`` was accepted."""
     last_accept: float
-    t_sent_max: float = -math.inf
-    """Latest ``t_sent`` accepted: with ``last_accept`` it says where the sender's clock is."""
+    offset_max: float = -math.inf
+    """Largest ``t_sent - now`` accepted: the sender's clock offset minus the smallest delay,
+    so ``now + offset_max`` bounds the ``t_sent`` of anything it sent before ``now``."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -188,6 +189,8 @@ class _Floor:
 
     packet_number: int
     t_sent: float
+    """Datagrams sent (sender's clock) at or before this are refused."""
+    offset: float
     expires: float
 
 
@@ -371,21 +374,22 @@ class Decoder:
 
     def replay_state(self, now: float) -> dict[str, list[float]]:
         """What a restarted receiver needs to refuse replays: per sender heard recently,
-        ``[highest packet number, latest t_sent, when accepted]`` (JSON-ready)."""
+        ``[highest packet number, t, now]`` where ``t - now`` is the largest clock offset
+        (``t_sent - t_rcv``) accepted from it (JSON-ready)."""
         skew = self.limits.max_clock_skew_s
         horizon = -math.inf if skew is None else now - 2 * skew
-        state: dict[str, list[float]] = {}
-        for sender, floor in self._floors.items():
-            if floor.expires >= now:
-                state[sender] = [floor.packet_number, floor.t_sent, now]
+        known: dict[str, tuple[int, float]] = {
+            sender: (floor.packet_number, floor.offset)
+            for sender, floor in self._floors.items() if floor.expires >= now
+        }
         for windows in (self._windows, self._command_windows):
             for sender, window in windows.items():
-                if window.last_accept < horizon or not math.isfinite(window.t_sent_max):
+                if window.last_accept < horizon or not math.isfinite(window.offset_max):
                     continue
-                pn, t_sent, at = state.get(sender, (-1, -math.inf, window.last_accept))
-                state[sender] = [max(pn, window.highest),
-                                 max(t_sent, window.t_sent_max), max(at, window.last_accept)]
-        return state
+                pn, offset = known.get(sender, (-1, -math.inf))
+                known[sender] = (max(pn, window.highest), max(offset, window.offset_max))
+        # [pn, t_sent, at]: t_sent - at is the offset (the file keeps that self-evident form)
+        return {sender: [pn, now + offset, now] for sender, (pn, offset) in known.items()}
 
     def restore_replay_state(
         self, state: Mapping[str, Any], now: float, *, slack_s: float = 1.0
@@ -408,7 +412,7 @@ class Decoder:
                 continue  # everything it sent then is stale now
             offset = t_sent - accepted_at
             self._floors[sender] = _Floor(packet_number=int(pn),
-                                          t_sent=now + offset + slack_s,
+                                          t_sent=now + offset + slack_s, offset=offset,
                                           expires=now + lifetime)
             restored += 1
         return restored
@@ -427,7 +431,7 @@ class Decoder:
             if len(windows) >= self.limits.max_senders and header.sender not in windows:
                 windows.popitem(last=False)
             windows[header.sender] = _ReplayWindow(
-                highest=pn, seen=1, last_accept=now, t_sent_max=header.t_sent
+                highest=pn, seen=1, last_accept=now, offset_max=header.t_sent - now
             )
             windows.move_to_end(header.sender)
             return
@@ -445,8 +449,8 @@ class Decoder:
                 raise ReplayedPacket(f"packet number {pn} already received")
             window.seen |= 1 << offset
         window.last_accept = now
-        if header.t_sent > window.t_sent_max:
-            window.t_sent_max = header.t_sent
+        if header.t_sent - now > window.offset_max:
+            window.offset_max = header.t_sent - now
         windows.move_to_end(header.sender)
 
     # -- DATA ----------------------------------------------------------------------------

@@ -158,6 +158,26 @@ def test_a_restarted_receiver_refuses_everything_sent_before_it(
     assert all(_accepts(after, fresh))
 
 
+def test_a_second_restart_after_a_quiet_spell_still_refuses_the_last_burst() -> None:
+    """Restart, the drone is heard, goes quiet for 40 s, the state is saved, the drone sends
+    a burst, the station crashes before the next save: the burst is refused after the
+    second restart (the saved offset, not the save's age, decides)."""
+    encoder = Encoder(FLEET, "drone1", KEY)
+    offset = 7.5
+    first = Decoder(FLEET, KEY, local_id="ground")
+    assert all(_accepts(first, _telemetry_stream(encoder, T0, 5.0, 10.0, offset)))
+    second = Decoder(FLEET, KEY, local_id="ground")
+    second.restore_replay_state(first.replay_state(T0 + 5.0), T0 + 6.0)
+    assert all(_accepts(second, _telemetry_stream(encoder, T0 + 7.5, 2.0, 10.0, offset)))
+    saved = json.loads(json.dumps(second.replay_state(T0 + 49.5)))  # after 40 s of quiet
+    burst = _telemetry_stream(encoder, T0 + 49.6, 0.5, 10.0, offset)
+    assert all(_accepts(second, burst))
+    third = Decoder(FLEET, KEY, local_id="ground")
+    third.restore_replay_state(saved, T0 + 50.5)  # crashed at 50.2, before the next save
+    assert not any(_accepts(third, burst, now=T0 + 51.0))
+    assert all(_accepts(third, _telemetry_stream(encoder, T0 + 51.6, 1.0, 10.0, offset)))
+
+
 def test_restore_ignores_damaged_entries_and_old_senders() -> None:
     decoder = Decoder(FLEET, KEY, local_id="ground")
     state = {
