@@ -87,6 +87,15 @@ async def test_station_refuses_without_keys_and_the_named_command_makes_them(
                 except aiohttp.ClientError:
                     pass
                 await asyncio.sleep(0.1)
+            # a one-time login link from the CLI opens a session on the running station
+            link = run([*GS, "token", "--url", "--config", str(config)], tmp_path)
+            url = link.stdout.strip()
+            assert url.startswith(f"http://127.0.0.1:{http_port}/?login="), link.stderr
+            async with session.get(url, allow_redirects=False) as r:
+                assert r.status == 303 and r.headers["Location"] == "/"
+                assert "gs_session" in r.cookies and r.cookies["gs_session"]["httponly"]
+            async with session.get(url, allow_redirects=False) as r:
+                assert "gs_session" not in r.cookies  # once only
     finally:
         station.send_signal(signal.SIGINT)
         out, err = station.communicate(timeout=20)
