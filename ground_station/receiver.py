@@ -47,6 +47,9 @@ MAX_READS_PER_WAKEUP = 512
 RECV_BYTES = 2048
 """Larger than any valid datagram (1200 bytes), so oversize ones are seen and counted."""
 
+MAX_EPOCHS = 1024
+"""Drones whose boot epoch is kept; a forgotten one is sent epoch 0 and announces again."""
+
 TICK_S = 1.0
 """Link charts are sampled and link loss checked once a second."""
 
@@ -303,7 +306,10 @@ class GroundLink:
             )
         self.fleet.heard(event.sender, now=now, addr=addr)
         if self.command_epochs.get(event.sender) != epoch:
+            self.command_epochs.pop(event.sender, None)
             self.command_epochs[event.sender] = epoch
+            while len(self.command_epochs) > MAX_EPOCHS:  # oldest announcement first
+                del self.command_epochs[next(iter(self.command_epochs))]
             self.missions.resend_to(event.sender)
             self.send_commands(now)
 
