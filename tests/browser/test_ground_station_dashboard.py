@@ -44,6 +44,14 @@ pytestmark = [
 ]
 
 
+async def wait_js(page: Any, predicate: str, arg: Any = None, *, timeout_s: float) -> None:
+    """Poll a JavaScript predicate from here: Playwright's wait_for_function evaluates its
+    predicate with eval() in the page, which the dashboard's CSP (no 'unsafe-eval') refuses."""
+    async with asyncio.timeout(timeout_s):
+        while not await page.evaluate(predicate, arg):
+            await asyncio.sleep(0.1)
+
+
 async def test_dashboard_live_tiles_and_start_mission(
     tmp_path: Path, aiohttp_server: Callable[..., Any]
 ) -> None:
@@ -88,6 +96,9 @@ async def test_dashboard_live_tiles_and_start_mission(
             )
             page = browser.pages[0] if browser.pages else await browser.new_page()
             page.on("pageerror", lambda exc: errors.append(str(exc)))
+            # the dashboard itself must work under its own Content-Security-Policy
+            page.on("console", lambda m: errors.append(m.text)
+                    if "Content Security Policy" in m.text else None)
             # the one-time login link: exchanged for an HttpOnly cookie, then off the URL
             code = login_code(TOKEN, now=time.time())
             await page.goto(f"http://127.0.0.1:{server.port}/?login={code}")
@@ -97,20 +108,22 @@ async def test_dashboard_live_tiles_and_start_mission(
             tile = page.locator('.tile[data-drone="uav2"]')
             await tile.wait_for(timeout=15_000)
             first = int(await tile.get_attribute("data-images") or 0)
-            await page.wait_for_function(
+            await wait_js(
+                page,
                 """n => Number(document.querySelector('.tile[data-drone="uav2"]')
                         .dataset.images) >= n + 3""",
-                arg=first,
-                timeout=15_000,
+                first,
+                timeout_s=15.0,
             )
             assert await page.locator(".tile").count() == 4
             # uav2 sees red (1 + 10·0.45 = 5.5 >= 3): red border; uav1 does not
             assert "high" in (await tile.get_attribute("class") or "")
             uav1_class = await page.locator('.tile[data-drone="uav1"]').get_attribute("class")
             assert "high" not in (uav1_class or "")
-            await page.wait_for_function(
-                "document.querySelector('#map').querySelectorAll('circle').length === 4",
-                timeout=10_000,
+            await wait_js(
+                page,
+                "() => document.querySelector('#map').querySelectorAll('circle').length === 4",
+                timeout_s=10.0,
             )
             await page.wait_for_selector("#gallery figure", timeout=15_000)
             await page.screenshot(path=str(ARTIFACTS / "dashboard_live.png"), full_page=True)
@@ -125,9 +138,10 @@ async def test_dashboard_live_tiles_and_start_mission(
                 assert clicked + 4.0 < received.command.t_exec < time.time() + 5.0
             await page.wait_for_selector("#toast:not(.hidden)", timeout=5_000)
             assert "start mission: command #" in await page.inner_text("#toast")
-            await page.wait_for_function(
-                "document.querySelector('#mission-info').innerText.includes('acked 4/4')",
-                timeout=10_000,
+            await wait_js(
+                page,
+                "() => document.querySelector('#mission-info').innerText.includes('acked 4/4')",
+                timeout_s=10.0,
             )
             assert await page.inner_text("#mission-phase") == "scheduled"
             await page.screenshot(path=str(ARTIFACTS / "dashboard_mission.png"), full_page=True)
