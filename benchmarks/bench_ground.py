@@ -209,6 +209,9 @@ async def bench_row(
     work = Path(tempfile.mkdtemp(prefix="bench-ground-"))
     udp_port, http_port = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_STREAM)
     config = work / "gs.toml"
+    from ground_station.keyfiles import generate_keys
+
+    generate_keys(work / "data" / "keys")  # the station finds them in data_dir/keys
     config.write_text(
         "[ground_station]\n"
         f'fleet_key = "{KEY}"\nfleet_id = {FLEET_ID}\ndata_dir = "data"\nmission = "bench"\n'

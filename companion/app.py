@@ -25,13 +25,14 @@ import dataclasses
 import json
 import logging
 import math
+import secrets
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import IO, Any, Protocol
 
 from companion.camera import CameraService, Frame, FrameSource, open_source
-from companion.config import CompanionConfig
+from companion.config import CompanionConfig, missing_keys
 from companion.imaging import DEFAULT_SCALES, EncodedImage, image_message
 from companion.mavlink import MavlinkService, MavlinkSettings
 from companion.protocol import (
@@ -758,6 +759,10 @@ def check_setup(config: CompanionConfig) -> list[str]:
     lines.append(f"scoring: {', '.join(config.scoring.scorers) or 'none'}")
     gs = config.ground_station
     lines.append(f"ground station: {gs.host}:{gs.port} fleet {gs.fleet_id}")
+    problem = missing_keys(config)  # check refuses what run would refuse
+    if problem is not None:
+        raise AppSetupError(problem)
+    lines.append("keys: fleet key and the ground station's command key loaded")
     return lines
 
 
@@ -1019,19 +1024,27 @@ def build_transport_factory(config: CompanionConfig, *, clock: Clock) -> Transpo
     from companion.transport import UdpTransport
 
     gs = config.ground_station
+    problem = missing_keys(config)
+    if problem is not None or gs.fleet_key is None:
+        raise AppSetupError(problem or "no fleet key")
+    key = gs.fleet_key
     try:
-        Encoder(gs.fleet_id, config.drone_id, gs.fleet_key)
+        Encoder(gs.fleet_id, config.drone_id, key)
     except LocalProtocolError as exc:
         raise AppSetupError(f"{config.source}: drone.id / ground_station: {exc}") from None
+    # A fresh epoch per start: commands captured during an earlier boot carry the old one.
+    epoch = secrets.randbits(63) + 1
 
     def factory(on_event: Callable[[Any], None]) -> Transport:
         return UdpTransport(
-            encoder=Encoder(gs.fleet_id, config.drone_id, gs.fleet_key),
-            decoder=Decoder(gs.fleet_id, gs.fleet_key, local_id=config.drone_id),
+            encoder=Encoder(gs.fleet_id, config.drone_id, key),
+            decoder=Decoder(gs.fleet_id, key, local_id=config.drone_id,
+                            command_key=gs.command_public_key, epoch=epoch),
             remote_addr=(gs.host, gs.port),
             local_addr=(gs.listen_host, gs.listen_port),
             clock=clock,
             on_event=on_event,
+            epoch=epoch,
         )
 
     return factory

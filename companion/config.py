@@ -17,7 +17,9 @@ from pathlib import Path
 from typing import Any
 
 from companion.mavlink import DEFAULT_STREAM_RATES_HZ, MavlinkSettings
-from companion.protocol.wire import DEMO_FLEET_KEY, MAX_ID_BYTES, MIN_KEY_BYTES
+from companion.protocol.errors import LocalProtocolError
+from companion.protocol.signing import decode_key_text
+from companion.protocol.wire import MAX_ID_BYTES, MIN_KEY_BYTES
 from companion.scoring import ArucoSettings, HogSettings, RedShareSettings
 
 __all__ = [
@@ -32,6 +34,7 @@ __all__ = [
     "ScoringConfig",
     "TelemetryConfig",
     "load_config",
+    "missing_keys",
     "parse_config",
 ]
 
@@ -77,8 +80,11 @@ class MissionConfig:
 class GroundStationConfig:
     host: str = "127.0.0.1"
     port: int = 14600
-    fleet_key: bytes = DEMO_FLEET_KEY
-    """HMAC key of the fleet (from ``fleet_key_file``; ``fleet_key`` only for demos)."""
+    fleet_key: bytes | None = None
+    """HMAC key of the fleet (from ``fleet_key_file``); there is no built-in one."""
+    command_public_key: bytes | None = None
+    """The ground station's Ed25519 public key (``command_public_key_file``): only commands
+    it verifies are obeyed."""
     fleet_id: int = 1
     listen_host: str = "0.0.0.0"
     listen_port: int = 0
@@ -226,7 +232,40 @@ def _resolve(path: str, base: Path) -> Path:
     return p if p.is_absolute() else base / p
 
 
-def _fleet_key(t: _Table, base: Path) -> bytes:
+def _command_public_key(t: _Table, base: Path) -> bytes | None:
+    key_file = t.string("command_public_key_file", None)
+    key_text = t.string("command_public_key", None)
+    name = "command_public_key_file" if key_file is not None else "command_public_key"
+    if key_file is not None:
+        try:
+            raw = _resolve(key_file, base).read_bytes()
+        except OSError as exc:
+            t.fail(name, "a readable key file", f"{key_file} ({exc.strerror})")
+    elif key_text is not None:
+        raw = str(key_text).encode()
+    else:
+        return None
+    try:
+        return decode_key_text(raw, "command public key")
+    except LocalProtocolError as exc:
+        t.fail(name, "command.pub as written by uav-ground-station keygen", str(exc))
+    return None  # unreachable: fail raises
+
+
+def missing_keys(config: CompanionConfig) -> str | None:
+    """Why ``run`` cannot start without keys (one line with the commands), or None."""
+    gs = config.ground_station
+    if gs.fleet_key is not None and gs.command_public_key is not None:
+        return None
+    which = ("ground_station.fleet_key_file" if gs.fleet_key is None
+             else "ground_station.command_public_key_file")
+    return (f"{config.source}: {which} is not set (there is no built-in key): make the "
+            "fleet's keys on the ground station with `uav-ground-station keygen --out keys`, "
+            "copy keys/fleet.key and keys/command.pub to this drone and set "
+            "ground_station.fleet_key_file and ground_station.command_public_key_file")
+
+
+def _fleet_key(t: _Table, base: Path) -> bytes | None:
     key_file = t.string("fleet_key_file", None)
     key_text = t.string("fleet_key", None)
     if key_file is not None:
@@ -237,7 +276,7 @@ def _fleet_key(t: _Table, base: Path) -> bytes:
     elif key_text is not None:
         key = str(key_text).encode()
     else:
-        return DEMO_FLEET_KEY
+        return None
     if len(key) < MIN_KEY_BYTES:
         t.fail("fleet_key_file" if key_file is not None else "fleet_key",
                f"a key of at least {MIN_KEY_BYTES} bytes", f"{len(key)} bytes")
@@ -349,6 +388,7 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
         host=gs.string("host", "127.0.0.1"),
         port=gs.integer("port", 14600, low=1, high=65535),
         fleet_key=_fleet_key(gs, base),
+        command_public_key=_command_public_key(gs, base),
         fleet_id=gs.integer("fleet_id", 1, low=0, high=0xFFFF_FFFF),
         listen_host=gs.string("listen_host", "0.0.0.0"),
         listen_port=gs.integer("listen_port", 0, low=0, high=65535),

@@ -27,6 +27,7 @@ from companion.protocol import (
     Report,
     Status,
 )
+from companion.protocol.records import EPOCH_STATUS
 from utility_specs.message import Message
 
 __all__ = ["Clock", "UdpTransport"]
@@ -78,8 +79,13 @@ class UdpTransport:
         on_event: Callable[[Event], None] | None = None,
         max_queued_events: int = 1000,
         max_write_buffer_bytes: int = 256 * 1024,
+        epoch: int | None = None,
     ) -> None:
+        """``epoch``: this boot's epoch (the decoder's); announced to ``remote_addr`` at start
+        and whenever a command for another boot is refused, at most twice a second."""
         self.encoder = encoder
+        self.epoch = epoch
+        self._epoch_sent_at = -1.0
         self.decoder = decoder
         self.remote_addr = remote_addr
         self.local_addr = local_addr
@@ -118,6 +124,16 @@ class UdpTransport:
         self._transport = transport
         self._started.set()
         log.info("protocol transport bound to %s", self.local_address)
+        self._announce_epoch()
+
+    def _announce_epoch(self) -> None:
+        if self.epoch is None or self.remote_addr is None:
+            return
+        now = self._clock()
+        if 0 <= now - self._epoch_sent_at < 0.5:
+            return
+        self._epoch_sent_at = now
+        self.send_status(Status(state=EPOCH_STATUS, info={"epoch": self.epoch}), now)
 
     async def wait_started(self) -> None:
         await self._started.wait()
@@ -232,6 +248,8 @@ class UdpTransport:
                 log.debug(
                     "dropped datagram from %s: %s (%s)", event.addr, event.reason, event.detail
                 )
+                if event.reason == "wrong_epoch":
+                    self._announce_epoch()
             if self._on_event is not None:
                 self._on_event(event)
                 continue

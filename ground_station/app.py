@@ -23,6 +23,7 @@ from aiohttp import WSCloseCode, WSMsgType, web
 from ground_station.broadcast import Broadcaster
 from ground_station.config import GroundConfig
 from ground_station.fleet import Alert, FleetView, LatestImage
+from ground_station.http_guard import add_security_headers, same_origin
 from ground_station.keys import (
     BROADCASTER,
     CLOCK,
@@ -40,7 +41,13 @@ from ground_station.missions import MissionError, MissionManager, parse_params, 
 from ground_station.receiver import GroundLink
 from ground_station.storage import ImageRow, Storage
 from ground_station.store_service import StorageService
-from ground_station.token import ensure_token, token_matches
+from ground_station.token import (
+    SESSION_COOKIE,
+    LoginCodes,
+    ensure_token,
+    session_value,
+    token_matches,
+)
 from ground_station.utility import image_utility_from_spec
 
 __all__ = ["STATIC_DIR", "create_app"]
@@ -48,7 +55,7 @@ __all__ = ["STATIC_DIR", "create_app"]
 log = logging.getLogger(__name__)
 
 STATIC_DIR = Path(__file__).parent / "static"
-TOKEN_COOKIE = "gs_token"
+LOGIN_CODES: web.AppKey[LoginCodes] = web.AppKey("login_codes")
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
 
@@ -56,18 +63,26 @@ def _json(data: Any, status: int = 200) -> web.Response:
     return web.json_response(data, status=status, dumps=lambda v: json.dumps(v, default=str))
 
 
-def _given_token(request: web.Request, *, allow_cookie: bool) -> str | None:
+def _header_token(request: web.Request) -> str | None:
+    """The token from a header; never from the URL (URLs end up in logs and histories)."""
     auth = request.headers.get("Authorization", "")
     if auth.startswith("Bearer "):
         return auth[7:].strip()
-    given = request.headers.get("X-GS-Token") or request.query.get("token")
-    if given is None and allow_cookie:
-        # The dashboard page stores the token in a SameSite=Strict cookie so images and the
-        # WebSocket need no token in their URLs (URLs end up in access logs). Control
-        # routes never accept the cookie: they need a header, which a foreign page cannot
-        # add (no CSRF).
-        given = request.cookies.get(TOKEN_COOKIE)
-    return given
+    return request.headers.get("X-GS-Token")
+
+
+def _authorized(request: web.Request, *, control: bool) -> bool:
+    """A header token, or the dashboard's HttpOnly session cookie. With the cookie, control
+    requests must also come from this origin (a SameSite=Strict cookie plus an Origin check:
+    no cross-site request forgery)."""
+    token = request.app[TOKEN]
+    given = _header_token(request)
+    if given is not None:
+        return token_matches(token, given)
+    cookie = request.cookies.get(SESSION_COOKIE)
+    if cookie is None or not token_matches(session_value(token), cookie):
+        return False
+    return not control or same_origin(request)
 
 
 def _is_control(request: web.Request) -> bool:
@@ -84,7 +99,7 @@ async def token_middleware(request: web.Request, handler: Handler) -> web.Stream
     app = request.app
     control = _is_control(request)
     needs = control or (_is_data_read(request) and not app[CONFIG].public_read)
-    if needs and not token_matches(app[TOKEN], _given_token(request, allow_cookie=not control)):
+    if needs and not _authorized(request, control=control):
         return _json(
             {"error": "unauthorized", "hint": "send 'Authorization: Bearer <token>'"}, status=401
         )
@@ -92,8 +107,31 @@ async def token_middleware(request: web.Request, handler: Handler) -> web.Stream
 
 
 # -- pages ---------------------------------------------------------------------------------
+def _set_session(response: web.StreamResponse, request: web.Request) -> None:
+    response.set_cookie(SESSION_COOKIE, session_value(request.app[TOKEN]), path="/",
+                        httponly=True, samesite="Strict", secure=request.secure)
+
+
 async def index(request: web.Request) -> web.StreamResponse:
+    """The dashboard. ``?login=CODE`` (one-time) is exchanged for the session cookie and
+    removed from the address bar by a redirect; a token in the URL is never accepted."""
+    if "login" in request.query or "token" in request.query:
+        code = request.query.get("login")
+        kept = [(k, v) for k, v in request.query.items() if k not in ("login", "token")]
+        target = request.rel_url.with_query(kept)
+        response = web.HTTPSeeOther(location=str(target))
+        if code is not None and request.app[LOGIN_CODES].redeem(code, now=request.app[CLOCK]()):
+            _set_session(response, request)
+        raise response
     return web.FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
+
+
+async def api_login(request: web.Request) -> web.Response:
+    """The token box: the token comes in a header (checked by the middleware), the browser
+    gets the HttpOnly session cookie and JavaScript never keeps the token."""
+    response = web.Response(status=204)
+    _set_session(response, request)
+    return response
 
 
 # -- read API ------------------------------------------------------------------------------
@@ -304,6 +342,9 @@ async def api_reset_reports(request: web.Request) -> web.Response:
 async def websocket(request: web.Request) -> web.WebSocketResponse:
     """Live updates: a snapshot first, then drone/status/alert/tick/mission events."""
     app = request.app
+    if "Origin" in request.headers and not same_origin(request):
+        # a page elsewhere must not read the live feed with this browser's cookie
+        raise web.HTTPForbidden(text="cross-origin WebSocket refused")
     ws = web.WebSocketResponse(heartbeat=20.0)
     await ws.prepare(request)
     app[WEBSOCKETS].add(ws)
@@ -410,6 +451,7 @@ def create_app(
     app[CONFIG] = config
     app[CLOCK] = clock
     app[TOKEN] = token if token is not None else ensure_token(config.token_path)[0]
+    app[LOGIN_CODES] = LoginCodes(app[TOKEN])
     app[FLEET] = FleetView(high_utility=config.high_utility, link_lost_s=config.link_lost_s)
     app[MISSIONS] = MissionManager(
         retry_s=config.command_retry_s,
@@ -423,6 +465,7 @@ def create_app(
     app.cleanup_ctx.append(storage_ctx)
     app.cleanup_ctx.append(link_ctx)
     app.on_shutdown.append(close_websockets)
+    app.on_response_prepare.append(add_security_headers)
     app.router.add_get("/", index)
     app.router.add_static("/static/", STATIC_DIR, append_version=True)
     app.router.add_get("/ws", websocket)
@@ -435,6 +478,7 @@ def create_app(
     app.router.add_get("/api/drones/{drone}/latest.jpg", api_latest_jpeg)
     app.router.add_get("/api/alerts", api_alerts)
     app.router.add_get("/api/telemetry", api_telemetry)
+    app.router.add_post("/api/login", api_login)
     app.router.add_post("/api/mission/start", api_start)
     app.router.add_post("/api/mission/end", api_end)
     app.router.add_post("/api/mission/params", api_params)

@@ -9,7 +9,7 @@ import os
 import sys
 from pathlib import Path
 
-from ground_station.config import ConfigError, GroundConfig, load_config
+from ground_station.config import ConfigError, GroundConfig, load_config, missing_keys
 from ground_station.token import ensure_token
 from utility_specs.errors import UtilitySpecsError
 
@@ -82,19 +82,68 @@ def _parser() -> argparse.ArgumentParser:
     export.add_argument("--out", type=Path, required=True, help="output folder")
     token = sub.add_parser("token", help="print the control token (created if missing)")
     _common(token)
+    token.add_argument("--url", action="store_true",
+                       help="print a one-time dashboard login URL instead (valid 10 min)")
+    keygen = sub.add_parser(
+        "keygen", help="make the fleet key and the command key pair (default DATA_DIR/keys)"
+    )
+    _common(keygen)
+    keygen.add_argument("--out", type=Path, help="folder for fleet.key, command.key, command.pub")
+    keygen.add_argument("--force", action="store_true", help="replace existing keys")
     return parser
 
 
-def _run(args: argparse.Namespace, config: GroundConfig) -> int:
-    from aiohttp import web
+def _keygen(args: argparse.Namespace, config: GroundConfig) -> int:
+    from ground_station.keyfiles import generate_keys
 
+    folder: Path = args.out or config.data_dir / "keys"
+    try:
+        files = generate_keys(folder, replace=args.force)
+    except OSError as exc:
+        print(f"uav-ground-station: keygen: {exc}", file=sys.stderr)
+        return 1
+    print(f"wrote {files.fleet_key} (0600), {files.command_key} (0600), {files.command_pub}")
+    print("ground station: keep all three (found in DATA_DIR/keys, or set fleet_key_file and "
+          "command_key_file)")
+    print(f"each drone: copy {files.fleet_key.name} and {files.command_pub.name} (never "
+          f"{files.command_key.name}); in its companion.toml [ground_station]: "
+          'fleet_key_file = "fleet.key" and command_public_key_file = "command.pub"')
+    return 0
+
+
+def _warn_every_interface(config: GroundConfig) -> None:
+    for what, host in (("udp_host", config.udp_host), ("http_host", config.http_host)):
+        if host in ("0.0.0.0", "::", ""):
+            logging.getLogger("ground_station").warning(
+                "%s is %r: listening on every network interface", what, host
+            )
+
+
+def _login_url(config: GroundConfig, token: str) -> str:
+    import time
+
+    from ground_station.token import login_code
+
+    host = "127.0.0.1" if config.http_host in ("0.0.0.0", "::", "") else config.http_host
+    code = login_code(token, now=time.time())
+    return f"http://{host}:{config.http_port}/?login={code}"
+
+
+def _run(args: argparse.Namespace, config: GroundConfig) -> int:
     from ground_station.app import create_app
+    from ground_station.http_guard import raise_open_file_limit, serve
     from ground_station.utility import image_utility_from_spec
 
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    keyed = missing_keys(config)
+    if isinstance(keyed, str):
+        print(f"uav-ground-station: {keyed}", file=sys.stderr)
+        return 2
+    config = keyed
+    _warn_every_interface(config)
     try:  # a broken spec stops us before a new token is made (it is shown only once)
         image_utility_from_spec(config.spec, alpha=config.alpha)
     except UtilitySpecsError as exc:
@@ -105,20 +154,19 @@ def _run(args: argparse.Namespace, config: GroundConfig) -> int:
         print(f"uav-ground-station: {problem}", file=sys.stderr)
         return 2
     token, created = ensure_token(config.token_path)
+    limits = raise_open_file_limit()
+    if limits is not None:
+        logging.getLogger("ground_station").info("open-file limit %d (hard %d)", *limits)
     app = create_app(config, token=token)
     if created:
         print(f"control token (shown once, stored 0600 in {config.token_path}): {token}")
-        print(f"dashboard: http://{config.http_host}:{config.http_port}/?token={token}")
-    else:
-        print(
-            f"dashboard: http://{config.http_host}:{config.http_port}/ "
-            f"(token: uav-ground-station token --data-dir {config.data_dir})"
-        )
+    print(f"dashboard: {_login_url(config, token)} (one-time login link, valid 10 min; "
+          f"another: uav-ground-station token --url --data-dir {config.data_dir})")
     sys.stdout.flush()
     try:
-        web.run_app(
-            app, host=config.http_host, port=config.http_port, print=None, handle_signals=True
-        )
+        serve(app, host=config.http_host, port=config.http_port,
+              max_connections=config.http_max_connections,
+              idle_timeout_s=config.http_idle_timeout_s)
     except OSError as exc:  # address in use, permission denied...
         print(f"uav-ground-station: cannot serve: {exc}", file=sys.stderr)
         return 1
@@ -138,13 +186,15 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.command == "run":
         return _run(args, config)
+    if args.command == "keygen":
+        return _keygen(args, config)
     if args.command == "token":
         problem = data_dir_problem(config.data_dir)
         if problem is not None:
             print(f"uav-ground-station: {problem}", file=sys.stderr)
             return 2
         token, created = ensure_token(config.token_path)
-        print(token)
+        print(_login_url(config, token) if args.url else token)
         if created:
             print(f"(new token stored 0600 in {config.token_path})", file=sys.stderr)
         return 0

@@ -11,9 +11,11 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
-from companion.protocol.wire import DEMO_FLEET_KEY, MIN_KEY_BYTES
+from companion.protocol.errors import LocalProtocolError
+from companion.protocol.signing import KEY_BYTES, decode_key_text
+from companion.protocol.wire import MIN_KEY_BYTES
 
-__all__ = ["ConfigError", "GroundConfig", "load_config"]
+__all__ = ["ConfigError", "GroundConfig", "load_config", "missing_keys"]
 
 
 class ConfigError(ValueError):
@@ -38,18 +40,29 @@ class GroundConfig:
     """Receiver id written into the mission log (``receiver`` field)."""
     fleet_id: int = 1
     """Fleet id every datagram must carry (protocol header)."""
-    fleet_key: bytes = DEMO_FLEET_KEY
-    """HMAC key shared by the fleet. Prefer ``fleet_key_file`` outside demos."""
+    fleet_key: bytes | None = None
+    """HMAC key shared by the fleet (``fleet_key_file``); there is no built-in one. When unset,
+    ``data_dir/keys/fleet.key`` is used if it exists (``uav-ground-station keygen``)."""
+    command_key: bytes | None = None
+    """The station's Ed25519 private key that signs commands (``command_key_file``); when
+    unset, ``data_dir/keys/command.key`` if it exists."""
     data_dir: Path = Path("gs-data")
     """Where the SQLite database, images, mission logs and the control token live."""
     mission: str = "default"
     """Name of the current mission (images and log records are grouped by it)."""
-    udp_host: str = "0.0.0.0"
+    udp_host: str = "127.0.0.1"
+    """Where the fleet's datagrams are received; set the radio link's address (or 0.0.0.0,
+    which is logged as a warning) for real drones."""
     udp_port: int = 14600
     udp_rcvbuf_bytes: int = 16 << 20
     """Kernel receive buffer asked for (fragments of 100 images/s must not overflow it)."""
     http_host: str = "127.0.0.1"
     http_port: int = 8080
+    http_max_connections: int = 128
+    """Concurrent HTTP connections served; more are closed at once, so browsers and scanners
+    can never take the file descriptors the UDP receiver and the storage need."""
+    http_idle_timeout_s: float = 15.0
+    """An HTTP connection idle this long (also one that never sends a request) is closed."""
     report_interval_s: float = 0.25
     """Receiver report period (thesis ch. 6 needs a few samples per second)."""
     command_retry_s: float = 0.5
@@ -82,10 +95,15 @@ class GroundConfig:
         checks: list[tuple[str, bool, str]] = [
             ("station_id", bool(self.station_id), "a non-empty string"),
             ("fleet_id", 0 <= self.fleet_id < 2**32, "an integer in 0..2**32-1"),
-            ("fleet_key", len(self.fleet_key) >= MIN_KEY_BYTES, f"at least {MIN_KEY_BYTES} bytes"),
+            ("fleet_key", self.fleet_key is None or len(self.fleet_key) >= MIN_KEY_BYTES,
+             f"at least {MIN_KEY_BYTES} bytes"),
+            ("command_key", self.command_key is None or len(self.command_key) == KEY_BYTES,
+             f"{KEY_BYTES} bytes (an Ed25519 private key)"),
             ("mission", bool(self.mission) and "/" not in self.mission, "a name without '/'"),
             ("udp_port", 0 <= self.udp_port < 65536, "a port 0..65535"),
             ("http_port", 0 <= self.http_port < 65536, "a port 0..65535"),
+            ("http_max_connections", self.http_max_connections >= 1, "an integer >= 1"),
+            ("http_idle_timeout_s", self.http_idle_timeout_s > 0, "a number > 0"),
             ("udp_rcvbuf_bytes", self.udp_rcvbuf_bytes >= 65536, "an integer >= 65536"),
             ("report_interval_s", self.report_interval_s > 0, "a number > 0"),
             ("command_retry_s", self.command_retry_s > 0, "a number > 0"),
@@ -114,6 +132,7 @@ _TYPES: dict[str, tuple[type | tuple[type, ...], str]] = {
     "fleet_id": (int, "an integer"),
     "fleet_key": (str, "a string"),
     "fleet_key_file": (str, "a path string"),
+    "command_key_file": (str, "a path string"),
     "data_dir": (str, "a path string"),
     "mission": (str, "a string"),
     "udp_host": (str, "a host string"),
@@ -121,6 +140,8 @@ _TYPES: dict[str, tuple[type | tuple[type, ...], str]] = {
     "udp_rcvbuf_bytes": (int, "an integer number of bytes"),
     "http_host": (str, "a host string"),
     "http_port": (int, "an integer port"),
+    "http_max_connections": (int, "an integer"),
+    "http_idle_timeout_s": ((int, float), "a number of seconds"),
     "report_interval_s": ((int, float), "a number of seconds"),
     "command_retry_s": ((int, float), "a number of seconds"),
     "command_reply_timeout_s": ((int, float), "a number of seconds"),
@@ -143,7 +164,8 @@ def config_from_mapping(raw: dict[str, Any], *, file: str = "<config>") -> Groun
     table = raw.get("ground_station", raw)
     if not isinstance(table, dict):
         raise ConfigError(file, "ground_station", "a table")
-    known = {f.name for f in fields(GroundConfig)} | {"fleet_key_file"}
+    known = ({f.name for f in fields(GroundConfig)} - {"command_key"}) | {
+        "fleet_key_file", "command_key_file"}
     base = Path(file).parent if file != "<config>" else Path.cwd()
     values: dict[str, Any] = {}
     value: Any
@@ -166,6 +188,16 @@ def config_from_mapping(raw: dict[str, Any], *, file: str = "<config>") -> Groun
                 values["fleet_key"] = path.read_bytes().strip()
             except OSError as exc:
                 raise ConfigError(file, key, "a readable key file", str(exc)) from exc
+        elif key == "command_key_file":
+            path = Path(str(value)).expanduser()
+            path = path if path.is_absolute() else base / path
+            try:
+                values["command_key"] = decode_key_text(path.read_bytes(), "command key")
+            except OSError as exc:
+                raise ConfigError(file, key, "a readable key file", str(exc)) from exc
+            except LocalProtocolError as exc:
+                raise ConfigError(file, key, "a file written by uav-ground-station keygen",
+                                  str(exc)) from exc
         elif isinstance(value, int) and not isinstance(value, bool) and want == (int, float):
             values[key] = float(value)
         else:
@@ -195,3 +227,27 @@ def load_config(path: Path | str) -> GroundConfig:
     except OSError as exc:  # a folder, no permission...
         raise ConfigError(file, "<file>", "a readable TOML file", exc.strerror) from None
     return config_from_mapping(raw, file=file)
+
+
+def missing_keys(config: GroundConfig) -> GroundConfig | str:
+    """The config with its keys filled in from ``data_dir/keys`` when the config names none,
+    or a one-line reason (with the command that makes the keys) when there are none."""
+    from ground_station.keyfiles import KeyFiles
+
+    files = KeyFiles(config.data_dir / "keys")
+    changes: dict[str, bytes] = {}
+    try:
+        if config.fleet_key is None and files.fleet_key.is_file():
+            changes["fleet_key"] = files.fleet_key.read_bytes().strip()
+        if config.command_key is None and files.command_key.is_file():
+            changes["command_key"] = decode_key_text(files.command_key.read_bytes(),
+                                                     "command key")
+        config = config.with_overrides(**changes) if changes else config
+    except (OSError, LocalProtocolError, ConfigError) as exc:
+        return f"cannot read the keys in {files.folder}: {exc}"
+    if config.fleet_key is None or config.command_key is None:
+        which = "fleet key" if config.fleet_key is None else "command key"
+        return (f"no {which} (there is no built-in one): make the fleet's keys with "
+                f"`uav-ground-station keygen --data-dir {config.data_dir}` "
+                "(or set fleet_key_file and command_key_file in the config)")
+    return config

@@ -11,17 +11,22 @@ from __future__ import annotations
 
 import asyncio
 import math
+import secrets
 import time
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any, cast
 
 from companion.protocol import (
+    EPOCH_STATUS,
     CommandReceived,
     Decoder,
     Encoder,
+    PacketDropped,
     ReportReceived,
     Status,
 )
+from companion.protocol.signing import decode_key_text
 from utility_specs.message import Message
 
 __all__ = ["FakeDrone", "synthetic_jpeg"]
@@ -71,7 +76,13 @@ class FakeDrone(asyncio.DatagramProtocol):
         clock: Callable[[], float] = time.time,
         auto_ack: bool = True,
         auto_done: bool = True,
+        command_public_key: bytes | None = None,
+        epoch: int | None = None,
     ) -> None:
+        """Like a companion, it obeys only commands signed with ``command_public_key`` and
+        carrying its ``epoch`` (random per instance unless given), announced at open; without
+        the key it obeys none (and announces nothing)."""
+        self.command_public_key = command_public_key
         self.drone_id = drone_id
         self.ground = ground
         self.clock = clock
@@ -79,8 +90,10 @@ class FakeDrone(asyncio.DatagramProtocol):
         self.auto_done = auto_done
         """Like the companion: ``done`` at the command's ``t_exec``, again on a repeat."""
         self.done: set[int] = set()
+        self.epoch = epoch if epoch is not None else secrets.randbits(63) + 1
         self.encoder = Encoder(fleet_id, drone_id, key)
-        self.decoder = Decoder(fleet_id, key, local_id=drone_id)
+        self.decoder = Decoder(fleet_id, key, local_id=drone_id,
+                               command_key=command_public_key, epoch=self.epoch)
         self.transport: asyncio.DatagramTransport | None = None
         self.seq = 0
         self.commands: list[CommandReceived] = []
@@ -91,6 +104,11 @@ class FakeDrone(asyncio.DatagramProtocol):
     async def open(self, host: str = "127.0.0.1") -> None:
         loop = asyncio.get_running_loop()
         await loop.create_datagram_endpoint(lambda: self, local_addr=(host, 0))
+        if self.command_public_key is not None:
+            self.announce_epoch()
+
+    def announce_epoch(self) -> None:
+        self.send_status(EPOCH_STATUS, info={"epoch": self.epoch})
 
     def close(self) -> None:
         if self.transport is not None:
@@ -111,6 +129,8 @@ class FakeDrone(asyncio.DatagramProtocol):
             elif isinstance(event, ReportReceived):
                 self.reports.append(event)
                 self.report_event.set()
+            elif isinstance(event, PacketDropped) and event.reason == "wrong_epoch":
+                self.announce_epoch()
 
     def _answer(self, command: Any) -> None:
         cid = command.command_id
@@ -196,6 +216,7 @@ async def fly_demo_fleet(
     *,
     fleet_id: int,
     key: bytes,
+    command_public_key: bytes | None = None,
     drones: int = 4,
     duration_s: float = 30.0,
     images_per_s: float = 2.0,
@@ -205,7 +226,8 @@ async def fly_demo_fleet(
     """Drones circling a point 51.1 N 17.0 E: images (one sees red), position, battery,
     status with link statistics, one STATUSTEXT. For the browser test and demos."""
     fleet = [
-        FakeDrone(f"uav{i + 1}", fleet_id=fleet_id, key=key, ground=ground, clock=clock)
+        FakeDrone(f"uav{i + 1}", fleet_id=fleet_id, key=key, ground=ground, clock=clock,
+                  command_public_key=command_public_key)
         for i in range(drones)
     ]
     for drone in fleet:
@@ -272,14 +294,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--drones", type=int, default=4)
     parser.add_argument("--duration", type=float, default=60.0)
     parser.add_argument("--fleet-id", type=int, default=GroundConfig().fleet_id)
-    parser.add_argument("--key", default=GroundConfig().fleet_key.decode())
+    parser.add_argument("--keys", type=Path, required=True,
+                        help="folder with fleet.key and command.pub (uav-ground-station keygen)")
     args = parser.parse_args(argv)
+    try:
+        key = (args.keys / "fleet.key").read_bytes().strip()
+        public = decode_key_text((args.keys / "command.pub").read_bytes(), "command.pub")
+    except (OSError, ValueError) as exc:
+        parser.error(f"--keys {args.keys}: {exc}")
     host, _, port = args.ground.rpartition(":")
     asyncio.run(
         fly_demo_fleet(
             (host or "127.0.0.1", int(port)),
             fleet_id=args.fleet_id,
-            key=args.key.encode(),
+            key=key,
+            command_public_key=public,
             drones=args.drones,
             duration_s=args.duration,
         )

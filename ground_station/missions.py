@@ -393,6 +393,12 @@ class MissionManager:
             self.on_report(drone, state, now=now)
         return None
 
+    def resend_to(self, drone: str) -> None:
+        """Send ``drone`` its unacknowledged commands at the next :meth:`due` (it restarted)."""
+        for issued in self.commands.values():
+            if drone not in issued.acked:
+                issued.last_sent.pop(drone, None)
+
     def on_report(self, drone: str, name: str, *, now: float) -> None:
         self.report_counts[name] += 1
         self.report_drones.setdefault(name, set()).add(drone)

@@ -17,6 +17,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from companion.protocol import (
+    EPOCH_STATUS,
     Command,
     Decoder,
     DecoderLimits,
@@ -31,6 +32,7 @@ from ground_station.broadcast import Broadcaster
 from ground_station.config import GroundConfig
 from ground_station.fleet import Alert, FleetView
 from ground_station.missions import MissionManager
+from ground_station.replay_state import load_replay_state, save_replay_state
 from ground_station.reports import ReportScheduler
 from ground_station.storage import BatchResult, StoreItem
 from ground_station.store_service import StorageService
@@ -44,6 +46,9 @@ MAX_READS_PER_WAKEUP = 512
 """Datagrams read per wake-up before the loop serves others (timers, HTTP, WebSocket)."""
 RECV_BYTES = 2048
 """Larger than any valid datagram (1200 bytes), so oversize ones are seen and counted."""
+
+MAX_EPOCHS = 1024
+"""Drones whose boot epoch is kept; a forgotten one is sent epoch 0 and announces again."""
 
 TICK_S = 1.0
 """Link charts are sampled and link loss checked once a second."""
@@ -83,11 +88,19 @@ class GroundLink:
             max_buffered_bytes=max(8 << 20, config.max_pending_messages * 64 * 1024),
             max_clock_skew_s=config.clock_tolerance_s,
         )
+        if config.fleet_key is None or config.command_key is None:
+            raise ValueError("the ground station needs a fleet key and a command key")
         self.decoder = Decoder(
             config.fleet_id, config.fleet_key, local_id=config.station_id, limits=limits
         )
         now = clock()
-        self.encoder = Encoder(config.fleet_id, config.station_id, config.fleet_key)
+        self.encoder = Encoder(
+            config.fleet_id, config.station_id, config.fleet_key, command_key=config.command_key
+        )
+        self.command_epochs: dict[str, int] = {}
+        """Boot epoch each drone announced; its commands must carry it (docs/protocol.md)."""
+        self.replay_path = config.data_dir / "replay_state.json"
+        self._replay_saving = False
         self.reports = ReportScheduler(interval_s=config.report_interval_s, now=now)
         self.sock: socket.socket | None = None
         self.rcvbuf_bytes = 0
@@ -99,8 +112,16 @@ class GroundLink:
 
     # -- lifecycle ------------------------------------------------------------------------
     async def open(self) -> tuple[str, int]:
-        """Bind the UDP socket and start reading it from the event loop."""
+        """Bind the UDP socket and start reading it from the event loop.
+
+        First the previous run's replay state is restored: whatever a sender sent before this
+        start is refused, so datagrams captured earlier cannot be replayed into this run.
+        """
         loop = asyncio.get_running_loop()
+        saved = await asyncio.to_thread(load_replay_state, self.replay_path)
+        restored = self.decoder.restore_replay_state(saved, self.clock())
+        if restored:
+            log.info("replay protection restored for %d sender(s)", restored)
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.rcvbuf_bytes = set_receive_buffer(sock, self.config.udp_rcvbuf_bytes)
@@ -120,7 +141,36 @@ class GroundLink:
         host, port = self.sock.getsockname()[:2]
         return str(host), int(port)
 
+    def save_replay_state(self) -> None:
+        """Write the replay state now (blocking: at shutdown)."""
+        self._write_replay_state(self.decoder.replay_state(self.clock()))
+
+    def _write_replay_state(self, state: dict[str, list[float]]) -> None:
+        try:
+            save_replay_state(self.replay_path, state)
+        except OSError as exc:
+            self.counters["replay_state_errors"] += 1
+            if self.counters["replay_state_errors"] % 60 == 1:  # once a minute, not a flood
+                log.warning("replay state not saved (%d times): %s",
+                            self.counters["replay_state_errors"], exc)
+
+    def _save_replay_state_soon(self) -> None:
+        """Once a second, off the event loop; one write at a time."""
+        if self._replay_saving:
+            return
+        self._replay_saving = True
+        state = self.decoder.replay_state(self.clock())
+
+        def done(_: asyncio.Future[None]) -> None:
+            self._replay_saving = False
+
+        future = asyncio.get_running_loop().run_in_executor(None, self._write_replay_state,
+                                                            state)
+        future.add_done_callback(done)
+
     def close(self) -> None:
+        if self.sock is not None:
+            self.save_replay_state()
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
@@ -216,6 +266,9 @@ class GroundLink:
     def _on_status(self, event: StatusReceived, now: float) -> None:
         status = event.status
         addr = (str(event.addr[0]), int(event.addr[1]))
+        if status.state == EPOCH_STATUS:
+            self._on_epoch(event, addr, now)
+            return
         if self.missions.on_drone_heard(event.sender, now=now):
             self.fleet.alert(
                 Alert(t=now, level="info", kind="fleet", drone=event.sender, text="drone joined")
@@ -248,6 +301,25 @@ class GroundLink:
                 "mission": self.missions.state(now=now),
             },
         )
+
+    def _on_epoch(self, event: StatusReceived, addr: tuple[str, int], now: float) -> None:
+        """A drone (re)started: remember its epoch, resend its unacknowledged commands."""
+        epoch = event.status.info.get("epoch")
+        if isinstance(epoch, bool) or not isinstance(epoch, int) or not 0 < epoch < 2**64:
+            self.counters["bad_epoch_status"] += 1
+            return
+        if self.missions.on_drone_heard(event.sender, now=now):
+            self.fleet.alert(
+                Alert(t=now, level="info", kind="fleet", drone=event.sender, text="drone joined")
+            )
+        self.fleet.heard(event.sender, now=now, addr=addr)
+        if self.command_epochs.get(event.sender) != epoch:
+            self.command_epochs.pop(event.sender, None)
+            self.command_epochs[event.sender] = epoch
+            while len(self.command_epochs) > MAX_EPOCHS:  # oldest announcement first
+                del self.command_epochs[next(iter(self.command_epochs))]
+            self.missions.resend_to(event.sender)
+            self.send_commands(now)
 
     # -- storage feedback ----------------------------------------------------------------
     def on_storage_batch(self, items: Sequence[StoreItem], result: BatchResult) -> None:
@@ -300,7 +372,9 @@ class GroundLink:
             if addr is None:
                 continue
             try:
-                datagram = self.encoder.encode_command(command, now)
+                datagram = self.encoder.encode_command(
+                    command, now, epoch=self.command_epochs.get(drone, 0)
+                )
             except LocalProtocolError as exc:
                 self.fleet.alert(
                     Alert(t=now, level="error", kind="mission", text=f"command not sent: {exc}")
@@ -370,6 +444,7 @@ class GroundLink:
         self.send_commands(now)
         if now >= self._next_tick:
             self._next_tick = now + TICK_S
+            self._save_replay_state_soon()
             point = self.fleet.tick(now=now)
             for drone in self.fleet.take_forgotten():
                 self.missions.forget(drone)

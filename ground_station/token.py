@@ -8,7 +8,15 @@ import os
 import secrets
 from pathlib import Path
 
-__all__ = ["ensure_token", "read_token", "token_matches"]
+__all__ = [
+    "SESSION_COOKIE",
+    "LoginCodes",
+    "ensure_token",
+    "login_code",
+    "read_token",
+    "session_value",
+    "token_matches",
+]
 
 
 def read_token(path: Path) -> str:
@@ -41,3 +49,52 @@ def ensure_token(path: Path) -> tuple[str, bool]:
 def token_matches(expected: str, given: str | None) -> bool:
     """Constant-time comparison, so response timing does not leak the token."""
     return given is not None and hmac.compare_digest(expected.encode(), given.encode())
+
+
+# -- browser sessions -----------------------------------------------------------------------
+# The dashboard never keeps the control token in JavaScript or in a URL: a browser holds an
+# HttpOnly session cookie derived from it, obtained either with a one-time login code in
+# the dashboard URL (printed at start, or by ``uav-ground-station token --url``) or by
+# POSTing the token in a header (the token box). Rotating the token file ends all sessions.
+
+SESSION_COOKIE = "gs_session"
+LOGIN_TTL_S = 600.0
+
+
+def session_value(token: str) -> str:
+    """The session cookie's value: a MAC of the token, so the cookie never is the token."""
+    return hmac.new(token.encode(), b"uav-infodist dashboard session", "sha256").hexdigest()
+
+
+def _login_mac(token: str, message: str) -> str:
+    return hmac.new(token.encode(), b"login:" + message.encode(), "sha256").hexdigest()[:32]
+
+
+def login_code(token: str, *, now: float, ttl_s: float = LOGIN_TTL_S) -> str:
+    """A one-time code for ``/?login=CODE``: valid ``ttl_s`` seconds, once."""
+    message = f"{int(now + ttl_s)}.{secrets.token_urlsafe(12)}"
+    return f"{message}.{_login_mac(token, message)}"
+
+
+class LoginCodes:
+    """Redeems login codes: a code is accepted once, before it expires."""
+
+    def __init__(self, token: str) -> None:
+        self._token = token
+        self._used: dict[str, float] = {}
+
+    def redeem(self, code: str, *, now: float) -> bool:
+        expires_text, _, rest = code.partition(".")
+        nonce, _, mac = rest.partition(".")
+        if not (expires_text.isdigit() and nonce and mac) or len(code) > 200:
+            return False
+        message = f"{expires_text}.{nonce}"
+        if not hmac.compare_digest(_login_mac(self._token, message), mac):
+            return False
+        expires = float(expires_text)
+        if expires < now or expires > now + 2 * LOGIN_TTL_S or message in self._used:
+            return False
+        for old in [m for m, t in self._used.items() if t < now]:
+            del self._used[old]
+        self._used[message] = expires
+        return True

@@ -840,7 +840,7 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
                            delay_s=args.link_delay / 1000.0, loss=args.link_loss / 100.0)
     plan = make_plan(args, run_dir, netns=netns is not None)
     write_run_configs(plan)
-    from ground_station.token import ensure_token
+    from ground_station.token import ensure_token, login_code
 
     token, _ = ensure_token(plan.gs_data_dir / "token")
     procs = Processes(plan.logs_dir)
@@ -862,7 +862,7 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
             base_url = netns.forward_http(plan.gs_http_port)
         api = GroundStationApi(base_url, token)
         print(f"run folder: {run_dir}", file=out)
-        print(f"dashboard:  {base_url}/?token={token}", file=out)
+        print(f"dashboard:  {base_url}/?login={login_code(token, now=time.time())}", file=out)
         print(f"token:      {token}   (also: uav-ground-station token --data-dir "
               f"{plan.gs_data_dir})", file=out)
         if netns is not None:

@@ -3,7 +3,8 @@ and a fresh fleet key, all written by ``uav-sitl fleet`` before anything starts.
 
 The layout (``--out DIR``, default ``out/fleet/RUN``)::
 
-    RUN/fleet.key                      HMAC key of this run, mode 0600 (never the demo key)
+    RUN/fleet.key                      HMAC key of this run, mode 0600 (random per run)
+    RUN/command.key, command.pub       the station's Ed25519 command key pair of this run
     RUN/ground_station.toml            uav-ground-station run --config ...
     RUN/gs-data/                       its data dir: SQLite, images, mission log, token (0600)
     RUN/drones/droneN/companion.toml   uav-companion run --config ...
@@ -164,6 +165,14 @@ class FleetPlan:
         return self.run_dir / "fleet.key"
 
     @property
+    def command_key_path(self) -> Path:
+        return self.run_dir / "command.key"
+
+    @property
+    def command_pub_path(self) -> Path:
+        return self.run_dir / "command.pub"
+
+    @property
     def gs_config_path(self) -> Path:
         return self.run_dir / "ground_station.toml"
 
@@ -213,6 +222,7 @@ def companion_toml(plan: FleetPlan, drone: DroneSlot) -> str:
             "port": plan.gs_udp_port,
             "fleet_id": plan.fleet_id,
             "fleet_key_file": str(plan.key_path),
+            "command_public_key_file": str(plan.command_pub_path),
             "listen_host": plan.drone_listen_host,
             "listen_port": 0,
         },
@@ -231,6 +241,7 @@ def ground_station_toml(plan: FleetPlan) -> str:
         "station_id": "gs",
         "fleet_id": plan.fleet_id,
         "fleet_key_file": str(plan.key_path),
+        "command_key_file": str(plan.command_key_path),
         "data_dir": str(plan.gs_data_dir),
         "mission": plan.mission,
         "udp_host": plan.gs_bind_host,
@@ -245,10 +256,12 @@ def ground_station_toml(plan: FleetPlan) -> str:
 
 
 def write_run_configs(plan: FleetPlan) -> None:
-    """Create the run folder: a fresh key (0600), the station's and every drone's config."""
+    """Create the run folder: fresh keys (0600), the station's and every drone's config."""
+    from ground_station.keyfiles import generate_keys
+
     plan.run_dir.mkdir(parents=True, exist_ok=True)
     plan.logs_dir.mkdir(exist_ok=True)
-    write_fleet_key(plan.key_path)
+    generate_keys(plan.run_dir, replace=True)
     plan.gs_config_path.write_text(ground_station_toml(plan), encoding="utf-8")
     for drone in plan.drones:
         drone.folder.mkdir(parents=True, exist_ok=True)

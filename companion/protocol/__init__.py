@@ -31,6 +31,7 @@ from companion.protocol.events import (
     StatusReceived,
 )
 from companion.protocol.records import (
+    EPOCH_STATUS,
     ClockEcho,
     ClockSample,
     Command,
@@ -45,6 +46,7 @@ from companion.protocol.wire import MAX_DATAGRAM_BYTES, PROTOCOL_VERSION, TAG_BY
 
 __all__ = [
     "COUNTER_NAMES",
+    "EPOCH_STATUS",
     "MAX_DATAGRAM_BYTES",
     "PROTOCOL_VERSION",
     "TAG_BYTES",

@@ -17,11 +17,13 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from companion.protocol.errors import (
+    BadSignature,
     MalformedPacket,
     OversizePacket,
     RemoteProtocolError,
     ReplayedPacket,
     StalePacket,
+    WrongEpoch,
 )
 from companion.protocol.events import (
     Address,
@@ -34,6 +36,7 @@ from companion.protocol.events import (
     StatusReceived,
 )
 from companion.protocol.records import ClockEcho, Command, Report, ReportEntry, Status
+from companion.protocol.signing import CommandVerifier
 from companion.protocol.wire import (
     COMMAND_FIXED,
     DATA_FIXED,
@@ -41,7 +44,9 @@ from companion.protocol.wire import (
     MAX_ID_BYTES,
     METADATA_LEN,
     REPORT_FIXED,
+    SIGNATURE_BYTES,
     STATUS_FIXED,
+    TAG_BYTES,
     U8,
     Header,
     PacketKind,
@@ -62,6 +67,8 @@ COUNTER_NAMES = (
     "unsupported_version",
     "wrong_fleet",
     "bad_tag",
+    "bad_signature",
+    "wrong_epoch",
     "stale",
     "replayed",
     "oversize",
@@ -171,6 +178,20 @@ class _ReplayWindow:
     seen: int
     """Bit i set: packet number ``highest - i`` was accepted."""
     last_accept: float
+    offset_max: float = -math.inf
+    """Largest ``t_sent - now`` accepted: the sender's clock offset minus the smallest delay,
+    so ``now + offset_max`` bounds the ``t_sent`` of anything it sent before ``now``."""
+
+
+@dataclass(frozen=True, slots=True)
+class _Floor:
+    """After a restart: what a sender may have had accepted by the previous process."""
+
+    packet_number: int
+    t_sent: float
+    """Datagrams sent (sender's clock) at or before this are refused."""
+    offset: float
+    expires: float
 
 
 @dataclass(slots=True)
@@ -242,7 +263,11 @@ class Decoder:
         *,
         local_id: str | None = None,
         limits: DecoderLimits | None = None,
+        command_key: bytes | None = None,
+        epoch: int | None = None,
     ) -> None:
+        """``command_key``: the ground station's Ed25519 public key; without it every COMMAND
+        is dropped. ``epoch``: this boot's epoch; commands for another one are dropped."""
         self.fleet_id = fleet_id
         self._key = check_key(key)
         self.local_id = local_id
@@ -253,6 +278,12 @@ class Decoder:
         self._buffered = 0
         self._recent: OrderedDict[MessageKey, None] = OrderedDict()
         self._windows: OrderedDict[str, _ReplayWindow] = OrderedDict()
+        # commands get their own windows: data under the fleet key (which every drone holds)
+        # must not be able to push the window of the station's signed commands
+        self._command_windows: OrderedDict[str, _ReplayWindow] = OrderedDict()
+        self._verifier = CommandVerifier(command_key) if command_key is not None else None
+        self.epoch = epoch
+        self._floors: dict[str, _Floor] = {}
 
     # -- outputs -------------------------------------------------------------------------
 
@@ -297,8 +328,14 @@ class Decoder:
                 fleet_id=self.fleet_id,
                 max_datagram_bytes=self.limits.max_datagram_bytes,
             )
+            windows = self._windows
+            if header.kind is PacketKind.COMMAND:
+                body = self._verify_command(data, body)
+                windows = self._command_windows
+            if self._floors:
+                self._check_floor(header, now)
             self._check_fresh(header, now)
-            self._check_replay(header, now)
+            self._check_replay(header, now, windows)
             self.counters["accepted"] += 1
             reader = _Reader(body)
             if header.kind is PacketKind.DATA:
@@ -322,19 +359,93 @@ class Decoder:
                 f"(allowed ±{skew} s)"
             )
 
-    def _check_replay(self, header: Header, now: float) -> None:
+    def _verify_command(self, data: bytes, body: memoryview) -> memoryview:
+        """The command body without its signature, once the signature is verified."""
+        if self._verifier is None:
+            raise BadSignature("commands are not accepted here (no command key)")
+        if len(body) < SIGNATURE_BYTES:
+            raise BadSignature("command has no signature")
+        start = len(data) - TAG_BYTES - SIGNATURE_BYTES
+        view = memoryview(data)
+        if not self._verifier.verify(view[:start], view[start : start + SIGNATURE_BYTES]):
+            raise BadSignature("command signature does not verify with the command key")
+        return body[: len(body) - SIGNATURE_BYTES]
+
+    def _check_floor(self, header: Header, now: float) -> None:
+        floor = self._floors.get(header.sender)
+        if floor is None:
+            return
+        if now > floor.expires:
+            del self._floors[header.sender]
+            return
+        if header.packet_number <= floor.packet_number or header.t_sent <= floor.t_sent:
+            raise ReplayedPacket(
+                f"packet {header.packet_number} sent at {header.t_sent:.3f} may have been "
+                "accepted before this receiver restarted"
+            )
+
+    def replay_state(self, now: float) -> dict[str, list[float]]:
+        """What a restarted receiver needs to refuse replays: per sender heard recently,
+        ``[highest packet number, t, now]`` where ``t - now`` is the largest clock offset
+        (``t_sent - t_rcv``) accepted from it (JSON-ready)."""
+        skew = self.limits.max_clock_skew_s
+        horizon = -math.inf if skew is None else now - 2 * skew
+        known: dict[str, tuple[int, float]] = {
+            sender: (floor.packet_number, floor.offset)
+            for sender, floor in self._floors.items() if floor.expires >= now
+        }
+        for windows in (self._windows, self._command_windows):
+            for sender, window in windows.items():
+                if window.last_accept < horizon or not math.isfinite(window.offset_max):
+                    continue
+                pn, offset = known.get(sender, (-1, -math.inf))
+                known[sender] = (max(pn, window.highest), max(offset, window.offset_max))
+        # [pn, t_sent, at]: t_sent - at is the offset (the file keeps that self-evident form)
+        return {sender: [pn, now + offset, now] for sender, (pn, offset) in known.items()}
+
+    def restore_replay_state(
+        self, state: Mapping[str, Any], now: float, *, slack_s: float = 1.0
+    ) -> int:
+        """Refuse, per sender of ``state`` (from :meth:`replay_state` of the previous
+        process), every datagram sent before ``now`` on that sender's clock, plus ``slack_s``
+        for delay jitter. The clock offset comes from the saved ``t_sent`` and acceptance
+        time, so the rule holds however long ago the state was saved. Returns the count.
+        """
+        skew = self.limits.max_clock_skew_s
+        lifetime = math.inf if skew is None else 2 * skew + slack_s
+        restored = 0
+        for sender, entry in state.items():
+            if not (isinstance(sender, str) and isinstance(entry, list) and len(entry) == 3
+                    and all(isinstance(v, int | float) and not isinstance(v, bool)
+                            and math.isfinite(v) for v in entry)):
+                continue
+            pn, t_sent, accepted_at = entry
+            if skew is not None and now - accepted_at > 2 * skew:
+                continue  # everything it sent then is stale now
+            offset = t_sent - accepted_at
+            self._floors[sender] = _Floor(packet_number=int(pn),
+                                          t_sent=now + offset + slack_s, offset=offset,
+                                          expires=now + lifetime)
+            restored += 1
+        return restored
+
+    def _check_replay(
+        self, header: Header, now: float, windows: OrderedDict[str, _ReplayWindow]
+    ) -> None:
         pn = header.packet_number
-        window = self._windows.get(header.sender)
+        window = windows.get(header.sender)
         skew = self.limits.max_clock_skew_s
         if window is not None and skew is not None and now - window.last_accept > 2 * skew:
             # Every packet accepted before is stale by now, so forgetting is safe, and it
             # lets a sender whose clock went back (reboot without RTC) be heard again.
             window = None
         if window is None:
-            if len(self._windows) >= self.limits.max_senders and header.sender not in self._windows:
-                self._windows.popitem(last=False)
-            self._windows[header.sender] = _ReplayWindow(highest=pn, seen=1, last_accept=now)
-            self._windows.move_to_end(header.sender)
+            if len(windows) >= self.limits.max_senders and header.sender not in windows:
+                windows.popitem(last=False)
+            windows[header.sender] = _ReplayWindow(
+                highest=pn, seen=1, last_accept=now, offset_max=header.t_sent - now
+            )
+            windows.move_to_end(header.sender)
             return
         size = self.limits.replay_window
         if pn > window.highest:
@@ -350,7 +461,9 @@ class Decoder:
                 raise ReplayedPacket(f"packet number {pn} already received")
             window.seen |= 1 << offset
         window.last_accept = now
-        self._windows.move_to_end(header.sender)
+        if header.t_sent - now > window.offset_max:
+            window.offset_max = header.t_sent - now
+        windows.move_to_end(header.sender)
 
     # -- DATA ----------------------------------------------------------------------------
 
@@ -538,7 +651,9 @@ class Decoder:
         )
 
     def _receive_command(self, header: Header, reader: _Reader, addr: Address, now: float) -> None:
-        command_id, t_exec, name_len = reader.unpack(COMMAND_FIXED)
+        epoch, command_id, t_exec, name_len = reader.unpack(COMMAND_FIXED)
+        if self.epoch is not None and epoch != self.epoch:
+            raise WrongEpoch(f"command for epoch {epoch}, this boot is {self.epoch}")
         name = reader.short_id(name_len, "command name")
         (target_len,) = reader.unpack(U8)
         target = reader.short_id(target_len, "command target") if target_len else None

@@ -10,6 +10,7 @@ from typing import Any
 
 from companion.protocol.errors import LocalProtocolError
 from companion.protocol.records import ClockEcho, Command, Report, ReportEntry, Status
+from companion.protocol.signing import CommandSigner
 from companion.protocol.wire import (
     COMMAND_FIXED,
     DATA_FIXED,
@@ -17,6 +18,7 @@ from companion.protocol.wire import (
     METADATA_LEN,
     OVERHEAD_BYTES,
     REPORT_FIXED,
+    SIGNATURE_BYTES,
     STATUS_FIXED,
     U8,
     PacketKind,
@@ -71,6 +73,9 @@ class Encoder:
     Every datagram gets the next packet number of this encoder. The first one is
     ``int(now) << 32``: packet numbers keep increasing across restarts of the sender as long
     as its clock does, so the receivers' replay windows need no handshake.
+
+    Only an encoder given the ground station's ``command_key`` (Ed25519 private seed) can
+    encode commands.
     """
 
     def __init__(
@@ -80,6 +85,7 @@ class Encoder:
         key: bytes,
         *,
         max_datagram_bytes: int = MAX_DATAGRAM_BYTES,
+        command_key: bytes | None = None,
     ) -> None:
         if not 0 <= fleet_id <= _MAX_U32:
             raise LocalProtocolError(f"fleet_id must fit 32 bits, got {fleet_id}")
@@ -93,8 +99,11 @@ class Encoder:
             raise LocalProtocolError(f"max_datagram_bytes {max_datagram_bytes} is too small")
         self._next_packet_number: int | None = None
         self._report_number = 0
+        self._signer = CommandSigner(command_key) if command_key is not None else None
 
-    def _pack(self, kind: PacketKind, body: bytes, now: float) -> bytes:
+    def _pack(
+        self, kind: PacketKind, body: bytes, now: float, signer: CommandSigner | None = None
+    ) -> bytes:
         if not math.isfinite(now):
             raise LocalProtocolError(f"now must be finite, got {now}")
         if self._next_packet_number is None:
@@ -109,6 +118,7 @@ class Encoder:
             t_sent=now,
             sender_raw=self._sender_raw,
             body=body,
+            sign=signer.sign if signer is not None else None,
         )
 
     def fragment(self, message: Message, payload: bytes, now: float) -> list[bytes]:
@@ -194,21 +204,31 @@ class Encoder:
             datagrams.append(self._pack(PacketKind.REPORT, body, now))
         return datagrams
 
-    def encode_command(self, command: Command, now: float) -> bytes:
-        """One COMMAND datagram (ground -> drones)."""
+    def encode_command(self, command: Command, now: float, *, epoch: int = 0) -> bytes:
+        """One signed COMMAND datagram (ground -> one drone).
+
+        ``epoch`` is the boot epoch the target drone announced (0 while unknown): a drone
+        obeys only commands carrying its current epoch, so a capture replayed after it
+        restarted is refused (docs/protocol.md).
+        """
+        if self._signer is None:
+            raise LocalProtocolError("only an encoder with the ground station's command key "
+                                     "can encode commands")
+        if not 0 <= epoch <= _MAX_U64:
+            raise LocalProtocolError(f"epoch must fit 64 bits, got {epoch}")
         name = encode_id(command.name, "command name")
         target = encode_id(command.target or "", "command target", allow_empty=True)
         args = dumps_json(dict(command.args), "command args")
         body = (
-            COMMAND_FIXED.pack(command.command_id, command.t_exec, len(name))
+            COMMAND_FIXED.pack(epoch, command.command_id, command.t_exec, len(name))
             + name
             + U8.pack(len(target))
             + target
             + args
         )
-        if len(body) > self._body_budget:
+        if len(body) + SIGNATURE_BYTES > self._body_budget:
             raise LocalProtocolError(f"command of {len(body)} bytes does not fit one datagram")
-        return self._pack(PacketKind.COMMAND, body, now)
+        return self._pack(PacketKind.COMMAND, body, now, self._signer)
 
     def encode_status(self, status: Status, now: float) -> bytes:
         """One STATUS datagram (drone -> ground): an acknowledgement or a status."""

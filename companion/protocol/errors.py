@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import ClassVar
 
 __all__ = [
+    "BadSignature",
     "BadTag",
     "LocalProtocolError",
     "MalformedPacket",
@@ -21,6 +22,7 @@ __all__ = [
     "ReplayedPacket",
     "StalePacket",
     "UnsupportedVersion",
+    "WrongEpoch",
     "WrongFleet",
 ]
 
@@ -64,6 +66,18 @@ class BadTag(RemoteProtocolError):
     """The HMAC-SHA256 tag does not match: forged, corrupted, or another fleet key."""
 
     reason = "bad_tag"
+
+
+class BadSignature(RemoteProtocolError):
+    """A COMMAND without a valid Ed25519 signature of the ground station (or none expected)."""
+
+    reason = "bad_signature"
+
+
+class WrongEpoch(RemoteProtocolError):
+    """A COMMAND for another boot of this companion: captured earlier and replayed."""
+
+    reason = "wrong_epoch"
 
 
 class StalePacket(RemoteProtocolError):

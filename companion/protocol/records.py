@@ -14,6 +14,7 @@ from typing import Any
 from utility_specs.message import Message, Version
 
 __all__ = [
+    "EPOCH_STATUS",
     "ClockEcho",
     "ClockSample",
     "Command",
@@ -24,6 +25,10 @@ __all__ = [
     "entry_from_message",
     "report_messages",
 ]
+
+EPOCH_STATUS = "epoch"
+"""State of the STATUS a companion sends at start and when it refuses a command for another
+boot: ``info = {"epoch": E}``; the ground station puts E into its commands to that drone."""
 
 
 def _finite(name: str, value: float | None, *, optional: bool = False) -> None:

@@ -5,6 +5,8 @@ Every integer and float is big-endian (network byte order, struct ``!``). A data
     common header (27 bytes) | sender id (n bytes) | body (body_len bytes) | tag (16 bytes)
 
 and the tag is HMAC-SHA256(fleet key, every byte before the tag) truncated to 16 bytes.
+A COMMAND body ends with an Ed25519 signature (64 bytes) of the ground station over every
+byte before it (companion.protocol.signing).
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import hmac
 import json
 import math
 import struct
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,7 +32,6 @@ from companion.protocol.errors import (
 __all__ = [
     "COMMAND_FIXED",
     "DATA_FIXED",
-    "DEMO_FLEET_KEY",
     "HEADER",
     "MAGIC",
     "MAX_DATAGRAM_BYTES",
@@ -39,6 +40,7 @@ __all__ = [
     "MIN_KEY_BYTES",
     "PROTOCOL_VERSION",
     "REPORT_FIXED",
+    "SIGNATURE_BYTES",
     "STATUS_FIXED",
     "TAG_BYTES",
     "Header",
@@ -53,7 +55,8 @@ __all__ = [
 
 MAGIC = b"UV"
 """First two bytes of every datagram (0x55 0x56)."""
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
+"""2: commands carry the target's boot epoch and the ground station's Ed25519 signature."""
 MAX_DATAGRAM_BYTES = 1200
 """UDP payload bound that keeps datagrams below any sane path MTU (ARCHITECTURE.md)."""
 TAG_BYTES = 16
@@ -61,8 +64,8 @@ TAG_BYTES = 16
 MAX_ID_BYTES = 32
 """Longest sender id, message type, command name, state... in UTF-8 bytes."""
 MIN_KEY_BYTES = 16
-DEMO_FLEET_KEY = b"uav-infodist-demo-fleet-key"
-"""The fleet key of demos and tests; real fleets set a key file on both sides."""
+SIGNATURE_BYTES = 64
+"""Ed25519 signature closing a COMMAND body."""
 
 HEADER = struct.Struct("!2sBBIQdHB")
 """magic, version, kind, fleet id, packet number, t_sent, body length, sender id length."""
@@ -71,8 +74,8 @@ DATA_FIXED = struct.Struct("!IdHHIB")
 METADATA_LEN = struct.Struct("!H")
 REPORT_FIXED = struct.Struct("!IHH")
 """report number, part index, part count."""
-COMMAND_FIXED = struct.Struct("!IdB")
-"""command id, t_exec, name length."""
+COMMAND_FIXED = struct.Struct("!QIdB")
+"""target's boot epoch, command id, t_exec, name length."""
 STATUS_FIXED = struct.Struct("!IB")
 """command id (0: unsolicited), state length."""
 U8 = struct.Struct("!B")
@@ -196,8 +199,13 @@ def pack_datagram(
     t_sent: float,
     sender_raw: bytes,
     body: bytes,
+    sign: Callable[[bytes], bytes] | None = None,
 ) -> bytes:
-    """Header + sender + body + tag; the caller has already bounded the body."""
+    """Header + sender + body (+ signature) + tag; the caller has already bounded the body.
+
+    With ``sign`` (commands), the body ends with ``sign(every byte before the signature)``.
+    """
+    body_len = len(body) + (SIGNATURE_BYTES if sign is not None else 0)
     signed = (
         HEADER.pack(
             MAGIC,
@@ -206,12 +214,14 @@ def pack_datagram(
             fleet_id,
             packet_number,
             t_sent,
-            len(body),
+            body_len,
             len(sender_raw),
         )
         + sender_raw
         + body
     )
+    if sign is not None:
+        signed += sign(signed)
     return signed + tag(key, signed)
 
 

@@ -4,33 +4,26 @@
 const PALETTE = ["#4aa3ff", "#3fb950", "#d29922", "#f778ba", "#a371f7", "#56d4dd",
   "#ff7b72", "#e3b341", "#7ee787", "#79c0ff", "#ffa657", "#d2a8ff"];
 const state = {
-  token: null, drones: new Map(), series: [], alerts: [], drops: {}, mission: null,
+  drones: new Map(), series: [], alerts: [], drops: {}, mission: null,
   config: {}, ws: null, dirty: new Set(), frame: false, colors: new Map(), imgTimes: new Map(),
   clockOffset: 0,
 };
 const $ = (id) => document.getElementById(id);
 
 // -- token ---------------------------------------------------------------------------------
+// The page never holds the token: the server keeps the session in an HttpOnly cookie, set by
+// the one-time login link (/?login=...) or by sending the token once from the token box.
 function initToken() {
-  const url = new URL(location.href);
-  const fromUrl = url.searchParams.get("token");
-  if (fromUrl) {
-    localStorage.setItem("gs-token", fromUrl);
-    url.searchParams.delete("token");
-    history.replaceState(null, "", url.pathname + url.search + url.hash);
-  }
-  state.token = localStorage.getItem("gs-token");
-  // Reads (images, WebSocket) authenticate with this cookie, keeping tokens out of URLs;
-  // control requests send the Authorization header.
-  if (state.token) document.cookie = `gs_token=${encodeURIComponent(state.token)}; path=/; SameSite=Strict`;
-  $("token-save").onclick = () => {
-    localStorage.setItem("gs-token", $("token-input").value.trim());
-    location.reload();
+  localStorage.removeItem("gs-token");  // left by older versions
+  $("token-save").onclick = async () => {
+    const token = $("token-input").value.trim();
+    $("token-input").value = "";
+    const res = await fetch("/api/login", { method: "POST", headers: { Authorization: "Bearer " + token } });
+    if (res.ok) location.reload(); else toast("token refused");
   };
 }
-function authHeaders() { return state.token ? { Authorization: "Bearer " + state.token } : {}; }
 async function api(path, options = {}) {
-  const res = await fetch(path, { ...options, headers: { ...authHeaders(), ...(options.headers || {}) } });
+  const res = await fetch(path, { ...options, credentials: "same-origin" });
   if (res.status === 401) { $("token-box").classList.remove("hidden"); throw new Error("unauthorized: token needed"); }
   const body = await res.json().catch(() => ({}));
   if (!res.ok) throw new Error(body.error || res.statusText);

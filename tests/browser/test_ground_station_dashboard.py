@@ -18,6 +18,8 @@ from ground_station.app import create_app
 from ground_station.config import GroundConfig
 from ground_station.fake_drone import FakeDrone, fly_demo_fleet
 from ground_station.keys import LINK
+from ground_station.token import login_code
+from tests.keys import TEST_COMMAND_KEY, TEST_COMMAND_PUB
 
 CHROMIUM = Path("/usr/bin/chromium")
 ARTIFACTS = Path(__file__).resolve().parents[2] / "artifacts" / "browser"
@@ -42,6 +44,14 @@ pytestmark = [
 ]
 
 
+async def wait_js(page: Any, predicate: str, arg: Any = None, *, timeout_s: float) -> None:
+    """Poll a JavaScript predicate from here: Playwright's wait_for_function evaluates its
+    predicate with eval() in the page, which the dashboard's CSP (no 'unsafe-eval') refuses."""
+    async with asyncio.timeout(timeout_s):
+        while not await page.evaluate(predicate, arg):
+            await asyncio.sleep(0.1)
+
+
 async def test_dashboard_live_tiles_and_start_mission(
     tmp_path: Path, aiohttp_server: Callable[..., Any]
 ) -> None:
@@ -49,6 +59,7 @@ async def test_dashboard_live_tiles_and_start_mission(
     config = GroundConfig(
         fleet_id=21,
         fleet_key=KEY,
+        command_key=TEST_COMMAND_KEY,
         data_dir=tmp_path / "gs",
         mission="browser",
         udp_host="127.0.0.1",
@@ -65,6 +76,7 @@ async def test_dashboard_live_tiles_and_start_mission(
             ground,
             fleet_id=21,
             key=KEY,
+            command_public_key=TEST_COMMAND_PUB,
             drones=4,
             duration_s=60.0,
             images_per_s=3.0,
@@ -84,25 +96,34 @@ async def test_dashboard_live_tiles_and_start_mission(
             )
             page = browser.pages[0] if browser.pages else await browser.new_page()
             page.on("pageerror", lambda exc: errors.append(str(exc)))
-            await page.goto(f"http://127.0.0.1:{server.port}/?token={TOKEN}")
+            # the dashboard itself must work under its own Content-Security-Policy
+            page.on("console", lambda m: errors.append(m.text)
+                    if "Content Security Policy" in m.text else None)
+            # the one-time login link: exchanged for an HttpOnly cookie, then off the URL
+            code = login_code(TOKEN, now=time.time())
+            await page.goto(f"http://127.0.0.1:{server.port}/?login={code}")
+            assert page.url == f"http://127.0.0.1:{server.port}/"
+            assert await page.evaluate("document.cookie") == ""  # HttpOnly: not for scripts
             # tiles appear and keep updating from the live sender
             tile = page.locator('.tile[data-drone="uav2"]')
             await tile.wait_for(timeout=15_000)
             first = int(await tile.get_attribute("data-images") or 0)
-            await page.wait_for_function(
+            await wait_js(
+                page,
                 """n => Number(document.querySelector('.tile[data-drone="uav2"]')
                         .dataset.images) >= n + 3""",
-                arg=first,
-                timeout=15_000,
+                first,
+                timeout_s=15.0,
             )
             assert await page.locator(".tile").count() == 4
             # uav2 sees red (1 + 10·0.45 = 5.5 >= 3): red border; uav1 does not
             assert "high" in (await tile.get_attribute("class") or "")
             uav1_class = await page.locator('.tile[data-drone="uav1"]').get_attribute("class")
             assert "high" not in (uav1_class or "")
-            await page.wait_for_function(
-                "document.querySelector('#map').querySelectorAll('circle').length === 4",
-                timeout=10_000,
+            await wait_js(
+                page,
+                "() => document.querySelector('#map').querySelectorAll('circle').length === 4",
+                timeout_s=10.0,
             )
             await page.wait_for_selector("#gallery figure", timeout=15_000)
             await page.screenshot(path=str(ARTIFACTS / "dashboard_live.png"), full_page=True)
@@ -117,9 +138,10 @@ async def test_dashboard_live_tiles_and_start_mission(
                 assert clicked + 4.0 < received.command.t_exec < time.time() + 5.0
             await page.wait_for_selector("#toast:not(.hidden)", timeout=5_000)
             assert "start mission: command #" in await page.inner_text("#toast")
-            await page.wait_for_function(
-                "document.querySelector('#mission-info').innerText.includes('acked 4/4')",
-                timeout=10_000,
+            await wait_js(
+                page,
+                "() => document.querySelector('#mission-info').innerText.includes('acked 4/4')",
+                timeout_s=10.0,
             )
             assert await page.inner_text("#mission-phase") == "scheduled"
             await page.screenshot(path=str(ARTIFACTS / "dashboard_mission.png"), full_page=True)

@@ -12,6 +12,7 @@ import pytest
 from companion_fake_vehicle import FakeVehicle
 
 from companion.service import UNIT_NAME, install_service, unit_text
+from tests.keys import write_test_keys
 
 SCRIPT = Path(sys.executable).parent / "uav-companion"
 COMMAND = [str(SCRIPT)] if SCRIPT.exists() else [sys.executable, "-m", "companion.cli"]
@@ -22,11 +23,16 @@ def _cli(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
                           text=True, timeout=timeout, check=False)
 
 
-def _config(tmp_path: Path, url: str, camera: str) -> Path:
+def _config(tmp_path: Path, url: str, camera: str, *, keys: bool = True) -> Path:
     path = tmp_path / "companion.toml"
+    key_lines = ""
+    if keys:
+        write_test_keys(tmp_path / "keys")
+        key_lines = ('[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
+                     'command_public_key_file = "keys/command.pub"\n')
     path.write_text(f'[drone]\nid = "d1"\n[mavlink]\nurl = "{url}"\n'
                     f'[camera]\nsource = "{camera}"\n[constraint]\nname = "constant"\n'
-                    'params = { limit_bytes_per_s = 20000.0 }\n')
+                    f'params = {{ limit_bytes_per_s = 20000.0 }}\n{key_lines}')
     return path
 
 
@@ -48,7 +54,16 @@ def test_check_reports_vehicle_and_camera(vehicle: FakeVehicle, tmp_path: Path,
     assert "position 50.06" in out and "battery 12.30 V, 87 %" in out
     assert f"camera: folder:{frames}: frame 320x240" in out
     assert "mission spec: utility_specs/missions/image_streaming.toml" in out
+    assert "keys: fleet key and the ground station's command key loaded" in out
     assert out.rstrip().endswith("check: ok")
+
+
+def test_check_refuses_what_run_refuses_without_keys(tmp_path: Path, frames: Path) -> None:
+    config = _config(tmp_path, "udpout:127.0.0.1:9", str(frames), keys=False)
+    result = _cli("check", "--config", str(config), "--skip-mavlink", "--skip-camera")
+    assert result.returncode == 2
+    assert "`uav-ground-station keygen --out keys`" in result.stderr
+    assert "Traceback" not in result.stderr
 
 
 def test_check_without_vehicle_fails_with_reason(tmp_path: Path, frames: Path) -> None:

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from companion.config import DEMO_FLEET_KEY, ConfigError, load_config, parse_config
+from companion.config import ConfigError, load_config, missing_keys, parse_config
+from tests.keys import TEST_COMMAND_PUB, write_test_keys
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "companion.toml"
 
@@ -28,7 +29,12 @@ def test_example_config_is_valid_and_complete() -> None:
     assert config.scoring.red_share.upper2 == (179, 255, 255)
     assert config.budgets.mcts_iterations == 300
     assert config.constraint.name == "adaptive"
-    assert config.ground_station.fleet_key == DEMO_FLEET_KEY
+    # no insecure default: the example names the key files but ships no key
+    assert config.ground_station.fleet_key is None
+    assert config.ground_station.command_public_key is None
+    problem = missing_keys(config)
+    assert problem is not None and "`uav-ground-station keygen --out keys`" in problem
+    assert "\n" not in problem
 
 
 def test_minimal_config_takes_defaults() -> None:
@@ -88,6 +94,28 @@ def test_relative_paths_and_key_file(tmp_path: Path) -> None:
     assert config.mission.spec == str(tmp_path / "spec.toml")
     assert config.mission.log == str(tmp_path / "logs" / "m.jsonl")
     assert config.ground_station.fleet_key == b"0123456789abcdef-secret"
+
+
+def test_command_public_key_from_file_or_inline(tmp_path: Path) -> None:
+    keys = write_test_keys(tmp_path / "keys")
+    path = _write(tmp_path, '[drone]\nid = "d"\n[ground_station]\nfleet_key_file = '
+                            '"keys/fleet.key"\ncommand_public_key_file = "keys/command.pub"\n')
+    config = load_config(path)
+    assert config.ground_station.command_public_key == TEST_COMMAND_PUB
+    assert missing_keys(config) is None
+    inline = (keys / "command.pub").read_text().strip()
+    config = parse_config({"drone": {"id": "d"},
+                           "ground_station": {"command_public_key": inline}})
+    assert config.ground_station.command_public_key == TEST_COMMAND_PUB
+    problem = missing_keys(config)
+    assert problem is not None and "ground_station.fleet_key_file is not set" in problem
+
+
+@pytest.mark.parametrize("text", ["not base64!", "AAAA"])
+def test_bad_command_public_key(tmp_path: Path, text: str) -> None:
+    path = _write(tmp_path, f'[drone]\nid = "d"\n[ground_station]\ncommand_public_key = "{text}"\n')
+    with pytest.raises(ConfigError, match=r"ground_station.command_public_key: expected command"):
+        load_config(path)
 
 
 def test_unreadable_key_file(tmp_path: Path) -> None:

@@ -11,6 +11,7 @@ from aiohttp.test_utils import TestClient
 
 from ground_station.app import create_app
 from ground_station.config import GroundConfig
+from tests.keys import TEST_COMMAND_KEY
 
 KEY = b"ground-station-test-fleet-key"
 TOKEN = "test-token-0123456789"
@@ -21,6 +22,7 @@ def gs_config(tmp_path: Path) -> GroundConfig:
     return GroundConfig(
         fleet_id=7,
         fleet_key=KEY,
+        command_key=TEST_COMMAND_KEY,
         data_dir=tmp_path / "gs",
         mission="m1",
         udp_host="127.0.0.1",

@@ -33,7 +33,8 @@ COMPANION = BIN / "uav-companion"
 def _serial_vehicle(link: Path, *args: str) -> tuple[subprocess.Popen[str], dict[str, object]]:
     # A fix at boot: this file tests the serial line, not the wait for a GPS fix.
     proc = subprocess.Popen([str(SITL), "vehicle", "--serial", "--serial-link", str(link),
-                             "--first-fix", "0", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "--first-fix", "0", *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     line = proc.stdout.readline()
     if not line.startswith("READY "):

@@ -15,6 +15,7 @@ sends receiver reports back, like the ground station does.
 from __future__ import annotations
 
 import asyncio
+import base64
 import json
 import os
 import signal
@@ -38,6 +39,7 @@ from companion.protocol import (
     StatusReceived,
     entry_from_message,
 )
+from tests.keys import TEST_COMMAND_PUB
 from utility_specs.message import Message
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -180,6 +182,7 @@ host = "127.0.0.1"
 port = {gs_port}
 fleet_id = {FLEET}
 fleet_key = "{KEY.decode()}"
+command_public_key = "{base64.b64encode(TEST_COMMAND_PUB).decode()}"
 listen_host = "127.0.0.1"
 [budgets]
 mcts_iterations = 100

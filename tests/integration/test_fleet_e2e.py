@@ -155,7 +155,7 @@ def test_sigterm_stops_the_fleet_cleanly(tmp_path: Path) -> None:
     try:
         lines = _wait_for_line(proc, out, "mission started", 120)
         # The dashboard address and the token come first, before anything is waited for.
-        assert lines[1].startswith("dashboard:  http://127.0.0.1:") and "token=" in lines[1]
+        assert lines[1].startswith("dashboard:  http://127.0.0.1:") and "?login=" in lines[1]
         token = (run_dir / "gs-data" / "token").read_text().strip()
         assert lines[2].startswith(f"token:      {token}")
         time.sleep(5)

@@ -14,6 +14,7 @@ from pathlib import Path
 import aiohttp
 
 from ground_station.fake_drone import FakeDrone, synthetic_jpeg
+from tests.keys import TEST_COMMAND_PUB, write_test_keys
 
 KEY = "cli-integration-fleet-key-000"
 BIN = [sys.executable, "-m", "ground_station.cli"]
@@ -48,6 +49,7 @@ async def run_cli(*args: str) -> tuple[int, str, str]:
 async def test_run_shell_token_export(tmp_path: Path) -> None:
     udp_port, http_port = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_STREAM)
     config = tmp_path / "gs.toml"
+    write_test_keys(tmp_path / "data" / "keys", fleet_key=KEY.encode())
     config.write_text(
         "[ground_station]\n"
         f'fleet_key = "{KEY}"\nfleet_id = 5\ndata_dir = "data"\nmission = "cli"\n'
@@ -69,7 +71,8 @@ async def test_run_shell_token_export(tmp_path: Path) -> None:
         assert oct(token_file.stat().st_mode & 0o777) == "0o600"
         await wait_http(f"http://127.0.0.1:{http_port}/api/stats")
 
-        drone = FakeDrone("uav1", fleet_id=5, key=KEY.encode(), ground=("127.0.0.1", udp_port))
+        drone = FakeDrone("uav1", fleet_id=5, key=KEY.encode(), ground=("127.0.0.1", udp_port),
+                          command_public_key=TEST_COMMAND_PUB)
         await drone.open()
         jpeg = synthetic_jpeg(1, red=0.3, label="uav1")
         drone.send_image(jpeg, data={"red": 0.3, "lat": 51.1, "lon": 17.0, "alt": 30.0})

@@ -21,6 +21,7 @@ from ground_station.app import create_app
 from ground_station.fake_drone import FakeDrone
 from ground_station.keys import LINK, STORAGE
 from tests.integration.test_ground_station_udp import AUTH, KEY, TOKEN, make_config
+from tests.keys import TEST_COMMAND_PUB
 from utility_specs.files import read_log
 
 DISK_BYTES = 3 * 1024 * 1024
@@ -65,7 +66,8 @@ async def test_a_full_disk_is_reported_telemetry_keeps_flowing_and_storage_recov
 ) -> None:
     app = station.server.app
     link, storage = app[LINK], app[STORAGE]
-    drone = FakeDrone("d1", fleet_id=3, key=KEY, ground=link.local_addr)
+    drone = FakeDrone("d1", fleet_id=3, key=KEY, ground=link.local_addr,
+                      command_public_key=TEST_COMMAND_PUB)
     await drone.open()
     images = 2 * DISK_BYTES // IMAGE_BYTES  # twice what fits
     for _ in range(images):

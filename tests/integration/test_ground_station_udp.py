@@ -17,6 +17,7 @@ from ground_station.config import GroundConfig
 from ground_station.fake_drone import FakeDrone
 from ground_station.keys import LINK, STORAGE
 from ground_station.storage import Storage
+from tests.keys import TEST_COMMAND_KEY, TEST_COMMAND_PUB
 from utility_specs.files import read_log
 
 KEY = b"integration-test-fleet-key-0001"
@@ -28,6 +29,7 @@ def make_config(data_dir: Path) -> GroundConfig:
     return GroundConfig(
         fleet_id=3,
         fleet_key=KEY,
+        command_key=TEST_COMMAND_KEY,
         data_dir=data_dir,
         mission="it",
         udp_host="127.0.0.1",
@@ -50,7 +52,8 @@ async def station(
 
 
 async def drone_for(client: TestClient[Any, Any], name: str = "d1") -> FakeDrone:
-    drone = FakeDrone(name, fleet_id=3, key=KEY, ground=client.server.app[LINK].local_addr)
+    drone = FakeDrone(name, fleet_id=3, key=KEY, ground=client.server.app[LINK].local_addr,
+                      command_public_key=TEST_COMMAND_PUB)
     await drone.open()
     return drone
 

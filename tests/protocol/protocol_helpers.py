@@ -6,6 +6,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from companion.protocol import Decoder, DecoderLimits, Encoder, Event
+from tests.keys import TEST_COMMAND_KEY, TEST_COMMAND_PUB
 from utility_specs.message import Message, Version
 
 T0 = 1_700_000_000.0
@@ -52,8 +53,12 @@ def image_message(seq: int = 1, *, size: int = 5000, t_gen: float = T0 - 0.25) -
 
 
 def make_encoder(sender: str = "drone1") -> Encoder:
-    return Encoder(FLEET, sender, KEY)
+    """An encoder of ``sender``; "ground" holds the station's command key."""
+    return Encoder(FLEET, sender, KEY,
+                   command_key=TEST_COMMAND_KEY if sender == "ground" else None)
 
 
 def make_decoder(**limits: Any) -> Decoder:
-    return Decoder(FLEET, KEY, local_id="ground", limits=DecoderLimits(**limits))
+    """A decoder that verifies commands with the test station's public key (any epoch)."""
+    return Decoder(FLEET, KEY, local_id="ground", limits=DecoderLimits(**limits),
+                   command_key=TEST_COMMAND_PUB)

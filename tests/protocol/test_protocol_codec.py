@@ -42,7 +42,7 @@ from companion.protocol import (
     message_metadata,
     report_messages,
 )
-from companion.protocol.wire import HEADER, dumps_json, pack_datagram
+from companion.protocol.wire import HEADER, PROTOCOL_VERSION, dumps_json, pack_datagram
 from utility_specs.message import Message
 
 # Bytes around the payload in every DATA datagram of sender "drone1", type "image":
@@ -235,7 +235,7 @@ def test_wrong_fleet_and_unsupported_version() -> None:
     decoder = make_decoder()
     other_fleet = telemetry_datagram(Encoder(FLEET + 1, "drone1", KEY))
     future = bytearray(telemetry_datagram(make_encoder(), seq=2))
-    future[2] = 2
+    future[2] = PROTOCOL_VERSION + 1
     assert reasons(transfer([other_fleet, bytes(future)], decoder, now=T0)) == [
         "wrong_fleet",
         "unsupported_version",

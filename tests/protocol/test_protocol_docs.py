@@ -10,6 +10,9 @@ from utility_specs.message import Message
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "protocol.md"
 KEY = bytes(range(32))
+COMMAND_KEY = bytes(range(32, 64))
+"""The example's Ed25519 private seed (Ed25519 signatures are deterministic)."""
+EPOCH = 0x0123456789ABCDEF
 T0 = 1_700_000_000.0
 
 
@@ -40,6 +43,7 @@ def test_data_example_matches_the_encoder() -> None:
 
 def test_command_example_matches_the_encoder() -> None:
     command = Command(command_id=3, name="start", t_exec=T0 + 5.0, args={"mission": "m1"})
-    datagram = Encoder(42, "ground", KEY).encode_command(command, now=T0)
-    assert len(datagram) == 84
+    ground = Encoder(42, "ground", KEY, command_key=COMMAND_KEY)
+    datagram = ground.encode_command(command, now=T0, epoch=EPOCH)
+    assert len(datagram) == 156
     assert documented("command") == hexdump(datagram)

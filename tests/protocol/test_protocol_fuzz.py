@@ -26,6 +26,7 @@ from companion.protocol import (
     entry_from_message,
 )
 from companion.protocol.wire import TAG_BYTES, PacketKind, pack_datagram, tag
+from tests.keys import TEST_COMMAND_KEY, TEST_COMMAND_PUB
 
 LIMITS = {
     "max_message_bytes": 6000,
@@ -50,7 +51,7 @@ def valid_datagrams() -> list[bytes]:
             payload = rng.randbytes(rng.choice([0, 700, 2500, 5000]))
             corpus += encoder.fragment(message, payload, now=T0 + i * 0.01)
         corpus.append(encoder.encode_status(Status(state="done", command_id=3), now=T0))
-    ground = Encoder(FLEET, "ground", KEY)
+    ground = Encoder(FLEET, "ground", KEY, command_key=TEST_COMMAND_KEY)
     entries = tuple(entry_from_message(image_message(seq=s), t_rcv=T0) for s in range(12))
     echoes = (ClockEcho(sender="drone1", t_sent=T0, t_rcv=T0 + 0.1),)
     corpus += ground.encode_report(Report(entries=entries, echoes=echoes), now=T0)
@@ -216,7 +217,7 @@ def test_decoder_never_raises_and_stays_bounded(datagrams: list[bytes], steps: l
 
 def test_whole_corpus_decodes_cleanly() -> None:
     """The fuzz corpus itself is valid: every datagram is accepted and nothing is dropped."""
-    decoder = Decoder(FLEET, KEY, local_id="ground")
+    decoder = Decoder(FLEET, KEY, local_id="ground", command_key=TEST_COMMAND_PUB)
     for data in CORPUS:
         decoder.receive_datagram(data, ADDR, T0)
     assert decoder.counters["accepted"] == len(CORPUS)

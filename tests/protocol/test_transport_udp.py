@@ -12,6 +12,7 @@ import pytest
 from protocol_helpers import FLEET, KEY, image_message
 
 from companion.protocol import (
+    PROTOCOL_VERSION,
     ClockEcho,
     Command,
     CommandReceived,
@@ -29,6 +30,7 @@ from companion.protocol import (
     entry_from_message,
 )
 from companion.transport import UdpTransport
+from tests.keys import TEST_COMMAND_KEY, TEST_COMMAND_PUB
 from utility_specs.message import Message
 
 LOCAL = ("127.0.0.1", 0)
@@ -47,14 +49,14 @@ async def next_of(transport: UdpTransport, kind: type[Event], timeout_s: float =
 async def pair() -> AsyncIterator[tuple[UdpTransport, UdpTransport]]:
     limits = DecoderLimits(reassembly_timeout_s=0.2)
     ground = UdpTransport(
-        encoder=Encoder(FLEET, "ground", KEY),
+        encoder=Encoder(FLEET, "ground", KEY, command_key=TEST_COMMAND_KEY),
         decoder=Decoder(FLEET, KEY, local_id="ground", limits=limits),
         local_addr=LOCAL,
     )
     await ground.start()
     drone = UdpTransport(
         encoder=Encoder(FLEET, "drone1", KEY),
-        decoder=Decoder(FLEET, KEY, local_id="drone1"),
+        decoder=Decoder(FLEET, KEY, local_id="drone1", command_key=TEST_COMMAND_PUB),
         remote_addr=("localhost", ground.local_address[1]),
         local_addr=LOCAL,
     )
@@ -138,7 +140,7 @@ async def test_garbage_on_the_socket_is_counted_not_fatal(
     drone, ground = pair
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as raw:
         raw.sendto(b"\x00" * 50, ground.local_address)
-        raw.sendto(b"UV" + b"\x01" * 100, ground.local_address)
+        raw.sendto(b"UV" + bytes([PROTOCOL_VERSION]) + b"\x01" * 99, ground.local_address)
     first = await next_of(ground, PacketDropped)
     second = await next_of(ground, PacketDropped)
     assert isinstance(first, PacketDropped) and isinstance(second, PacketDropped)

@@ -1,0 +1,166 @@
+"""HTTP hardening of the dashboard server (docs/ground_station.md, "Security").
+
+* security headers on every response (CSP without inline scripts, no framing, nosniff, no
+  Referer), added in ``on_response_prepare`` so static files and errors get them too;
+* a same-origin check for cookie-authenticated requests and the WebSocket;
+* an access log that never shows a token or login code (request line and Referer);
+* a listening site that caps concurrent connections, plus a short idle timeout, so HTTP
+  clients can never use up the file descriptors the UDP receiver and storage need;
+* the soft open-file limit raised to the hard one at start.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import re
+import time
+
+from aiohttp import web
+from aiohttp.abc import AbstractAccessLogger
+from aiohttp.web_protocol import RequestHandler
+
+__all__ = [
+    "SECURITY_HEADERS",
+    "LimitedSite",
+    "RedactingAccessLogger",
+    "add_security_headers",
+    "raise_open_file_limit",
+    "redact",
+    "same_origin",
+    "serve",
+]
+
+log = logging.getLogger(__name__)
+
+SECURITY_HEADERS = {
+    "Content-Security-Policy": (
+        "default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
+        "img-src 'self' data:; connect-src 'self'; object-src 'none'; base-uri 'none'; "
+        "form-action 'self'; frame-ancestors 'none'"
+    ),
+    "X-Frame-Options": "DENY",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+}
+"""Inline scripts are refused (an injected ``<script>`` does not run); inline style
+attributes are allowed because the tiles draw their meters with them."""
+
+_SECRET_PARAM = re.compile(r"((?:^|[?&;])(?:token|login|access_token)=)[^&;#\s\"]*", re.I)
+
+
+def redact(text: str) -> str:
+    """``text`` with the values of token-like query parameters replaced by ``***``."""
+    return _SECRET_PARAM.sub(r"\1***", text)
+
+
+async def add_security_headers(request: web.Request, response: web.StreamResponse) -> None:
+    for name, value in SECURITY_HEADERS.items():
+        response.headers.setdefault(name, value)
+
+
+def same_origin(request: web.Request) -> bool:
+    """True when the request's ``Origin`` is this server (as the browser addressed it)."""
+    origin = request.headers.get("Origin")
+    return origin is not None and origin == f"{request.scheme}://{request.host}"
+
+
+class RedactingAccessLogger(AbstractAccessLogger):
+    """aiohttp's default access-log line, with secrets removed from the request line and
+    the Referer."""
+
+    def log(self, request: web.BaseRequest, response: web.StreamResponse, time: float) -> None:
+        if not self.logger.isEnabledFor(logging.INFO):
+            return
+        line = redact(f"{request.method} {request.path_qs} HTTP/{request.version.major}."
+                      f"{request.version.minor}")
+        referer = redact(request.headers.get("Referer", "-"))
+        agent = request.headers.get("User-Agent", "-")
+        self.logger.info('%s "%s" %d %d "%s" "%s" %.3fs', request.remote, line,
+                         response.status, response.body_length, referer, agent, time)
+
+
+class _Refused(asyncio.Protocol):
+    """Closes a connection beyond the cap at once (its descriptor is freed immediately)."""
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        transport.abort()  # type: ignore[attr-defined]
+
+
+class LimitedSite(web.BaseSite):
+    """A TCP site that serves at most ``max_connections`` connections at a time."""
+
+    __slots__ = ("_host", "_max_connections", "_port", "refused")
+
+    def __init__(self, runner: web.BaseRunner, host: str, port: int, *,
+                 max_connections: int) -> None:
+        super().__init__(runner)
+        self._host = host
+        self._port = port
+        self._max_connections = max_connections
+        self.refused = 0
+
+    @property
+    def name(self) -> str:
+        return f"http://{self._host}:{self._port}"
+
+    def _protocol(self) -> asyncio.Protocol:
+        server = self._runner.server
+        assert server is not None
+        if len(server.connections) >= self._max_connections:
+            self.refused += 1
+            if self.refused in (1, 10, 100) or self.refused % 1000 == 0:
+                log.warning("HTTP connection refused: %d open (cap %d); %d refused so far",
+                            len(server.connections), self._max_connections, self.refused)
+            return _Refused()
+        handler: RequestHandler = server()
+        return handler
+
+    async def start(self) -> None:
+        await super().start()
+        loop = asyncio.get_running_loop()
+        self._server = await loop.create_server(self._protocol, self._host, self._port,
+                                                reuse_address=True)
+
+
+def raise_open_file_limit() -> tuple[int, int] | None:
+    """Raise the soft RLIMIT_NOFILE to the hard limit; returns (soft, hard) now, or None."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not POSIX
+        return None
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard != resource.RLIM_INFINITY and soft < hard:
+        try:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
+            soft = hard
+        except (ValueError, OSError) as exc:  # pragma: no cover - depends on the host
+            log.warning("open-file limit stays %d: %s", soft, exc)
+    return soft, hard
+
+
+def serve(app: web.Application, *, host: str, port: int, max_connections: int,
+          idle_timeout_s: float) -> None:
+    """``web.run_app`` with the connection cap, idle timeout and redacting access log.
+
+    Returns when SIGINT/SIGTERM stops the server (after the app's cleanup ran). OSError
+    (address in use...) propagates to the caller.
+    """
+
+    async def main() -> None:
+        runner = web.AppRunner(app, handle_signals=True, access_log_class=RedactingAccessLogger,
+                               keepalive_timeout=idle_timeout_s)
+        await runner.setup()
+        try:
+            site = LimitedSite(runner, host, port, max_connections=max_connections)
+            await site.start()
+            while True:
+                await asyncio.sleep(3600)
+        finally:
+            await runner.cleanup()
+
+    t0 = time.monotonic()
+    try:
+        asyncio.run(main())
+    except (web.GracefulExit, KeyboardInterrupt):
+        log.debug("HTTP server stopped after %.1f s", time.monotonic() - t0)

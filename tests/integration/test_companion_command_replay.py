@@ -1,0 +1,183 @@
+"""A captured command is not executed again after the companion restarts (issue 13 item 4),
+and a drone holding the fleet key cannot command a companion (item 5): real ``uav-companion``
+processes, real UDP, effects read from the STATUS replies and the companion's mission log."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import os
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from companion.protocol import EPOCH_STATUS, Command, Decoder, Encoder, StatusReceived
+from tests.keys import TEST_COMMAND_KEY, TEST_COMMAND_PUB
+
+SCRIPT = Path(sys.executable).parent / "uav-companion"
+COMPANION = [str(SCRIPT)] if SCRIPT.exists() else [sys.executable, "-m", "companion.cli"]
+KEY = b"command-replay-test-fleet-key"
+FLEET = 12
+
+
+class Station(asyncio.DatagramProtocol):
+    """The ground station's command side: signs with the station key, records statuses."""
+
+    def __init__(self) -> None:
+        self.decoder = Decoder(FLEET, KEY, local_id="gs")
+        self.encoder = Encoder(FLEET, "gs", KEY, command_key=TEST_COMMAND_KEY)
+        self.statuses: list[tuple[float, StatusReceived]] = []
+        self.transport: asyncio.DatagramTransport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        now = time.time()
+        self.decoder.receive_datagram(data, addr, now)
+        while (event := self.decoder.next_event()) is not None:
+            if isinstance(event, StatusReceived):
+                self.statuses.append((now, event))
+
+    def epochs(self, after: float = 0.0) -> list[tuple[int, tuple[str, int]]]:
+        return [(int(e.status.info["epoch"]), (str(e.addr[0]), int(e.addr[1])))
+                for t, e in self.statuses if e.status.state == EPOCH_STATUS and t > after]
+
+    def states(self, command_id: int, after: float = 0.0) -> list[str]:
+        return [e.status.state for t, e in self.statuses
+                if e.status.command_id == command_id and t > after]
+
+    def send(self, datagram: bytes, addr: tuple[str, int]) -> None:
+        assert self.transport is not None
+        self.transport.sendto(datagram, addr)
+
+
+@pytest.fixture
+async def station() -> AsyncIterator[tuple[Station, int]]:
+    loop = asyncio.get_running_loop()
+    transport, proto = await loop.create_datagram_endpoint(Station, local_addr=("127.0.0.1", 0))
+    yield proto, transport.get_extra_info("sockname")[1]
+    transport.close()
+
+
+def _config(path: Path, gs_port: int) -> Path:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:  # nobody answers MAVLink here
+        s.bind(("127.0.0.1", 0))
+        mavlink_port = s.getsockname()[1]
+    path.write_text(f"""
+[drone]
+id = "d1"
+[mavlink]
+url = "udpout:127.0.0.1:{mavlink_port}"
+[camera]
+enabled = false
+[mission]
+spec = "builtin:image_streaming"
+log = "{path.parent / 'd1.jsonl'}"
+wait_for_start = true
+[ground_station]
+host = "127.0.0.1"
+port = {gs_port}
+fleet_id = {FLEET}
+fleet_key = "{KEY.decode()}"
+command_public_key = "{base64.b64encode(TEST_COMMAND_PUB).decode()}"
+listen_host = "127.0.0.1"
+[budgets]
+mcts_iterations = 20
+""")
+    return path
+
+
+def _start(config: Path) -> subprocess.Popen[str]:
+    return subprocess.Popen([*COMPANION, "run", "--config", str(config)],
+                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+
+
+def _stop(proc: subprocess.Popen[str]) -> tuple[int, str]:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+    try:
+        _, err = proc.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+    return proc.returncode, err
+
+
+async def _until(predicate: Any, timeout_s: float, proc: subprocess.Popen[str]) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            code, err = _stop(proc)
+            pytest.fail(f"condition not met (companion exit {code}):\n{err[-3000:]}")
+        await asyncio.sleep(0.05)
+
+
+def _commands_logged(log: Path, after: float) -> list[str]:
+    names = []
+    for line in log.read_text().splitlines():
+        state = json.loads(line).get("state", {})
+        if "command" in state and state["t"] > after:
+            names.append(state["command"])
+    return names
+
+
+@pytest.mark.timeout(120)
+async def test_a_captured_command_is_not_executed_after_a_restart(
+    station: tuple[Station, int], tmp_path: Path
+) -> None:
+    gs, gs_port = station
+    config = _config(tmp_path / "d1.toml", gs_port)
+    log = tmp_path / "d1.jsonl"
+
+    first = _start(config)
+    try:
+        await _until(lambda: gs.epochs(), 60, first)
+        epoch1, addr1 = gs.epochs()[-1]
+        # a drone with the fleet key (and its own Ed25519 key) tries first: not obeyed
+        forger = Encoder(FLEET, "drone9", KEY, command_key=secrets.token_bytes(32))
+        forged = Command(command_id=40, name="start", t_exec=time.time())
+        gs.send(forger.encode_command(forged, time.time(), epoch=epoch1), addr1)
+        start = Command(command_id=41, name="start", t_exec=time.time())
+        captured = gs.encoder.encode_command(start, time.time(), epoch=epoch1)
+        gs.send(captured, addr1)
+        await _until(lambda: "done" in gs.states(41), 10, first)
+        assert gs.states(40) == []
+    finally:
+        code, err = _stop(first)
+    assert code == 0, err[-2000:]
+    assert _commands_logged(log, after=0.0) == ["start"]
+
+    restarted = time.time()
+    second = _start(config)
+    try:
+        await _until(lambda: gs.epochs(after=restarted), 60, second)
+        epoch2, addr2 = gs.epochs(after=restarted)[-1]
+        assert epoch2 != epoch1
+        await asyncio.sleep(0.6)  # past the companion's epoch announcement rate limit
+        replayed_at = time.time()
+        gs.send(captured, addr2)  # 11 s or less old: fresh by the clock, replay by the epoch
+        # the companion refuses it and tells the station its epoch again
+        await _until(lambda: gs.epochs(after=replayed_at), 5, second)
+        await asyncio.sleep(1.0)
+        assert gs.states(41, after=restarted) == []
+        assert _commands_logged(log, after=restarted) == []
+        # the same companion obeys a fresh command for its new epoch (the check can fail)
+        again = Command(command_id=42, name="start", t_exec=time.time())
+        gs.send(gs.encoder.encode_command(again, time.time(), epoch=epoch2), addr2)
+        await _until(lambda: "done" in gs.states(42), 10, second)
+    finally:
+        code, err = _stop(second)
+    assert code == 0, err[-2000:]
+    assert _commands_logged(log, after=restarted) == ["start"]
+    assert "Traceback" not in err
