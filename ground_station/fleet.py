@@ -335,8 +335,6 @@ class FleetView:
                 "loss": state.loss,
             }
         point = {
-            "stale_after_s": {name: STALE_AFTER_S.get(name, DEFAULT_STALE_AFTER_S)
-                              for name in ages},
             "t": now,
             "goodput": goodput_total,
             "latency": sum(latencies) / len(latencies) if latencies else None,
@@ -392,8 +390,6 @@ class FleetView:
 
     def snapshot(self, *, now: float) -> dict[str, Any]:
         return {
-            "stale_after_s": {name: STALE_AFTER_S.get(name, DEFAULT_STALE_AFTER_S)
-                              for name in ages},
             "t": now,
             "drones": [self.drone_json(s, now=now) for s in self.drones.values()],
             "drops": dict(self.drops),

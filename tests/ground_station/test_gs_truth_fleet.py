@@ -32,6 +32,8 @@ def test_every_field_has_an_age_and_is_stale_past_its_bound() -> None:
     assert d["stale"] == ["alt_m", "armed", "autopilot_connected", "failsafe", "gps_fix",
                           "mode", "position"]
     assert d["stale_after_s"]["position"] == 3.0 and d["stale_after_s"]["mode"] == 12.0
+    assert fv.tick(now=T0 + 13.0)["t"] == T0 + 13.0
+    assert fv.snapshot(now=T0 + 13.0)["drones"][0]["stale"] == d["stale"]
 
 
 def test_an_older_message_never_rolls_a_field_back() -> None:
