@@ -69,7 +69,9 @@ class FakeVehicle:
         self.lat_deg, self.lon_deg = lat_deg, lon_deg
         self.t0 = time.time()
         self.fix_after_s = fix_after_s
-        """Like ArduPilot after boot: no fix, 0/0 and an EKF without origin until then."""
+        """Like ArduPilot after boot: no fix, 0/0 and an EKF without origin for this long
+        after the first client spoke (the vehicle 'boots' when someone listens)."""
+        self.t_first_peer: float | None = None
         self.silent_until = 0.0
         """An autopilot outage: nothing is sent (or answered) before this time.time()."""
         self.received: list[str] = []
@@ -104,6 +106,8 @@ class FakeVehicle:
                 except OSError:
                     continue
                 self.peer = addr
+                if self.t_first_peer is None:
+                    self.t_first_peer = time.time()
                 for msg in self.mav.parse_buffer(data) or []:
                     self.handle(msg)
             now = time.time()
@@ -136,7 +140,7 @@ class FakeVehicle:
     def telemetry(self, msg_id: int, now: float) -> mav.MAVLink_message:
         t = now - self.t0
         boot_ms = int(t * 1000) & 0xFFFFFFFF
-        fixed = t >= self.fix_after_s
+        fixed = self.t_first_peer is not None and now - self.t_first_peer >= self.fix_after_s
         lat = self.lat_deg + 1e-4 * math.sin(0.2 * t) if fixed else 0.0
         lon = self.lon_deg + 1e-4 * math.cos(0.2 * t) if fixed else 0.0
         kind = STREAM_IDS[msg_id]
