@@ -341,7 +341,7 @@ async function renderGallery() {
     $("gallery").innerHTML = body.images.map((im) => `
       <figure class="${im.utility >= (state.config.high_utility || 1e9) ? "high" : ""}" data-id="${im.id}">
         <img loading="lazy" src="${im.url}" alt="${esc(im.sender)} #${im.seq}">
-        <figcaption><b style="color:${color(im.sender)}">${esc(im.sender)}</b> #${im.seq} · U ${fmt.num(im.utility, 2)}${im.object ? " · object" : ""}<br><span class="muted">${fmt.time(im.t_gen)}</span></figcaption>
+        <figcaption><b style="color:${color(im.sender)}">${esc(im.sender)}</b> #${im.seq} · U ${fmt.num(im.utility, 2)}${im.object ? " · object" : ""}<br><span class="muted">${fmt.time(im.t_gen)}</span>${im.pose === "none" ? ` · <span class="stale">no position</span>` : im.pose === "stale" ? ` · <span class="stale">position ${fmt.num(im.pose_age_s, 1)} s old</span>` : ""}</figcaption>
       </figure>`).join("") || `<p class="muted">no stored images yet</p>`;
   } catch (e) { /* token box already shown */ }
 }

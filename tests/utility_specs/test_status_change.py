@@ -101,7 +101,7 @@ def test_dominance_of_a_new_state_over_an_ended_one() -> None:
 
 
 def test_bad_data_and_params_are_clear_errors() -> None:
-    with pytest.raises(MessageError, match="since 5.0 is after its t_gen 1.0"):
+    with pytest.raises(MessageError, match=r"since 5\.0 is after its t_gen 1\.0"):
         StatusChange().curve(msg(1.0, 1.0, since=5.0))
     with pytest.raises(MessageError, match="'since' must be a finite number"):
         StatusChange().curve(msg(1.0, 1.0, since="soon"))
