@@ -66,6 +66,7 @@ class FakeVehicle:
         self.custom_mode = ARDUCOPTER_MODES["STABILIZE"] if autopilot == "ardupilot" else 0
         self.base_mode = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
         self.armed = False
+        self.system_status = mav.MAV_STATE_ACTIVE  # MAV_STATE_CRITICAL: a failsafe
         self.lat_deg, self.lon_deg = lat_deg, lon_deg
         self.t0 = time.time()
         self.fix_after_s = fix_after_s
@@ -135,7 +136,7 @@ class FakeVehicle:
         autopilot = mav.MAV_AUTOPILOT_PX4 if self.autopilot == "px4" else \
             mav.MAV_AUTOPILOT_ARDUPILOTMEGA
         return mav.MAVLink_heartbeat_message(mav.MAV_TYPE_QUADROTOR, autopilot, base,
-                                             self.custom_mode, mav.MAV_STATE_ACTIVE, 3)
+                                             self.custom_mode, self.system_status, 3)
 
     def telemetry(self, msg_id: int, now: float) -> mav.MAVLink_message:
         t = now - self.t0
