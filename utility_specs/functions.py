@@ -392,7 +392,9 @@ class StatusChange(UtilityFunction):
         return replace(old, data={**old.data, self.UNTIL: since})
 
     def prepare(self, received: Sequence[Message]) -> list[Message] | None:
-        starts = sorted({self.since(m) for m in received})
+        # As everywhere in the evaluator, a message never received does not exist for the
+        # receiver: a change whose every message was lost does not end the older state.
+        starts = sorted({self.since(m) for m in received if m.t_rcv is not None})
         if not starts:
             return None
         out = []

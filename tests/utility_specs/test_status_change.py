@@ -7,8 +7,10 @@ import tomllib
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from tests.utility_specs.helpers import info, msg, spec_of
+from tests.utility_specs.helpers import info, msg, reference_integral, spec_of
 from utility_specs.curves import EndedCurve, ShapeCurve, StepCurve
 from utility_specs.errors import MessageError, SpecError
 from utility_specs.evaluate import evaluate
@@ -74,6 +76,10 @@ def test_prepare_derives_the_end_from_any_received_message_of_a_later_state() ->
     prepared = fn.prepare([a, b, c])
     assert prepared is not None
     assert [m.data.get("until") for m in prepared] == [5.0, 5.0, None]
+    never = msg(6.0, None, seq=4, since=5.0)  # a change never received ends nothing
+    prepared = fn.prepare([a, b, never])
+    assert prepared is not None
+    assert [m.data.get("until") for m in prepared] == [None, None, None]
 
 
 def test_evaluate_counts_a_state_only_while_it_is_true() -> None:
@@ -115,3 +121,29 @@ def test_every_shipped_spec_with_a_vehicle_status_uses_status_change(name: str) 
     status = spec.types["status"]
     assert isinstance(status.utility, StatusChange)
     assert (status.aggregation, status.utility.rate) == ("max", 0.1)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    rate=st.sampled_from([0.0, 0.3]),
+    stream=st.lists(st.tuples(st.integers(0, 32), st.booleans(), st.integers(0, 8),
+                              st.booleans()), min_size=1, max_size=8),
+)
+def test_exact_evaluation_matches_the_literal_definition(
+        rate: float, stream: list[tuple[int, bool, int, bool]]) -> None:
+    """Repeats and changes of state, delays, losses: the exact sweep over ended curves equals
+    the midpoint rule over A(M, t) read from the definition (eq. 4.5 with ``prepare``)."""
+    fn = StatusChange(rate=rate)
+    messages, since = [], 0.0
+    for seq, (k, change, delay, lost) in enumerate(sorted(stream)):
+        t_gen = 0.25 * k
+        if change or seq == 0:
+            since = t_gen
+        messages.append(msg(t_gen, None if lost else t_gen + 0.125 * delay, seq=seq,
+                            since=since))
+    t_end = 10.0
+    spec = spec_of(info(fn, "max", per_sender=True))
+    exact = evaluate(messages, spec, t_end=t_end).total
+    step = 5e-3
+    literal = reference_integral(info(fn, "max", per_sender=True), messages, t_end, step=step)
+    assert exact == pytest.approx(literal, abs=4 * step * (len(messages) + 1))
