@@ -178,10 +178,13 @@ class TelemetryPublisher:
     ``status_period_s`` and at once when mode, armed state, failsafe, link or mission state
     change. Each status carries ``since``, when its state began (the ``status_change``
     utility: a new state is worth sending at once); while no status of the current state
-    has gone out, it is offered again every ``STATE_RETRY_S``, not only every period.
+    has gone out (the constraint's window was full), it is offered again every
+    ``STATE_RETRY_S``, not only every period; after ``STATE_RETRIES`` such retries the
+    interval doubles up to the period (a dead link does not cost two decisions a second).
     """
 
     STATE_RETRY_S = 0.5
+    STATE_RETRIES = 4
 
     def __init__(self, app: CompanionApp) -> None:
         self._app = app
@@ -194,6 +197,7 @@ class TelemetryPublisher:
         self._announced: float | None = None
         """``since`` of the newest state a sent status reported."""
         self._last_position: float | None = None
+        self._retries = 0
 
     def on_sample(self, sample: Sample) -> None:
         if isinstance(sample, StatusTextSample):  # autopilot messages ride on the status
@@ -232,11 +236,14 @@ class TelemetryPublisher:
                     key = self._key(snap)
                     if key != self._status_key or self._since is None:
                         self._since = self._app.clock()
+                        self._retries = 0
                     self._status_key = key
                     if await self._app.submit_telemetry("status", self._status(snap)):
                         self._announced = self._since
                     elif self._announced != self._since:  # a new state not told yet
-                        t_status = min(t_status, now_mono + self.STATE_RETRY_S)
+                        backoff = 2.0 ** max(0, self._retries - self.STATE_RETRIES + 1)
+                        self._retries += 1
+                        t_status = min(t_status, now_mono + self.STATE_RETRY_S * backoff)
                 wait = max(0.0, min(t_pos, t_bat, t_status) - loop.time())
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(wait):

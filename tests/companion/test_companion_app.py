@@ -7,6 +7,7 @@ import contextlib
 import dataclasses
 import errno
 import io
+import itertools
 import json
 import os
 import subprocess
@@ -426,3 +427,31 @@ async def test_a_new_state_carries_since_and_is_offered_again_until_sent(
     assert first.data["since"] < since <= guided[0].t_gen
     assert all(m.data["failsafe"] is True and m.data["armed"] is True for m in guided)
     assert first.data["failsafe"] is False
+
+
+async def test_retries_of_an_untold_state_back_off_when_the_link_stays_full(
+        vehicle: FakeVehicle, tmp_path: Path) -> None:
+    """Four retries 0.5 s apart, then 1 s, 2 s...: a dead link costs few decisions."""
+    decider = DropStatusesOf("GUIDED", 1000)
+    config = dataclasses.replace(
+        _config(vehicle, tmp_path, enabled=False),
+        telemetry=dataclasses.replace(_config(vehicle, tmp_path).telemetry,
+                                      status_period_s=30.0))
+    app, transports = _make(config, decider)
+    task = asyncio.create_task(app.run())
+    try:
+        await _until(lambda: any(m.type == "status" for m, _ in transports[0].sent))
+        vehicle.custom_mode = 4
+        vehicle.send(vehicle.heartbeat())
+        await _until(lambda: any(m.type == "status" and m.data["mode"] == "GUIDED"
+                                 for m in decider.decided))
+        await asyncio.sleep(5.5)
+    finally:
+        app.stop()
+        await asyncio.wait_for(task, 10)
+    times = [m.t_gen for m in decider.decided if m.type == "status"
+             and m.data["mode"] == "GUIDED"]
+    gaps = [b - a for a, b in itertools.pairwise(times)]
+    assert len(gaps) >= 5, gaps
+    assert gaps[:5] == pytest.approx([0.5, 0.5, 0.5, 0.5, 1.0], abs=0.15), gaps
+    assert all(g > 1.8 for g in gaps[5:]), gaps  # 2 s, then 4 s
