@@ -171,13 +171,25 @@ class MissionLogWriter:
                       exc, self.errors)
 
 
+FAILSAFE_STATES = (5, 6)
+"""MAV_STATE_CRITICAL and MAV_STATE_EMERGENCY: the autopilot is in a failsafe."""
+
+
 class TelemetryPublisher:
     """Turns the telemetry state into ``position``, ``battery`` and ``status`` messages.
 
     Position at ``position_rate_hz`` (1 Hz: eq. 4.11's position utility), battery every
     ``battery_period_s`` (data ``level`` in 0..1 for eq. 4.9), mission status every
-    ``status_period_s`` and at once when mode, armed state, link or mission state change.
+    ``status_period_s`` and at once when mode, armed state, failsafe, link or mission state
+    change. Each status carries ``since``, when its state began (the ``status_change``
+    utility: a new state is worth sending at once); while no status of the current state
+    has gone out (the constraint's window was full), it is offered again every
+    ``STATE_RETRY_S``, not only every period; after ``STATE_RETRIES`` such retries the
+    interval doubles up to the period (a dead link does not cost two decisions a second).
     """
+
+    STATE_RETRY_S = 0.5
+    STATE_RETRIES = 4
 
     def __init__(self, app: CompanionApp) -> None:
         self._app = app
@@ -185,6 +197,12 @@ class TelemetryPublisher:
         self._status_key: tuple[Any, ...] | None = None
         self._wake = asyncio.Event()
         self._statustexts: list[StatusTextSample] = []
+        self._since: float | None = None
+        """When the current status key began (fleet clock)."""
+        self._announced: float | None = None
+        """``since`` of the newest state a sent status reported."""
+        self._last_position: float | None = None
+        self._retries = 0
 
     def on_sample(self, sample: Sample) -> None:
         if isinstance(sample, StatusTextSample):  # autopilot messages ride on the status
@@ -196,7 +214,8 @@ class TelemetryPublisher:
             self._wake.set()
 
     def _key(self, snap: TelemetrySnapshot) -> tuple[Any, ...]:
-        return (snap.mode, snap.armed, snap.connected, self._app.mission_state)
+        failsafe = snap.system_status in FAILSAFE_STATES
+        return (snap.mode, snap.armed, failsafe, snap.connected, self._app.mission_state)
 
     async def run(self) -> None:
         cfg = self._app.config.telemetry
@@ -209,7 +228,8 @@ class TelemetryPublisher:
                 snap = self._app.telemetry.snapshot()
                 if now_mono >= t_pos:
                     t_pos = now_mono + period_pos
-                    if snap.lat_deg is not None:
+                    if snap.position_problem is None and snap.t_position != self._last_position:
+                        self._last_position = snap.t_position  # never the same fix twice
                         await self._app.submit_telemetry("position", self._position(snap))
                 if now_mono >= t_bat:
                     t_bat = now_mono + cfg.battery_period_s
@@ -220,8 +240,17 @@ class TelemetryPublisher:
                     t_status = now_mono + (cfg.status_period_s
                                            if self._app.mission_state == "running"
                                            else min(cfg.status_period_s, IDLE_STATUS_PERIOD_S))
-                    self._status_key = self._key(snap)
-                    await self._app.submit_telemetry("status", self._status(snap))
+                    key = self._key(snap)
+                    if key != self._status_key or self._since is None:
+                        self._since = self._app.clock()
+                        self._retries = 0
+                    self._status_key = key
+                    if await self._app.submit_telemetry("status", self._status(snap)):
+                        self._announced = self._since
+                    elif self._announced != self._since:  # a new state not told yet
+                        backoff = 2.0 ** max(0, self._retries - self.STATE_RETRIES + 1)
+                        self._retries += 1
+                        t_status = min(t_status, now_mono + self.STATE_RETRY_S * backoff)
                 wait = max(0.0, min(t_pos, t_bat, t_status) - loop.time())
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(wait):
@@ -241,9 +270,8 @@ class TelemetryPublisher:
     def stop(self) -> None:
         self._stopping.set()
 
-    @staticmethod
-    def _position(snap: TelemetrySnapshot) -> dict[str, Any]:
-        return snap.geotag()
+    def _position(self, snap: TelemetrySnapshot) -> dict[str, Any]:
+        return snap.geotag(at=self._app.clock())
 
     @staticmethod
     def _battery(snap: TelemetrySnapshot) -> dict[str, Any]:
@@ -255,7 +283,8 @@ class TelemetryPublisher:
     def _status(self, snap: TelemetrySnapshot) -> dict[str, Any]:
         """Mission status; field names are the ones the ground station's fleet view reads."""
         data: dict[str, Any] = {"mode": snap.mode, "armed": snap.armed,
-                                "connected": snap.connected,
+                                "connected": snap.connected, "since": self._since,
+                                "failsafe": snap.system_status in FAILSAFE_STATES,
                                 "mission": self._app.mission_state, "autopilot": snap.autopilot}
         if snap.gps_fix_type is not None:
             data["fix_type"] = snap.gps_fix_type
@@ -526,7 +555,8 @@ class CompanionApp:
 
     def _encode(self, frame: Frame, seq: int) -> EncodedImage:
         features = self._scorer.score(frame.image)
-        geotag = frame.telemetry.geotag() if frame.telemetry is not None else {}
+        geotag = (frame.telemetry.geotag(at=frame.t_capture) if frame.telemetry is not None
+                  else {"position": "none"})
         return image_message(frame.image, sender=self.config.drone_id, seq=seq,
                              t_gen=frame.t_capture, features=features, geotag=geotag,
                              jpeg_quality=self.config.camera.jpeg_quality,

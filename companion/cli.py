@@ -186,7 +186,8 @@ def _probe_mavlink(config: Any, timeout_s: float) -> tuple[Any, list[str], bool]
         while time.monotonic() < deadline:
             with lock:
                 snap = state.snapshot()
-            if snap.connected and snap.lat_deg is not None and snap.battery_v is not None:
+            if snap.connected and snap.lat_deg is not None and snap.battery_v is not None \
+                    and snap.gps_fix_type is not None:
                 break
             time.sleep(0.1)
     finally:
@@ -202,9 +203,12 @@ def _probe_mavlink(config: Any, timeout_s: float) -> tuple[Any, list[str], bool]
                       f"({_silence_hint(url)})"], False
     lines = [f"mavlink: {url}: {snap.autopilot} autopilot, vehicle type {snap.vehicle_type}, "
              f"mode {snap.mode}, {'armed' if snap.armed else 'disarmed'}"]
-    if snap.lat_deg is not None:
+    if snap.lat_deg is not None and snap.position_problem is None:
         lines.append(f"mavlink: position {snap.lat_deg:.7f} {snap.lon_deg:.7f} "
                      f"alt_rel {snap.alt_rel_m:.1f} m")
+    elif snap.lat_deg is not None:  # a warning, not a failure: the fix may come later
+        lines.append(f"mavlink: no valid position yet: {snap.position_problem} "
+                     "(no geotags until there is one)")
     else:
         lines.append("mavlink: no GLOBAL_POSITION_INT yet (streams requested)")
     if snap.battery_v is not None:

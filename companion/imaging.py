@@ -68,7 +68,7 @@ def encode_versions(image: npt.NDArray[Any], *, jpeg_quality: int = 80,
 
 
 def image_message(image: npt.NDArray[Any], *, sender: str, seq: int, t_gen: float,
-                  features: Mapping[str, Any], geotag: Mapping[str, float],
+                  features: Mapping[str, Any], geotag: Mapping[str, Any],
                   jpeg_quality: int = 80,
                   scales: Sequence[tuple[str, float]] = DEFAULT_SCALES) -> EncodedImage:
     """One frame as an ``image`` message with full/half/quarter versions (eq. 4.33)."""

@@ -41,6 +41,7 @@ from companion.telemetry import (
     AttitudeSample,
     BatterySample,
     CommandAckSample,
+    EstimatorSample,
     GpsSample,
     HeartbeatSample,
     LinkStateSample,
@@ -85,6 +86,10 @@ MAV_CMD_COMPONENT_ARM_DISARM = 400
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_RESULT_ACCEPTED = 0
 MAV_DATA_STREAM_ALL = 0
+ESTIMATOR_POS_HORIZ_ABS = 16
+"""ESTIMATOR_STATUS_FLAGS: the estimator has an absolute horizontal position (an origin)."""
+ESTIMATOR_NOT_TRUSTED = 128 | 1024 | 32768
+"""ESTIMATOR_CONST_POS_MODE, ESTIMATOR_UNINITIALIZED, ESTIMATOR_GPS_GLITCH."""
 MAV_COMP_ID_ONBOARD_COMPUTER = 191
 MAV_PARAM_TYPE_SIGNED = {2, 4, 6}  # INT8, INT16, INT32
 MAV_PARAM_TYPE_UNSIGNED = {1, 3, 5}  # UINT8, UINT16, UINT32
@@ -102,6 +107,8 @@ DEFAULT_STREAM_RATES_HZ: Mapping[str, float] = {
     "BATTERY_STATUS": 1.0,
     "GPS_RAW_INT": 1.0,
     "SYSTEM_TIME": 1.0,
+    "EKF_STATUS_REPORT": 1.0,  # ArduPilot: has the estimator an origin (position valid)?
+    "ESTIMATOR_STATUS": 1.0,  # PX4: the same flags
 }
 
 Clock = Callable[[], float]
@@ -237,6 +244,11 @@ class MavlinkConverter:
             eph_m=None if eph is None else eph / 100.0,
         )
 
+    def _estimator(self, msg: Any, now: float) -> EstimatorSample:
+        flags = int(msg.flags)
+        ok = bool(flags & ESTIMATOR_POS_HORIZ_ABS) and not flags & ESTIMATOR_NOT_TRUSTED
+        return EstimatorSample(t=now, source=msg.get_type(), flags=flags, position_ok=ok)
+
     def _system_time(self, msg: Any, now: float) -> SystemTimeSample:
         return SystemTimeSample(
             t=now,
@@ -293,6 +305,8 @@ _HANDLERS: dict[str, Callable[[MavlinkConverter, Any, float], Sample]] = {
     "ATTITUDE": MavlinkConverter._attitude,
     "GPS_RAW_INT": MavlinkConverter._gps,
     "SYSTEM_TIME": MavlinkConverter._system_time,
+    "EKF_STATUS_REPORT": MavlinkConverter._estimator,
+    "ESTIMATOR_STATUS": MavlinkConverter._estimator,
     "STATUSTEXT": MavlinkConverter._statustext,
     "PARAM_VALUE": MavlinkConverter._param,
     "COMMAND_ACK": MavlinkConverter._ack,
@@ -546,12 +560,12 @@ class MavlinkReader:
 
     def _request_streams(self, conn: Any, now: float) -> None:
         """MAV_CMD_SET_MESSAGE_INTERVAL for each wanted message (fallback on no ACK)."""
-        from pymavlink.dialects.v20 import common
+        from pymavlink.dialects.v20 import ardupilotmega as dialect  # common + EKF_STATUS_REPORT
 
         target = self._converter.target_system or 1
         component = self._converter.target_component or 1
         for name, rate_hz in self.settings.stream_rates_hz.items():
-            msg_id = getattr(common, f"MAVLINK_MSG_ID_{name}")
+            msg_id = getattr(dialect, f"MAVLINK_MSG_ID_{name}")
             interval_us = 1e6 / rate_hz if rate_hz > 0 else -1
             conn.mav.command_long_send(target, component, MAV_CMD_SET_MESSAGE_INTERVAL, 0,
                                        msg_id, interval_us, 0, 0, 0, 0, 0)

@@ -15,11 +15,13 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import Any
 
 __all__ = [
     "AttitudeSample",
     "BatterySample",
     "CommandAckSample",
+    "EstimatorSample",
     "GpsSample",
     "HeartbeatSample",
     "LinkStateSample",
@@ -31,6 +33,11 @@ __all__ = [
     "TelemetrySnapshot",
     "TelemetryState",
 ]
+
+GPS_FIX_3D = 3
+"""GPS_FIX_TYPE_3D_FIX: the least fix a position may be reported with."""
+NULL_ISLAND_DEG = 1e-6
+"""|lat| and |lon| below this (about 0.1 m) are the 0/0 of an estimator without an origin."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -106,6 +113,17 @@ class GpsSample(Sample):
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class EstimatorSample(Sample):
+    """EKF_STATUS_REPORT (ArduPilot) or ESTIMATOR_STATUS (PX4): can the position be trusted?"""
+
+    source: str
+    flags: int
+    """ESTIMATOR_STATUS_FLAGS (the same bits in both messages)."""
+    position_ok: bool
+    """An absolute horizontal position from an initialised estimator with an origin."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class SystemTimeSample(Sample):
     unix_time_s: float | None
     """Autopilot's UTC clock; ``None`` when it has none yet (0 on the wire)."""
@@ -171,6 +189,10 @@ class TelemetrySnapshot:
     t_attitude: float | None = None
     gps_fix_type: int | None = None
     satellites: int | None = None
+    t_gps: float | None = None
+    estimator_position_ok: bool | None = None
+    """None while no estimator report came (a stack that sends none is judged by GPS alone)."""
+    t_estimator: float | None = None
     autopilot_unix_time_s: float | None = None
     last_statustext: str | None = None
     params: Mapping[str, int | float] = field(default_factory=dict)
@@ -179,14 +201,44 @@ class TelemetrySnapshot:
 
     @property
     def has_pose(self) -> bool:
-        return self.lat_deg is not None and self.roll_rad is not None
+        return self.position_problem is None and self.roll_rad is not None
 
-    def geotag(self) -> dict[str, float]:
-        """Position and attitude for an image's ``data`` (only the fields that are known)."""
-        names = ("lat_deg", "lon_deg", "alt_rel_m", "alt_amsl_m", "roll_rad", "pitch_rad",
-                 "yaw_rad", "heading_deg")
-        return {n: v for n in names
-                if (v := getattr(self, n)) is not None and math.isfinite(v)}
+    @property
+    def position_problem(self) -> str | None:
+        """Why the position must not be used (None: a 3-D fix, an estimator with an origin,
+        and not 0/0). ArduPilot reports 0/0 until its EKF has an origin; a position without
+        a fix is a guess the operator must never see as a place."""
+        if self.lat_deg is None or self.lon_deg is None:
+            return "no position received"
+        if self.gps_fix_type is None:
+            return "no GPS report received"
+        if self.gps_fix_type < GPS_FIX_3D:
+            return f"no 3-D GPS fix (fix_type {self.gps_fix_type})"
+        if self.estimator_position_ok is False:
+            return "the estimator has no absolute position (no origin yet)"
+        if abs(self.lat_deg) < NULL_ISLAND_DEG and abs(self.lon_deg) < NULL_ISLAND_DEG:
+            return "position is 0/0 (no origin)"
+        return None
+
+    def geotag(self, at: float | None = None) -> dict[str, Any]:
+        """Position and attitude for a message's ``data`` (only the fields that are known).
+
+        Without a valid position (:attr:`position_problem`) the tag has no coordinates and
+        says ``position: "none"``. ``at`` (the capture time) adds ``pose_age_s``, how old
+        the position is then.
+        """
+        if self.position_problem is not None:
+            names: tuple[str, ...] = ("roll_rad", "pitch_rad", "yaw_rad", "heading_deg")
+        else:
+            names = ("lat_deg", "lon_deg", "alt_rel_m", "alt_amsl_m", "roll_rad",
+                     "pitch_rad", "yaw_rad", "heading_deg")
+        tag: dict[str, Any] = {n: v for n in names
+                               if (v := getattr(self, n)) is not None and math.isfinite(v)}
+        if self.position_problem is not None:
+            tag["position"] = "none"
+        elif at is not None and self.t_position is not None:
+            tag["pose_age_s"] = round(max(0.0, at - self.t_position), 3)
+        return tag
 
 
 SampleListener = Callable[[Sample], None]
@@ -234,7 +286,10 @@ class TelemetryState:
                 f.update(t_attitude=sample.t, roll_rad=sample.roll_rad,
                          pitch_rad=sample.pitch_rad, yaw_rad=sample.yaw_rad)
             case GpsSample():
-                f.update(gps_fix_type=sample.fix_type, satellites=sample.satellites)
+                f.update(gps_fix_type=sample.fix_type, satellites=sample.satellites,
+                         t_gps=sample.t)
+            case EstimatorSample():
+                f.update(estimator_position_ok=sample.position_ok, t_estimator=sample.t)
             case SystemTimeSample():
                 f.update(autopilot_unix_time_s=sample.unix_time_s)
             case StatusTextSample():

@@ -80,6 +80,9 @@ def _parser() -> argparse.ArgumentParser:
     _common(export)
     export.add_argument("mission", help="mission name")
     export.add_argument("--out", type=Path, required=True, help="output folder")
+    export.add_argument("--include-stale-poses", action="store_true",
+                        help="also list images with a stale or no position in geotags.csv "
+                             "(column 'pose' says which)")
     token = sub.add_parser("token", help="print the control token (created if missing)")
     _common(token)
     token.add_argument("--url", action="store_true",
@@ -202,7 +205,8 @@ def main(argv: list[str] | None = None) -> int:
         from ground_station.export import ExportError, export_mission
 
         try:
-            result = export_mission(config.data_dir, args.mission, args.out)
+            result = export_mission(config.data_dir, args.mission, args.out,
+                                    include_stale=args.include_stale_poses)
         except (KeyError, ExportError) as exc:
             print(f"uav-ground-station: {exc.args[0]}", file=sys.stderr)
             return 1
@@ -212,6 +216,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"exported {result.images} images to {args.out} (geotags: {result.csv_path})")
         if result.missing:
             print(f"warning: {result.missing} indexed images had no file", file=sys.stderr)
+        if result.untagged:
+            print(f"{result.untagged} images with a stale or no position left out of "
+                  f"{result.csv_path.name} (--include-stale-poses lists them)", file=sys.stderr)
         return 0
     # shell
     from ground_station.shell import run_shell

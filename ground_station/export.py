@@ -3,6 +3,10 @@
 The CSV has one row per stored image with the position and attitude at capture, in the
 column names photogrammetry tools import (OpenDroneMap / Meshroom / Pix4D geotag lists:
 ``image``, ``latitude``, ``longitude``, ``altitude``, then ``yaw``, ``pitch``, ``roll``).
+Each row also has ``pose_age_s`` (how old the position was at capture) and ``pose``
+(``ok``/``stale``/``none``). Images without a position (no fix) or with a stale one (an
+autopilot outage) are copied but left out of the CSV, so photogrammetry never takes the
+last known position for the place an image shows; ``include_stale`` lists them too.
 """
 
 from __future__ import annotations
@@ -38,6 +42,8 @@ COLUMNS = [
     "object",
     "x_m",
     "y_m",
+    "pose_age_s",
+    "pose",
 ]
 
 
@@ -47,9 +53,12 @@ class ExportResult:
     missing: int
     """Indexed images whose file could not be found or copied."""
     csv_path: Path
+    untagged: int = 0
+    """Copied images left out of the CSV: no position or a stale one."""
 
 
-def export_mission(data_dir: Path, mission: str, out: Path) -> ExportResult:
+def export_mission(data_dir: Path, mission: str, out: Path, *,
+                   include_stale: bool = False) -> ExportResult:
     """Copy a mission's images into ``out/images`` and write ``out/geotags.csv``."""
     database = data_dir / "ground_station.sqlite3"
     if not database.is_file():  # opening it would create an empty one
@@ -73,7 +82,7 @@ def export_mission(data_dir: Path, mission: str, out: Path) -> ExportResult:
     images_dir = out / "images"
     images_dir.mkdir(parents=True, exist_ok=True)
     csv_path = out / "geotags.csv"
-    copied = missing = 0
+    copied = missing = untagged = 0
     with open(csv_path, "w", newline="", encoding="utf-8") as handle:
         writer = csv.writer(handle)
         writer.writerow(COLUMNS)
@@ -84,6 +93,11 @@ def export_mission(data_dir: Path, mission: str, out: Path) -> ExportResult:
             name = f"{safe_name(row.sender)}_{row.seq:09d}.jpg"
             shutil.copy2(data_dir / row.path, images_dir / name)
             copied += 1
+            pose = row.pose or ("ok" if row.lat_deg is not None and row.lon_deg is not None
+                                else "none")
+            if pose != "ok" and not include_stale:
+                untagged += 1
+                continue
             writer.writerow(
                 [
                     f"images/{name}",
@@ -102,6 +116,8 @@ def export_mission(data_dir: Path, mission: str, out: Path) -> ExportResult:
                     int(row.object),
                     row.x_m,
                     row.y_m,
+                    row.pose_age_s,
+                    pose,
                 ]
             )
-    return ExportResult(images=copied, missing=missing, csv_path=csv_path)
+    return ExportResult(images=copied, missing=missing, csv_path=csv_path, untagged=untagged)

@@ -22,6 +22,10 @@ RATE_WINDOW_S = 5.0
 
 SNAPSHOT_SERIES_VALUES = 2000
 """Per-drone chart values a snapshot carries at most (bounds ``/api/fleet`` by fleet size)."""
+STALE_AFTER_S: Mapping[str, float] = {"position": 3.0, "alt_m": 3.0, "heading_deg": 3.0}
+"""A field older than this is marked stale on the dashboard (position 1 Hz: three missed)."""
+DEFAULT_STALE_AFTER_S = 12.0
+"""Every other field (status every 5 s, battery every 5 s): two missed and some slack."""
 
 _NUMBER = (int, float)
 
@@ -86,6 +90,12 @@ class DroneState:
     delta_s: float | None = None
     loss: float | None = None
     link_lost: bool = False
+    failsafe: bool | None = None
+    autopilot_connected: bool | None = None
+    no_position: bool = False
+    """The newest word on the position is "none" (no fix, no estimator origin)."""
+    field_t: dict[str, float] = field(default_factory=dict)
+    """Per telemetry field, when the drone observed the value shown (its age's origin)."""
     reports: list[str] = field(default_factory=list)
     latest_image: LatestImage | None = None
     _image_times: deque[float] = field(default_factory=deque)
@@ -186,7 +196,7 @@ class FleetView:
         state.latency_s = (
             latency if state.latency_s is None else 0.8 * state.latency_s + 0.2 * latency
         )
-        self.apply_data(state, message.data, now=now)
+        self.apply_data(state, message.data, now=now, t_obs=message.t_gen)
         if utility is not None:
             state.images += 1
             state._image_times.append(now)
@@ -205,40 +215,67 @@ class FleetView:
         state.prune(now)
         return state
 
-    def apply_data(self, state: DroneState, data: Mapping[str, Any], *, now: float) -> None:
+    def apply_data(self, state: DroneState, data: Mapping[str, Any], *, now: float,
+                   t_obs: float | None = None) -> None:
+        """Apply a message's fields observed at ``t_obs`` (default ``now``).
+
+        A value older than the one shown (a late image's geotag, a reordered status) is
+        ignored, so that the tile never goes back in time; each field keeps its
+        observation time for its age. A position's observation time is the message's minus
+        its ``pose_age_s``.
+        """
+        t = now if t_obs is None else t_obs
+
+        def newer(name: str, at: float = t) -> bool:
+            if at < state.field_t.get(name, -math.inf):
+                return False
+            state.field_t[name] = at
+            return True
+
         battery = _num(data, "level", "battery", "battery_level", "battery_remaining")
-        if battery is not None:
+        if battery is not None and newer("battery"):
             state.battery = battery / 100.0 if battery > 1.0 else battery
         mode = data.get("mode")
-        if isinstance(mode, str):
+        if isinstance(mode, str) and newer("mode"):
             state.mode = mode
         armed = data.get("armed")
-        if isinstance(armed, bool):
+        if isinstance(armed, bool) and newer("armed"):
             state.armed = armed
+        failsafe = data.get("failsafe")
+        if isinstance(failsafe, bool) and newer("failsafe"):
+            state.failsafe = failsafe
+        connected = data.get("connected")
+        if isinstance(connected, bool) and newer("autopilot_connected"):
+            state.autopilot_connected = connected
         fix = _num(data, "gps_fix", "fix_type", "fix")
-        if fix is not None:
+        if fix is not None and newer("gps_fix"):
             state.gps_fix = int(fix)
+        t_pose = t - max(0.0, _num(data, "pose_age_s") or 0.0)
         lat, lon = _num(data, "lat_deg", "lat"), _num(data, "lon_deg", "lon")
-        if lat is not None and lon is not None:
+        if data.get("position") == "none":
+            if newer("position", t_pose):
+                state.no_position = True
+        elif lat is not None and lon is not None and newer("position", t_pose):
+            state.no_position = False
             state.lat_deg, state.lon_deg = lat, lon
             state.x_m, state.y_m = self._local(lat, lon)
         x, y = _num(data, "x_m", "x"), _num(data, "y_m", "y")
-        if x is not None and y is not None and lat is None:
+        if x is not None and y is not None and lat is None and newer("position", t_pose):
             state.x_m, state.y_m = x, y
         alt = _num(data, "alt_m", "alt_rel_m", "alt", "relative_alt_m")
-        if alt is not None:
+        if alt is not None and newer("alt_m", t_pose):
             state.alt_m = alt
         heading = _num(data, "heading_deg", "yaw_deg", "hdg_deg")
-        if heading is not None:
+        if heading is not None and newer("heading_deg", t_pose):
             state.heading_deg = heading
         xi = _num(data, "xi_bytes_per_s", "xi", "constraint_bytes_per_s", "limit_bytes_per_s")
-        if xi is not None:
+        if xi is not None and newer("xi_bytes_per_s"):
             state.xi_bytes_per_s = xi
         delta = _num(data, "delta_s", "delta")
-        if delta is not None:
+        if delta is not None and newer("delta_s"):
             state.delta_s = delta
         loss = _num(data, "loss", "loss_share", "loss_rate")
-        if loss is not None:
+        if loss is not None and newer("loss"):
             state.loss = loss
         text = data.get("statustext", data.get("text"))
         if isinstance(text, str) and text:
@@ -352,6 +389,7 @@ class FleetView:
         if goodput_total is None:
             goodput_total = self.goodput_total(now=now)
         own = state.goodput_bytes_per_s(now)
+        ages = {name: round(max(0.0, now - t), 3) for name, t in state.field_t.items()}
         out: dict[str, Any] = {
             "drone": state.drone,
             "addr": list(state.addr) if state.addr else None,
@@ -378,6 +416,15 @@ class FleetView:
             "last_heard": state.last_heard,
             "age_s": now - state.last_heard,
             "link_lost": state.link_lost,
+            "failsafe": state.failsafe,
+            "autopilot_connected": state.autopilot_connected,
+            "no_position": state.no_position,
+            "ages": ages,
+            "stale_after_s": {name: STALE_AFTER_S.get(name, DEFAULT_STALE_AFTER_S)
+                              for name in ages},
+            "t": now,
+            "stale": sorted(name for name, age in ages.items()
+                            if age > STALE_AFTER_S.get(name, DEFAULT_STALE_AFTER_S)),
             "reports": list(state.reports),
             "latest_image": asdict(state.latest_image) if state.latest_image else None,
         }

@@ -72,6 +72,8 @@ CREATE TABLE IF NOT EXISTS images (
     roll_deg REAL, pitch_deg REAL, yaw_deg REAL,
     path TEXT,
     error TEXT,
+    pose_age_s REAL,
+    pose TEXT,
     UNIQUE (mission, sender, seq)
 );
 CREATE INDEX IF NOT EXISTS images_by_sender ON images (mission, sender, t_rcv);
@@ -168,9 +170,31 @@ class ImageRow:
     yaw_deg: float | None
     path: str | None
     error: str | None
+    pose_age_s: float | None = None
+    """How old the position was when the image was taken (None: not reported)."""
+    pose: str | None = None
+    """``ok``, ``stale`` (older than POSE_STALE_AFTER_S) or ``none`` (no fix: no position)."""
 
     def as_json(self) -> dict[str, Any]:
         return {name: getattr(self, name) for name in self.__dataclass_fields__}
+
+
+POSE_STALE_AFTER_S = 1.0
+"""An image's position older than this (5 samples at the companion's 5 Hz) is stale: an
+autopilot outage, not the geotag of the place the image shows."""
+_NEW_IMAGE_COLUMNS = (("pose_age_s", "REAL"), ("pose", "TEXT"))
+
+
+def pose_quality(data: Mapping[str, Any]) -> tuple[float | None, str]:
+    """(pose age, ``ok``/``stale``/``none``) of an image's geotag data."""
+    age = _geo(data, "pose_age_s")
+    lat, lon = _geo(data, "lat_deg", "lat"), _geo(data, "lon_deg", "lon")
+    if data.get("position") == "none" or lat is None or lon is None \
+            or (abs(lat) < 1e-6 and abs(lon) < 1e-6):
+        return age, "none"
+    if age is not None and age > POSE_STALE_AFTER_S:
+        return age, "stale"
+    return age, "ok"
 
 
 def _geo(data: Mapping[str, Any], *keys: str) -> float | None:
@@ -197,6 +221,7 @@ class Storage:
             self.db.execute("PRAGMA journal_mode = WAL")
             self.db.execute("PRAGMA synchronous = NORMAL")
             self.db.executescript(SCHEMA)
+            self._add_columns()
             self.removed_temp_files = self._remove_temp_files()
         self._logs: dict[str, Any] = {}
         self._files = ThreadPoolExecutor(FILE_WRITERS, thread_name_prefix="gs-image-file")
@@ -206,6 +231,13 @@ class Storage:
         """Missions whose end an operator command recorded in this process."""
         self._unbounded: dict[str, float] = {}
         """Missions whose opening ``t_start`` could not be recorded yet -> earliest t_gen."""
+
+    def _add_columns(self) -> None:
+        """Columns newer than a database made by an older version (nullable: old rows)."""
+        have = {r[1] for r in self.db.execute("PRAGMA table_info(images)")}
+        for name, kind in _NEW_IMAGE_COLUMNS:
+            if name not in have:
+                self.db.execute(f"ALTER TABLE images ADD COLUMN {name} {kind}")
 
     def close(self, *, now: float | None = None) -> None:
         """Close files. A mission received in this process without an end command gets
@@ -457,11 +489,13 @@ class Storage:
                 continue
             d = m.data
             obj = d.get("object")
+            pose_age, pose = pose_quality(d)
+            placed = pose != "none"  # never a 0/0 or a guess without a fix in the index
             cur.execute(
                 "INSERT OR REPLACE INTO images (mission, sender, seq, type, t_gen, t_rcv, size,"
                 " version, red, object, utility, lat_deg, lon_deg, alt_m, x_m, y_m, roll_deg,"
-                " pitch_deg, yaw_deg, path, error)"
-                " VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                " pitch_deg, yaw_deg, path, error, pose_age_s, pose)"
+                " VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                 (
                     item.mission,
                     m.sender,
@@ -474,16 +508,18 @@ class Storage:
                     _geo(d, "red"),
                     1 if obj is True or obj == 1 else 0,
                     item.utility,
-                    _geo(d, "lat_deg", "lat"),
-                    _geo(d, "lon_deg", "lon"),
-                    _geo(d, "alt_m", "alt_rel_m", "alt"),
-                    _geo(d, "x_m", "x"),
-                    _geo(d, "y_m", "y"),
+                    _geo(d, "lat_deg", "lat") if placed else None,
+                    _geo(d, "lon_deg", "lon") if placed else None,
+                    _geo(d, "alt_m", "alt_rel_m", "alt") if placed else None,
+                    _geo(d, "x_m", "x") if placed else None,
+                    _geo(d, "y_m", "y") if placed else None,
                     _geo(d, "roll_deg", "roll"),
                     _geo(d, "pitch_deg", "pitch"),
                     _geo(d, "yaw_deg", "yaw", "heading_deg"),
                     path,
                     error,
+                    pose_age,
+                    pose,
                 ),
             )
             ids.append(cur.lastrowid)

@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["Curve", "LineCurve", "Shape", "ShapeCurve", "StepCurve"]
+__all__ = ["Curve", "EndedCurve", "LineCurve", "Shape", "ShapeCurve", "StepCurve"]
 
 INF = math.inf
 
@@ -250,6 +250,8 @@ class ShapeCurve(Curve):
         return self.shape.critical(self.scale, self.t_gen, other.scale, other.t_gen)
 
     def dominates(self, other: Curve) -> bool:
+        if isinstance(other, EndedCurve):  # an ended curve is never above its inner one
+            return other.expiry <= self.t_gen or self.dominates(other.inner)
         # φ is non-increasing, so the newer of two equally shaped curves is never lower.
         return (
             isinstance(other, ShapeCurve)
@@ -274,4 +276,35 @@ class StepCurve(Curve):
         return b - a if b > a else 0.0
 
     def dominates(self, other: Curve) -> bool:
+        if isinstance(other, EndedCurve):
+            return other.expiry <= self.t_gen or self.dominates(other.inner)
         return isinstance(other, StepCurve)
+
+
+class EndedCurve(Curve):
+    """``inner`` until ``until``, 0 from then on: a status whose state has ended."""
+
+    __slots__ = ("inner", "until")
+
+    def __init__(self, inner: Curve, until: float) -> None:
+        self.inner, self.until, self.t_gen = inner, until, inner.t_gen
+        self.expiry = min(inner.expiry, until)
+
+    def value(self, t: float) -> float:
+        return self.inner.value(t) if t < self.until else 0.0
+
+    def integral(self, a: float, b: float) -> float:
+        return self.inner.integral(a, min(b, self.until))
+
+    def knots(self) -> tuple[float, ...]:
+        return (*self.inner.knots(), self.until)
+
+    def critical_points(self, other: Curve) -> tuple[float, ...]:
+        return self.inner.critical_points(other.inner if isinstance(other, EndedCurve) else other)
+
+    def dominates(self, other: Curve) -> bool:
+        if other.expiry <= self.t_gen:  # other is 0 before self can have arrived
+            return True
+        if isinstance(other, EndedCurve):
+            return self.until >= other.until and self.inner.dominates(other.inner)
+        return False

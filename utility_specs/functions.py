@@ -20,6 +20,7 @@ state changes and receptions; the evaluator integrates them piece by piece.
 
 from __future__ import annotations
 
+import bisect
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
@@ -31,6 +32,7 @@ import numpy as np
 from utility_specs._envelope import CAPPED_LOG, EXPONENTIAL, LINE, QUADRATIC, STEP, Family
 from utility_specs.curves import (
     Curve,
+    EndedCurve,
     FloatArray,
     LineCurve,
     Shape,
@@ -51,6 +53,7 @@ __all__ = [
     "Position",
     "RedImage",
     "Status",
+    "StatusChange",
     "StatusPoisson",
     "UtilityFunction",
     "Video",
@@ -156,6 +159,14 @@ class UtilityFunction(ABC):
         """Derive per-message data that depends on the other received messages (eq. 4.20).
 
         Returns the messages with that data added, or None when there is nothing to derive.
+        """
+        return None
+
+    def superseded(self, old: Message, newer: Message) -> Message | None:
+        """``old`` as known once ``newer`` of its stream was generated, or None (unchanged).
+
+        A function whose value ends when the world changes (:class:`StatusChange`) marks the
+        end on the older message; the optimiser applies it to what it has already sent.
         """
         return None
 
@@ -325,6 +336,74 @@ class StatusPoisson(UtilityFunction):
     def family(self, messages: Sequence[Message]) -> Family:
         n = len(messages)
         return Family(EXPONENTIAL, (self.rate,), [1.0] * n, [0.0] * n)
+
+    def params(self) -> dict[str, float]:
+        return {"rate": self.rate}
+
+
+class StatusChange(UtilityFunction):
+    """Eq. 4.14 and 4.16 for a periodically repeated state: true until the state changes.
+
+    Eq. 4.14 assumes one message per status change: a new status makes every older one
+    worthless (``last``, eq. 4.15), so a delayed new status costs utility. A vehicle status
+    repeated every few seconds breaks that premise: a repeat of an unchanged state is not a
+    new status, and under ``last`` a newer copy only loses its own delay. Here each message
+    carries ``since``, when the state it reports began (data; its ``t_gen`` when absent, so
+    that every message is a new state as in eq. 4.14). A message is worth
+    ``exp(-λ·(t - t_gen))`` after reception (eq. 4.16: the chance the state has not changed
+    since it was observed; λ = 0 gives eq. 4.14's constant 1) and 0 from ``until`` on, the
+    time the state it reports ended: data ``until``, or derived from a received message
+    whose ``since`` is after its generation (:meth:`prepare`; the optimiser learns it from
+    the newer state it generated, :meth:`superseded`). So a repeat of the known state adds
+    only eq. 4.16's refresh, while the first message of a new state replaces a value of 0:
+    the optimiser sends state changes at once and repeats when the link has room. ``max``.
+    """
+
+    name = "status_change"
+    UNTIL = "until"
+
+    def __init__(self, *, rate: float = 0.0) -> None:
+        self.rate = _number("rate", rate, allow_zero=True)
+        self._shape = _Exponential(self.rate) if self.rate > 0 else None
+
+    def since(self, m: Message) -> float:
+        since = _float_field(m, "since", m.t_gen)
+        if since > m.t_gen:
+            raise MessageError(
+                f"message {m.sender}/{m.seq}: since {since} is after its t_gen {m.t_gen}"
+            )
+        return since
+
+    def curve(self, m: Message) -> Curve:
+        self.since(m)
+        inner: Curve = (
+            StepCurve(m.t_gen) if self._shape is None else ShapeCurve(m.t_gen, 1.0, self._shape)
+        )
+        until = _float_field(m, self.UNTIL, INF) if self.UNTIL in m.data else INF
+        return inner if until == INF else EndedCurve(inner, until)
+
+    def superseded(self, old: Message, newer: Message) -> Message | None:
+        since = self.since(newer)
+        if since <= old.t_gen or newer.t_gen <= old.t_gen:
+            return None  # the same state (or an older message): old stays true
+        until = old.data.get(self.UNTIL)
+        if isinstance(until, int | float) and until <= since:
+            return None
+        return replace(old, data={**old.data, self.UNTIL: since})
+
+    def prepare(self, received: Sequence[Message]) -> list[Message] | None:
+        # As everywhere in the evaluator, a message never received does not exist for the
+        # receiver: a change whose every message was lost does not end the older state.
+        starts = sorted({self.since(m) for m in received if m.t_rcv is not None})
+        if not starts:
+            return None
+        out = []
+        for m in received:
+            i = bisect.bisect_right(starts, m.t_gen)  # the first state begun after m
+            if i < len(starts) and self.UNTIL not in m.data:
+                m = replace(m, data={**m.data, self.UNTIL: starts[i]})
+            out.append(m)
+        return out
 
     def params(self) -> dict[str, float]:
         return {"rate": self.rate}
@@ -656,6 +735,7 @@ FUNCTIONS: dict[str, Callable[..., UtilityFunction]] = {
         Position,
         Status,
         StatusPoisson,
+        StatusChange,
         Objective,
         Localization,
         Video,

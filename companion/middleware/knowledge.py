@@ -51,6 +51,7 @@ class FleetKnowledge:
     __slots__ = (
         "_delivered",
         "_inflight",
+        "_newest",
         "_seen",
         "_seen_order",
         "_sends",
@@ -70,10 +71,35 @@ class FleetKnowledge:
         self._sends: dict[tuple[str, int], tuple[float, int]] = {}
         self._seen: set[tuple[str, int]] = set()
         self._seen_order: deque[tuple[str, int]] = deque()
+        self._newest: dict[tuple[str, str | None], Message] = {}
+        """Per stream, the newest message generated here: what the sender knows has changed."""
 
     # --- updates -------------------------------------------------------------------------
     def on_generated(self, message: Message) -> None:
         self.forecaster.observe(message)
+        stream = stream_of(self.spec, message)
+        newest = self._newest.get(stream)
+        if newest is not None and newest.t_gen > message.t_gen:
+            return
+        self._newest[stream] = message
+        known = self._delivered.get(stream)
+        if known is not None:
+            self._delivered[stream] = (self._as_known(known[0]), known[1])
+        for key, (m, t) in list(self._inflight.items()):
+            if stream_of(self.spec, m) == stream:
+                self._inflight[key] = (self._as_known(m), t)
+
+    def _as_known(self, m: Message) -> Message:
+        """``m`` with what the newest own message of its stream tells about it (a status
+        whose state has ended since, :meth:`UtilityFunction.superseded`)."""
+        newest = self._newest.get(stream_of(self.spec, m))
+        if newest is None or newest.t_gen <= m.t_gen:
+            return m
+        try:
+            ended = self.spec.types[m.type].utility.superseded(m, newest)
+        except UtilitySpecsError:
+            return m
+        return m if ended is None else ended
 
     def on_sent(self, message: Message, *, now: float) -> None:
         self._inflight[message.key] = (message, now)
@@ -96,7 +122,7 @@ class FleetKnowledge:
             stream = stream_of(self.spec, m)
             known = self._delivered.get(stream)
             if known is None or known[0].t_gen < m.t_gen:
-                self._delivered[stream] = (m, m.t_rcv)
+                self._delivered[stream] = (self._as_known(m), m.t_rcv)
         while len(self._seen_order) > 4096:
             self._seen.discard(self._seen_order.popleft())
         return new

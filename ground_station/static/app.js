@@ -94,7 +94,7 @@ function handle(msg) {
       state.drops = msg.stats.drops || {};
       for (const [drone, p] of Object.entries(msg.point.drones || {})) {
         const d = state.drones.get(drone);
-        if (d) { d.age_s = msg.point.t - d.last_heard; state.dirty.add(drone); }
+        if (d) { d.age_s = msg.point.t - d.last_heard; d.now = msg.point.t; state.dirty.add(drone); }
       }
       renderCharts(); renderDrops();
       if (msg.mission) { state.mission = msg.mission; renderMission(); }
@@ -135,6 +135,7 @@ function tileFor(drone) {
       <tr><td>share</td><td class="v-share"></td><td>battery</td><td class="v-batt"></td></tr>
       <tr><td>mode</td><td class="v-mode"></td><td>armed</td><td class="v-armed"></td></tr>
       <tr><td>GPS</td><td class="v-gps"></td><td>heard</td><td class="v-heard"></td></tr>
+      <tr><td>position</td><td class="v-pos" colspan="3"></td></tr>
     </tbody></table>`;
   el.querySelector("header b").textContent = drone;
   el.querySelector("header b").style.color = color(drone);
@@ -172,9 +173,22 @@ function renderTile(d) {
   el.querySelector(".v-share").innerHTML = `<span class="meter"><i style="width:${Math.round((d.goodput_share || 0) * 100)}%"></i></span>${fmt.pct(d.goodput_share)}`;
   const b = d.battery;
   el.querySelector(".v-batt").innerHTML = b === null ? "–" : `<span class="meter batt${b < 0.25 ? " low" : ""}"><i style="width:${Math.round(b * 100)}%"></i></span>${fmt.pct(b)}`;
-  el.querySelector(".v-mode").textContent = d.mode || "–";
+  el.querySelector(".v-mode").textContent = (d.mode || "–") + (d.failsafe ? " · FAILSAFE" : "") + (d.autopilot_connected === false ? " · autopilot lost" : "");
   el.querySelector(".v-armed").textContent = d.armed === null ? "–" : d.armed ? "ARMED" : "disarmed";
   el.querySelector(".v-gps").textContent = fmt.fix(d.gps_fix);
+  el.querySelector(".v-pos").textContent = d.no_position ? "no position (no fix)" : d.lat_deg === null ? "–" : `${fmt.num(d.lat_deg, 6)}, ${fmt.num(d.lon_deg, 6)}`;
+  // Every telemetry value shows its age; past its bound it is marked stale (issue 17).
+  const later = (d.now || d.t || 0) - (d.t || 0);
+  const stale = new Set(d.stale || []);
+  for (const [cls, name] of [[".v-mode", "mode"], [".v-armed", "armed"], [".v-gps", "gps_fix"], [".v-batt", "battery"], [".v-pos", "position"]]) {
+    const cell = el.querySelector(cls), age = d.ages ? d.ages[name] : undefined;
+    if (age === undefined) { cell.classList.remove("stale"); continue; }
+    const now = age + later;
+    const old = stale.has(name) || now > ((d.stale_after_s || {})[name] ?? 12);
+    cell.classList.toggle("stale", old);
+    cell.title = `${name}: ${fmt.age(now)}${old ? " (stale)" : ""}`;
+    cell.insertAdjacentHTML("beforeend", ` <small class="age">${now < 1 ? "" : fmt.num(now, 0) + " s"}</small>`);
+  }
   el.querySelector(".v-heard").textContent = fmt.age(d.age_s);
 }
 function renderSummary() {
@@ -346,7 +360,7 @@ async function renderGallery() {
     $("gallery").innerHTML = body.images.map((im) => `
       <figure class="${im.utility >= (state.config.high_utility || 1e9) ? "high" : ""}" data-id="${im.id}">
         <img loading="lazy" src="${im.url}" alt="${esc(im.sender)} #${im.seq}">
-        <figcaption><b style="color:${color(im.sender)}">${esc(im.sender)}</b> #${im.seq} · U ${fmt.num(im.utility, 2)}${im.object ? " · object" : ""}<br><span class="muted">${fmt.time(im.t_gen)}</span></figcaption>
+        <figcaption><b style="color:${color(im.sender)}">${esc(im.sender)}</b> #${im.seq} · U ${fmt.num(im.utility, 2)}${im.object ? " · object" : ""}<br><span class="muted">${fmt.time(im.t_gen)}</span>${im.pose === "none" ? ` · <span class="stale">no position</span>` : im.pose === "stale" ? ` · <span class="stale">position ${fmt.num(im.pose_age_s, 1)} s old</span>` : ""}</figcaption>
       </figure>`).join("") || `<p class="muted">no stored images yet</p>`;
   } catch (e) { /* token box already shown */ }
 }

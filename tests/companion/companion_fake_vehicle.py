@@ -38,13 +38,18 @@ STREAM_IDS = {
     mav.MAVLINK_MSG_ID_BATTERY_STATUS: "battery_status",
     mav.MAVLINK_MSG_ID_GPS_RAW_INT: "gps",
     mav.MAVLINK_MSG_ID_SYSTEM_TIME: "system_time",
+    mav.MAVLINK_MSG_ID_EKF_STATUS_REPORT: "ekf",
 }
+EKF_READY = (mav.EKF_ATTITUDE | mav.EKF_VELOCITY_HORIZ | mav.EKF_VELOCITY_VERT
+             | mav.EKF_POS_HORIZ_REL | mav.EKF_POS_HORIZ_ABS | mav.EKF_POS_VERT_ABS)
+EKF_NO_ORIGIN = mav.EKF_ATTITUDE | mav.EKF_VELOCITY_VERT | mav.EKF_CONST_POS_MODE
 
 
 class FakeVehicle:
     def __init__(self, *, port: int = 0, autopilot: str = "ardupilot",
                  accept_message_interval: bool = True, system_id: int = 1,
-                 lat_deg: float = 50.0615, lon_deg: float = 19.9373) -> None:
+                 lat_deg: float = 50.0615, lon_deg: float = 19.9373,
+                 fix_after_s: float = 0.0) -> None:
         self.autopilot = autopilot
         self.accept_message_interval = accept_message_interval
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -56,13 +61,20 @@ class FakeVehicle:
         self.peer: tuple[str, int] | None = None
         self.rates_hz: dict[int, float] = {}
         if autopilot == "px4":
-            self.rates_hz = {i: 5.0 for i in STREAM_IDS}
+            self.rates_hz = {i: 5.0 for i, kind in STREAM_IDS.items() if kind != "ekf"}
         self.next_due: dict[int, float] = {}
         self.custom_mode = ARDUCOPTER_MODES["STABILIZE"] if autopilot == "ardupilot" else 0
         self.base_mode = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
         self.armed = False
+        self.system_status = mav.MAV_STATE_ACTIVE  # MAV_STATE_CRITICAL: a failsafe
         self.lat_deg, self.lon_deg = lat_deg, lon_deg
         self.t0 = time.time()
+        self.fix_after_s = fix_after_s
+        """Like ArduPilot after boot: no fix, 0/0 and an EKF without origin for this long
+        after the first client spoke (the vehicle 'boots' when someone listens)."""
+        self.t_first_peer: float | None = None
+        self.silent_until = 0.0
+        """An autopilot outage: nothing is sent (or answered) before this time.time()."""
         self.received: list[str] = []
         self.data_stream_requests = 0
         self.params: dict[str, tuple[float, int]] = {
@@ -95,10 +107,12 @@ class FakeVehicle:
                 except OSError:
                     continue
                 self.peer = addr
+                if self.t_first_peer is None:
+                    self.t_first_peer = time.time()
                 for msg in self.mav.parse_buffer(data) or []:
                     self.handle(msg)
             now = time.time()
-            if self.peer is None:
+            if self.peer is None or now < self.silent_until:
                 continue
             if now >= next_hb:
                 self.send(self.heartbeat())
@@ -122,14 +136,18 @@ class FakeVehicle:
         autopilot = mav.MAV_AUTOPILOT_PX4 if self.autopilot == "px4" else \
             mav.MAV_AUTOPILOT_ARDUPILOTMEGA
         return mav.MAVLink_heartbeat_message(mav.MAV_TYPE_QUADROTOR, autopilot, base,
-                                             self.custom_mode, mav.MAV_STATE_ACTIVE, 3)
+                                             self.custom_mode, self.system_status, 3)
 
     def telemetry(self, msg_id: int, now: float) -> mav.MAVLink_message:
         t = now - self.t0
         boot_ms = int(t * 1000) & 0xFFFFFFFF
-        lat = self.lat_deg + 1e-4 * math.sin(0.2 * t)
-        lon = self.lon_deg + 1e-4 * math.cos(0.2 * t)
+        fixed = self.t_first_peer is not None and now - self.t_first_peer >= self.fix_after_s
+        lat = self.lat_deg + 1e-4 * math.sin(0.2 * t) if fixed else 0.0
+        lon = self.lon_deg + 1e-4 * math.cos(0.2 * t) if fixed else 0.0
         kind = STREAM_IDS[msg_id]
+        if kind == "ekf":
+            return mav.MAVLink_ekf_status_report_message(
+                EKF_READY if fixed else EKF_NO_ORIGIN, 0.1, 0.1, 0.1, 0.1, 0.1)
         if kind == "position":
             return mav.MAVLink_global_position_int_message(
                 boot_ms, int(lat * 1e7), int(lon * 1e7), 250_000, 30_000, 100, -50, 0, 9000)
@@ -142,12 +160,19 @@ class FakeVehicle:
             cells = [4100, 4100, 4100] + [65535] * 7
             return mav.MAVLink_battery_status_message(0, 0, 0, 2500, cells, 1500, -1, -1, 87)
         if kind == "gps":
-            return mav.MAVLink_gps_raw_int_message(int(t * 1e6), 3, int(lat * 1e7),
+            return mav.MAVLink_gps_raw_int_message(int(t * 1e6), 3 if fixed else 1,
+                                                   int(lat * 1e7),
                                                    int(lon * 1e7), 250_000, 80, 65535, 0,
                                                    65535, 12)
         return mav.MAVLink_system_time_message(int(now * 1e6), boot_ms)
 
+    def outage(self, seconds: float) -> None:
+        """The autopilot goes quiet for ``seconds`` (a reboot, a cable pulled)."""
+        self.silent_until = time.time() + seconds
+
     def handle(self, msg: mav.MAVLink_message) -> None:
+        if time.time() < self.silent_until:
+            return
         kind = msg.get_type()
         self.received.append(kind)
         if kind == "COMMAND_LONG":
@@ -199,8 +224,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--port", type=int, default=0)
     parser.add_argument("--autopilot", choices=["ardupilot", "px4"], default="ardupilot")
+    parser.add_argument("--fix-after", type=float, default=0.0,
+                        help="seconds without a GPS fix (0/0, EKF without origin) after start")
     args = parser.parse_args(argv)
-    vehicle = FakeVehicle(port=args.port, autopilot=args.autopilot)
+    vehicle = FakeVehicle(port=args.port, autopilot=args.autopilot, fix_after_s=args.fix_after)
     print(f"PORT {vehicle.port}", flush=True)
     with contextlib.suppress(KeyboardInterrupt):
         vehicle.serve()

@@ -7,6 +7,7 @@ import contextlib
 import dataclasses
 import errno
 import io
+import itertools
 import json
 import os
 import subprocess
@@ -376,3 +377,81 @@ async def test_status_carries_statustext_fix_and_constraint(
     status = next(m for m, _ in transports[0].sent if "statustext" in m.data)
     assert (status.data["statustext"], status.data["severity"]) == ("PreArm: GPS", 2)
     assert status.data["xi_bytes_per_s"] == 1234.0 and status.data["fix_type"] == 3
+
+
+class DropStatusesOf(FakeDecider):
+    """Drops the first ``n`` statuses reporting ``mode`` (a full window), sends the rest."""
+
+    def __init__(self, mode: str, n: int) -> None:
+        super().__init__()
+        self.mode, self.left = mode, n
+
+    def decide(self, message: Message, now: float) -> FakeDecision:
+        self.decided.append(message)
+        if message.type == "status" and message.data["mode"] == self.mode and self.left > 0:
+            self.left -= 1
+            return FakeDecision(False, None, "window full", 0.0)
+        return FakeDecision(True, None, "ok", 1.0)
+
+
+async def test_a_new_state_carries_since_and_is_offered_again_until_sent(
+        vehicle: FakeVehicle, tmp_path: Path) -> None:
+    """Issue 17: a dropped status of a new state is retried every 0.5 s, not only each
+    period (5 s here), and every status of one state carries the same ``since``."""
+    decider = DropStatusesOf("GUIDED", 2)
+    config = dataclasses.replace(
+        _config(vehicle, tmp_path, enabled=False),
+        telemetry=dataclasses.replace(_config(vehicle, tmp_path).telemetry,
+                                      status_period_s=5.0))
+    app, transports = _make(config, decider)
+    task = asyncio.create_task(app.run())
+    try:
+        await _until(lambda: any(m.type == "status" for m, _ in transports[0].sent))
+        first = next(m for m, _ in transports[0].sent if m.type == "status")
+        # the vehicle switches to GUIDED, arms and enters a failsafe (MAV_STATE_CRITICAL)
+        vehicle.custom_mode, vehicle.armed, vehicle.system_status = 4, True, 5
+        vehicle.send(vehicle.heartbeat())
+        await _until(lambda: app.telemetry.snapshot().mode == "GUIDED")
+        t_change = time.time()
+        await _until(lambda: any(m.type == "status" and m.data["mode"] == "GUIDED"
+                                 for m, _ in transports[0].sent), timeout_s=4.0)
+        t_told = time.time()
+    finally:
+        app.stop()
+        await asyncio.wait_for(task, 10)
+    guided = [m for m in decider.decided if m.type == "status" and m.data["mode"] == "GUIDED"]
+    assert len(guided) == 3  # dropped twice, sent the third time
+    assert 0.7 < t_told - t_change < 2.5  # two 0.5 s retries, not the 5 s period
+    assert len({m.data["since"] for m in guided}) == 1
+    since = guided[0].data["since"]
+    assert first.data["since"] < since <= guided[0].t_gen
+    assert all(m.data["failsafe"] is True and m.data["armed"] is True for m in guided)
+    assert first.data["failsafe"] is False
+
+
+async def test_retries_of_an_untold_state_back_off_when_the_link_stays_full(
+        vehicle: FakeVehicle, tmp_path: Path) -> None:
+    """Four retries 0.5 s apart, then 1 s, 2 s...: a dead link costs few decisions."""
+    decider = DropStatusesOf("GUIDED", 1000)
+    config = dataclasses.replace(
+        _config(vehicle, tmp_path, enabled=False),
+        telemetry=dataclasses.replace(_config(vehicle, tmp_path).telemetry,
+                                      status_period_s=30.0))
+    app, transports = _make(config, decider)
+    task = asyncio.create_task(app.run())
+    try:
+        await _until(lambda: any(m.type == "status" for m, _ in transports[0].sent))
+        vehicle.custom_mode = 4
+        vehicle.send(vehicle.heartbeat())
+        await _until(lambda: any(m.type == "status" and m.data["mode"] == "GUIDED"
+                                 for m in decider.decided))
+        await asyncio.sleep(5.5)
+    finally:
+        app.stop()
+        await asyncio.wait_for(task, 10)
+    times = [m.t_gen for m in decider.decided if m.type == "status"
+             and m.data["mode"] == "GUIDED"]
+    gaps = [b - a for a, b in itertools.pairwise(times)]
+    assert len(gaps) >= 5, gaps
+    assert gaps[:5] == pytest.approx([0.5, 0.5, 0.5, 0.5, 1.0], abs=0.15), gaps
+    assert all(g > 1.8 for g in gaps[5:]), gaps  # 2 s, then 4 s

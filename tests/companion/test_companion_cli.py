@@ -66,6 +66,20 @@ def test_check_refuses_what_run_refuses_without_keys(tmp_path: Path, frames: Pat
     assert "Traceback" not in result.stderr
 
 
+def test_check_says_when_the_vehicle_has_no_valid_position(tmp_path: Path,
+                                                           frames: Path) -> None:
+    vehicle = FakeVehicle(fix_after_s=600.0).start()  # ArduPilot after boot: 0/0, no origin
+    try:
+        config = _config(tmp_path, f"udpout:127.0.0.1:{vehicle.port}", str(frames))
+        result = _cli("check", "--config", str(config), "--timeout", "10", "--skip-camera")
+    finally:
+        vehicle.stop()
+    assert result.returncode == 0, result.stderr
+    assert "mavlink: no valid position yet: no 3-D GPS fix (fix_type 1) (no geotags until " \
+           "there is one)" in result.stdout
+    assert "position 0.0" not in result.stdout
+
+
 def test_check_without_vehicle_fails_with_reason(tmp_path: Path, frames: Path) -> None:
     config = _config(tmp_path, "udpout:127.0.0.1:9", str(frames))
     result = _cli("check", "--config", str(config), "--timeout", "1", "--skip-camera")
