@@ -36,6 +36,7 @@ from sitl.study.drop_rate import (
     REFERENCE_VIOLATIONS_MAX,
     optimum_gap,
     run_mission,
+    utility_pct,
 )
 from utility_specs.files import builtin_spec
 from utility_specs.message import Version
@@ -134,7 +135,8 @@ def speed_companion_default(t_end: float) -> None:
     lat = [m.t_rcv - m.t_sent for m in result.delivered
            if m.t_rcv is not None and m.t_sent is not None]
     xi = [mw.constraint.limit_bytes_per_s(now=t_end) for mw in middlewares]
-    print(f"    sent {sent / 1e3:.1f} kB/s, latency p95 {np.percentile(lat, 95):.2f} s, "
+    print(f"    utility {utility_pct(spec, result.generated, t_end):.1f} %, "
+          f"sent {sent / 1e3:.1f} kB/s, latency p95 {np.percentile(lat, 95):.2f} s, "
           f"link samples {result.link_samples}, xi at end "
           + " ".join(f"{x / 1e3:.1f}" for x in xi) + " kB/s", flush=True)
     check("companion default p99", f"{np.percentile(wall, 99):.2f} ms (mean {wall.mean():.2f}; "

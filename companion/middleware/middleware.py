@@ -24,7 +24,7 @@ import numpy as np
 
 from companion.middleware.constraint import GoodputConstraint
 from companion.middleware.incremental import Problem, build_problem, option_message
-from companion.middleware.knowledge import FleetKnowledge, usable
+from companion.middleware.knowledge import FleetKnowledge, settle_inflight, usable
 from companion.middleware.mcts import MCTS, greedy_option
 from companion.protocol.records import report_messages
 from utility_specs.errors import UtilitySpecsError
@@ -168,6 +168,9 @@ class Middleware:
             message, now=now, horizon_s=self.config.horizon_s,
             max_items=self.config.max_items, window_s=window_s,
         )
+        lag = max(self.knowledge.latency.high_s, self.knowledge.latency.mean_s)
+        view = settle_inflight(view, lag_s=lag, rates=self.knowledge.sender_rates(
+            now=now, lag_s=lag, window_s=window_s))
         try:
             problem = build_problem(
                 self.spec, items=view.items, fixed=view.fixed,
