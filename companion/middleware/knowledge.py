@@ -170,8 +170,8 @@ class FleetKnowledge:
                             horizon_end=horizon_end)
 
 
-def settle_inflight(view: PlanningView, *, rates: dict[str, float],
-                    lag_s: float) -> PlanningView:
+def settle_inflight(view: PlanningView, *, rates: dict[str, float], lag_s: float,
+                    keep: int = 0) -> PlanningView:
     """The view with other agents' possibly in-flight messages taken as already decided.
 
     Their senders decided them: they are not this agent's to search. Left in the tree, a
@@ -182,13 +182,18 @@ def settle_inflight(view: PlanningView, *, rates: dict[str, float],
     (``root_window``). Taking them all as sent starves this agent (a full window of others'
     images that were in fact dropped); taking them all as dropped lets every agent fill the
     same window (the fleet sent 2.5 times its budget in the companion benchmark).
+
+    The newest ``keep`` stay in the tree: a few levels cost the search little, and without
+    a backlog (the fig. 5.7 fleet) that is all there is.
     """
     inflight = [it for it in view.items if it.kind == "inflight"]
-    if not inflight:
+    if len(inflight) <= keep:
         return view
     count: dict[str, int] = {}
     for it in inflight:
         count[it.message.sender] = count.get(it.message.sender, 0) + 1
+    kept = {id(it) for it in inflight[len(inflight) - keep:]} if keep > 0 else set()
+    inflight = [it for it in inflight if id(it) not in kept]
     window = list(view.root_window)
     for it in inflight:
         sender = it.message.sender
@@ -196,5 +201,6 @@ def settle_inflight(view: PlanningView, *, rates: dict[str, float],
         expected = int(min(share, it.message.size))
         if expected > 0:
             window.append((it.send_t, expected))
-    return replace(view, items=[it for it in view.items if it.kind != "inflight"],
+    settled = {id(it) for it in inflight}
+    return replace(view, items=[it for it in view.items if id(it) not in settled],
                    root_window=sorted(window))

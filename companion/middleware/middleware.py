@@ -59,6 +59,11 @@ class MiddlewareConfig:
     """At most this many levels (nearest first): bounds the work per decision."""
     chunk_iterations: int = 100
     """With a wall-time deadline, the budget clock is read every this many iterations."""
+    search_inflight: int = 4
+    """At most this many of other agents' possibly in-flight messages (the newest) are levels
+    of the tree; older ones are settled at their senders' last known rate
+    (:func:`~companion.middleware.knowledge.settle_inflight`): under a backlog they used to
+    push the decided message out of the search's reach (issue 18)."""
     announce_after_s: float | None = 60.0
     """Other agents learn of a stream only from its deliveries: a stream of this agent that
     has sent nothing for this long is invisible to their plans, so they fill the shared
@@ -69,8 +74,10 @@ class MiddlewareConfig:
     def __post_init__(self) -> None:
         if not self.agent:
             raise MiddlewareError("agent must not be empty")
-        if self.max_iterations < 0 or self.chunk_iterations <= 0 or self.max_items <= 0:
-            raise MiddlewareError("max_iterations >= 0, chunk_iterations > 0, max_items > 0")
+        if self.max_iterations < 0 or self.chunk_iterations <= 0 or self.max_items <= 0 \
+                or self.search_inflight < 0:
+            raise MiddlewareError("max_iterations >= 0, chunk_iterations > 0, max_items > 0, "
+                                  "search_inflight >= 0")
         if not (self.horizon_s > 0 and self.c >= 0 and self.default_latency_s >= 0
                 and self.tail_s >= 0):
             raise MiddlewareError("need horizon_s > 0, c >= 0, default_latency_s >= 0, tail_s >= 0")
@@ -169,8 +176,9 @@ class Middleware:
             max_items=self.config.max_items, window_s=window_s,
         )
         lag = max(self.knowledge.latency.high_s, self.knowledge.latency.mean_s)
-        view = settle_inflight(view, lag_s=lag, rates=self.knowledge.sender_rates(
-            now=now, lag_s=lag, window_s=window_s))
+        view = settle_inflight(view, lag_s=lag, keep=self.config.search_inflight,
+                               rates=self.knowledge.sender_rates(now=now, lag_s=lag,
+                                                                 window_s=window_s))
         try:
             problem = build_problem(
                 self.spec, items=view.items, fixed=view.fixed,
