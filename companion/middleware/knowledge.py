@@ -7,6 +7,7 @@ horizon) is forgotten, so the cost of a decision does not grow with mission leng
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
@@ -170,37 +171,31 @@ class FleetKnowledge:
                             horizon_end=horizon_end)
 
 
-def settle_inflight(view: PlanningView, *, rates: dict[str, float], lag_s: float,
+def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, float], lag_s: float,
                     keep: int = 0) -> PlanningView:
-    """The view with other agents' possibly in-flight messages taken as already decided.
+    """The view with what other agents sent in the last ``lag_s`` (not known before it
+    arrives) estimated, and their possibly in-flight messages taken as already decided.
 
-    Their senders decided them: they are not this agent's to search. Left in the tree, a
-    backlog put a hundred of them ahead of the decided message and the search never reached
-    it (95 % greedy fallbacks, issue 18). What they sent is unknown until it arrives, so each
-    sender is assumed to have gone on sending at the rate it was last seen to send
-    (``rates``, bytes/s): its in-flight items share ``rate · lag_s`` bytes in the windows
-    (``root_window``). Taking them all as sent starves this agent (a full window of others'
+    Their senders decided those messages: they are not this agent's to search. Left in the
+    tree, a backlog put a hundred of them ahead of the decided message and the search never
+    reached it (95 % greedy fallbacks, issue 18). Each sender is assumed to have gone on
+    sending at the rate it was last seen to send (``rates``, bytes/s): ``rate · lag_s``
+    bytes spread evenly over ``[now - lag_s, now]`` join the windows (``root_window``).
+    Taking the in-flight messages all as sent starves this agent (a full window of others'
     images that were in fact dropped); taking them all as dropped lets every agent fill the
     same window (the fleet sent 2.5 times its budget in the companion benchmark).
 
-    The newest ``keep`` stay in the tree: a few levels cost the search little, and without
-    a backlog (the fig. 5.7 fleet) that is all there is.
+    The newest ``keep`` in-flight messages stay in the tree: a few levels cost the search
+    little, and without a backlog (the fig. 5.7 fleet) that is all there is.
     """
-    inflight = [it for it in view.items if it.kind == "inflight"]
-    if len(inflight) <= keep:
-        return view
-    count: dict[str, int] = {}
-    for it in inflight:
-        count[it.message.sender] = count.get(it.message.sender, 0) + 1
-    kept = {id(it) for it in inflight[len(inflight) - keep:]} if keep > 0 else set()
-    inflight = [it for it in inflight if id(it) not in kept]
     window = list(view.root_window)
-    for it in inflight:
-        sender = it.message.sender
-        share = rates.get(sender, 0.0) * lag_s / count[sender]
-        expected = int(min(share, it.message.size))
-        if expected > 0:
-            window.append((it.send_t, expected))
-    settled = {id(it) for it in inflight}
+    if lag_s > 0:
+        n = max(1, math.ceil(lag_s / 0.25))
+        for rate in rates.values():
+            chunk = int(rate * lag_s / n)
+            if chunk > 0:
+                window += [(now - lag_s + (i + 0.5) * lag_s / n, chunk) for i in range(n)]
+    inflight = [it for it in view.items if it.kind == "inflight"]
+    settled = {id(it) for it in inflight[: max(0, len(inflight) - keep)]}
     return replace(view, items=[it for it in view.items if id(it) not in settled],
                    root_window=sorted(window))

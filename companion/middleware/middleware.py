@@ -176,7 +176,7 @@ class Middleware:
             max_items=self.config.max_items, window_s=window_s,
         )
         lag = max(self.knowledge.latency.high_s, self.knowledge.latency.mean_s)
-        view = settle_inflight(view, lag_s=lag, keep=self.config.search_inflight,
+        view = settle_inflight(view, now=now, lag_s=lag, keep=self.config.search_inflight,
                                rates=self.knowledge.sender_rates(now=now, lag_s=lag,
                                                                  window_s=window_s))
         try:
@@ -252,6 +252,10 @@ class Middleware:
         if decision.send:
             self._last_sent[message.type] = now
             sent = option_message(message, (decision.version or 0) + 1)
+            known = self.knowledge.sent_in_window(now=now, window_s=self.constraint.window_s)
+            if known + sent.size > self.constraint.budget_bytes(now=now) + 1e-9:
+                # a planned violation: the window as this agent knows it is over budget
+                self.counters["over_budget"] += 1
             self.knowledge.on_sent(sent, now=now)
             self.constraint.on_sent(sent.size, now=now)
         horizon = max(self.constraint.window_s, self.config.horizon_s)

@@ -53,22 +53,23 @@ def _view(items: list[PlanItem]) -> PlanningView:
     return PlanningView(items=items, fixed=[], root_window=[(0.5, 1000)], horizon_end=10.0)
 
 
-def test_settled_in_flight_messages_share_their_senders_last_rate() -> None:
+def test_settling_estimates_what_others_sent_in_the_last_lag_and_keeps_the_newest() -> None:
     inflight = [PlanItem(message=_image("b", i, 1.0 + 0.2 * i), send_t=1.0 + 0.2 * i,
                          rcv_t=4.0, kind="inflight") for i in range(4)]
     inflight.append(PlanItem(message=_image("c", 0, 1.5), send_t=1.5, rcv_t=4.0,
                              kind="inflight"))
     own = PlanItem(message=_image("a", 0, 2.0), send_t=2.0, rcv_t=2.1, kind="decide")
-    view = settle_inflight(_view([*inflight, own]), rates={"b": 10_000.0}, lag_s=2.0)
+    view = settle_inflight(_view([*inflight, own]), now=2.0, rates={"b": 10_000.0},
+                           lag_s=1.0)
     assert [it.kind for it in view.items] == ["decide"]
-    # b: 10 kB/s over 2 s = 20 kB shared by its 4 in-flight images; c: no known rate
-    assert view.root_window == [(0.5, 1000), (1.0, 5000), (1.2, 5000), (1.4, 5000),
-                                (1.6, 5000)]
-    kept = settle_inflight(_view([*inflight, own]), rates={"b": 10_000.0}, lag_s=2.0, keep=2)
+    # b: 10 kB/s over the last 1 s, in 4 chunks of 0.25 s; c: no known rate, nothing
+    assert view.root_window == [(0.5, 1000), (1.125, 2500), (1.375, 2500), (1.625, 2500),
+                                (1.875, 2500)]
+    kept = settle_inflight(_view([*inflight, own]), now=2.0, rates={}, lag_s=1.0, keep=2)
     assert [it.message.key for it in kept.items] == [("b", 3), ("c", 0), ("a", 0)]
-    assert kept.root_window == [(0.5, 1000), (1.0, 5000), (1.2, 5000), (1.4, 5000)]
-    capped = settle_inflight(_view(inflight[:1]), rates={"b": 1e9}, lag_s=2.0)
-    assert capped.root_window[-1] == (1.0, 40_000)  # never more than the message itself
+    assert kept.root_window == [(0.5, 1000)]
+    quiet = settle_inflight(_view([own]), now=2.0, rates={"b": 10_000.0}, lag_s=0.0)
+    assert quiet.root_window == [(0.5, 1000)] and quiet.items == [own]
 
 
 def _fleet(make_policy: Any, n: int = 3) -> list[SimAgent]:
