@@ -246,6 +246,10 @@ class Middleware:
             if ran == 0:
                 return
             budget -= ran
+        # Past the deadline but the tree has no answer yet (a loaded CPU, a slow table
+        # build): one more chunk, not the greedy fallback. A chunk costs well under 1 ms.
+        if budget > 0 and search.result().option is None:
+            search.run(min(budget, self.config.chunk_iterations))
 
     def _after(self, message: Message, decision: Decision, now: float) -> None:
         self.counters["sent" if decision.send else "dropped"] += 1

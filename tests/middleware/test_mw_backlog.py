@@ -114,3 +114,14 @@ def test_simulated_receiver_reports_feed_the_adaptive_constraint(
 def test_report_interval_must_be_positive() -> None:
     with pytest.raises(ValueError, match="report_interval_s"):
         ChannelConfig(report_interval_s=0.0)
+
+
+def test_a_deadline_already_past_still_gets_a_tree_decision() -> None:
+    """A loaded CPU can use up the time budget before the search starts: the tree still
+    runs one chunk rather than leaving the decision to the greedy fallback."""
+    config = MiddlewareConfig(spec=SPEC, agent="a", max_iterations=300, chunk_iterations=50)
+    mw = Middleware(config, constraint=ConstantConstraint(limit_bytes_per_s=75_000.0),
+                    budget_clock=lambda: 10.0)
+    d = mw.decide(_image("a", 0, 0.0), 0.0, deadline=5.0)
+    assert d.reason.startswith("mcts") and 0 < d.iterations <= 50
+    assert mw.counters["fallback"] == 0
