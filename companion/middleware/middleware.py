@@ -68,8 +68,13 @@ class MiddlewareConfig:
     """Other agents learn of a stream only from its deliveries: a stream of this agent that
     has sent nothing for this long is invisible to their plans, so they fill the shared
     window and it is dropped for ever (a starvation loop; at mission start, the agents that
-    speak first take the window). Then a message the tree would send if the window were
-    free goes out anyway, once, and makes the stream known ("mcts-announce"). None: off."""
+    speak first take the window). Then a message the tree would send if the others had not
+    planned for the window goes out, once, and makes the stream known ("mcts-announce").
+    None: off."""
+    announce_over_budget: bool = False
+    """Announce even over the sends known to fill the window (at most one planned window
+    violation per stream per ``announce_after_s``). Off: zero planned violations; a stream
+    waits for room among the known sends."""
 
     def __post_init__(self) -> None:
         if not self.agent:
@@ -201,11 +206,16 @@ class Middleware:
             option, reason = result.option, "mcts-exact" if result.exhausted else "mcts"
         if option == 0 and view.root_window and self._invisible(message.type, now) \
                 and _dense_enough(problem, level, search.lam):
-            # What the tree would do if the fleet, knowing of this stream, had left room.
+            # What the tree would do if the fleet, knowing of this stream, had left room:
+            # without the others' planned messages, within the sends known to the window
+            # (or, with announce_over_budget, over them: a planned violation).
+            over = self.config.announce_over_budget
+            own = [it for it in view.items if it.message.sender == self.config.agent]
             free = build_problem(
-                self.spec, items=view.items, fixed=view.fixed,
+                self.spec, items=view.items if over else own, fixed=view.fixed,
                 horizon_end=view.horizon_end + self.config.tail_s,
                 budget_bytes=self.constraint.budget_bytes(now=now), window_s=window_s,
+                root_window=() if over else view.root_window,
             )
             relaxed = MCTS(free, c=self.config.c, max_nodes=self.config.max_iterations + 1)
             self._run(relaxed, deadline)

@@ -170,55 +170,57 @@ def _interval(values: Sequence[float]) -> tuple[float, float]:
 
 
 def tables(rows: Sequence[dict[str, Any]]) -> str:
-    """Markdown tables: equal budget and equal bytes per scenario."""
+    """Markdown tables per scenario: MCTS utility, then each baseline's utility minus MCTS's
+    on the same seed (paired; negative: MCTS better) at equal budget and at equal bytes."""
     runs: dict[tuple[str, str, float], dict[int, dict[str, Any]]] = defaultdict(dict)
     for r in rows:
         runs[(r["scenario"], r["policy"], float(r["param"]))][int(r["seed"])] = r
-    scenarios = sorted({r["scenario"] for r in rows}, key=["mostly-low", "uniform",
-                                                           "mostly-high", "images"].index)
+    order = ["mostly-low", "uniform", "mostly-high", "images"]
+    scenarios = sorted({r["scenario"] for r in rows}, key=order.index)
     policies = [p for p in POLICIES if any(r["policy"] == p for r in rows)]
     mcts = next(p for p in policies if p.startswith("mcts"))
+    budgeted = [p for p in policies if p not in (mcts, "random")]
+    others = [p for p in policies if p != mcts]
+
+    def cell(values: list[float], n: int) -> str:
+        if len(values) < n:
+            return "n/a"
+        m, h = _interval(values)
+        return f"{m:+.1f} ± {h:.1f}"
+
     out = []
     for sc in scenarios:
-        unit = "B/s" if sc == "images" else "msgs/T"
+        unit = " B/s" if sc == "images" else " msgs/T"
         budgets = sorted({k[2] for k in runs if k[0] == sc and k[1] == mcts}, reverse=True)
         seeds = sorted(runs[(sc, mcts, budgets[0])])
-        out.append(f"\n**{sc}**: utility % (mean ± 95 % interval over {len(seeds)} seeds); "
-                   "planned violations (max per run)\n")
-        out.append("| budget | " + " | ".join(p for p in policies if p != "random")
-                   + " | " + " | ".join(f"{p} at MCTS bytes" for p in policies if p != mcts)
-                   + " |")
-        n_cols = 2 * len(policies) - 2
-        out.append("|---|" + "---|" * n_cols)
+        out.append(f"\n**{sc}** ({len(seeds)} seeds; mean ± 95 % t-interval; Δ = baseline − "
+                   f"{mcts}, paired by seed, negative: {mcts} better)\n")
+        out.append(f"| budget | {mcts} % | violations (max: fleet / known) | "
+                   + " | ".join(f"Δ {p} equal budget" for p in budgeted) + " | "
+                   + " | ".join(f"Δ {p} equal bytes" for p in others) + " |")
+        out.append("|---|---|---|" + "---|" * (len(budgeted) + len(others)))
         for b in budgets:
-            cells = []
-            for p in policies:
-                if p == "random":
-                    continue
+            ours = runs[(sc, mcts, b)]
+            m, h = _interval([ours[s]["utility_pct"] for s in seeds])
+            viol = max(int(ours[s]["planned_violations"]) for s in seeds)
+            known = max(int(ours[s].get("known_over_budget", 0)) for s in seeds)
+            cells = [f"{m:.1f} ± {h:.1f}", f"{viol} / {known}"]
+            for p in budgeted:
                 got = runs.get((sc, p, b), {})
-                m, h = _interval([got[s]["utility_pct"] for s in seeds if s in got])
-                v = max([got[s]["planned_violations"] for s in seeds if s in got] + [0])
-                cells.append(f"{m:.1f} ± {h:.1f} ({v})")
-            for p in policies:
-                if p == mcts:
-                    continue
+                cells.append(cell([got[s]["utility_pct"] - ours[s]["utility_pct"]
+                                   for s in seeds if s in got], len(seeds)))
+            for p in others:
                 diffs = []
                 for s in seeds:
-                    target = runs[(sc, mcts, b)][s]["delivered_bytes"]
+                    target = ours[s]["delivered_bytes"]
                     curve = sorted((r[s]["delivered_bytes"], r[s]["utility_pct"])
-                                   for k, r in runs.items()
-                                   if k[0] == sc and k[1] == p and s in r)
+                                   for k, r in runs.items() if k[0] == sc and k[1] == p and s in r)
                     xs = [c[0] for c in curve]
-                    if len(curve) < 2 or not xs[0] <= target <= xs[-1]:
-                        continue
-                    diffs.append(float(np.interp(target, xs, [c[1] for c in curve])))
-                if len(diffs) == len(seeds):
-                    m, h = _interval(diffs)
-                    cells.append(f"{m:.1f} ± {h:.1f}")
-                else:
-                    cells.append("out of range")
-            label = f"{b:g} {unit}"
-            out.append(f"| {label} | " + " | ".join(cells) + " |")
+                    if len(curve) >= 2 and xs[0] <= target <= xs[-1]:
+                        diffs.append(float(np.interp(target, xs, [c[1] for c in curve]))
+                                     - ours[s]["utility_pct"])
+                cells.append(cell(diffs, len(seeds)))
+            out.append(f"| {b:g}{unit} | " + " | ".join(cells) + " |")
     return "\n".join(out) + "\n"
 
 

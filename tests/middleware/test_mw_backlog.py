@@ -125,3 +125,17 @@ def test_a_deadline_already_past_still_gets_a_tree_decision() -> None:
     d = mw.decide(_image("a", 0, 0.0), 0.0, deadline=5.0)
     assert d.reason.startswith("mcts") and 0 < d.iterations <= 50
     assert mw.counters["fallback"] == 0
+
+
+def test_by_default_an_announcement_never_overruns_the_known_window() -> None:
+    """Issue 18: zero planned violations. b's delivered reports fill the 1 s window (the same
+    history as test_an_invisible_stream_announces_itself_once): a's invisible stream waits
+    for room instead of overrunning it; once b goes quiet it announces itself within budget."""
+    from tests.middleware.conftest import T0, msg
+    from tests.middleware.test_mw_middleware import _full_window_then_own, _mw
+
+    mw = _mw(budget_bytes_per_s=250.0)
+    assert [d.send for d in _full_window_then_own(mw)] == [False, False, False]
+    assert mw.counters["over_budget"] == 0 and mw.counters["announce"] == 0
+    later = mw.decide(msg("a", 200, "battery", T0 + 3.0), T0 + 3.0)
+    assert later.send and mw.counters["over_budget"] == 0
