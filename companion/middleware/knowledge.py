@@ -112,16 +112,20 @@ class FleetKnowledge:
         self.forecaster.forget(floor - 10.0 * keep_s)
 
     # --- reads ---------------------------------------------------------------------------
-    def sender_rates(self, *, now: float, lag_s: float, window_s: float) -> dict[str, float]:
-        """Bytes/s each other agent is known to have sent over the ``window_s`` before the
-        last ``lag_s`` (what has had time to arrive)."""
+    def sender_rates(self, *, now: float, lag_s: float, window_s: float
+                     ) -> dict[str, tuple[float, float]]:
+        """Per other agent: (bytes/s, mean message bytes) it is known to have sent over the
+        ``window_s`` before the last ``lag_s`` (what has had time to arrive)."""
         hi = now - lag_s
         lo = hi - window_s
-        rates: dict[str, float] = {}
+        sums: dict[str, list[float]] = {}
         for (sender, _), (t, b) in self._sends.items():
             if sender != self.agent and lo <= t <= hi:
-                rates[sender] = rates.get(sender, 0.0) + b / window_s
-        return rates
+                acc = sums.setdefault(sender, [0.0, 0.0])
+                acc[0] += b
+                acc[1] += 1
+        return {sender: (total / window_s, total / count)
+                for sender, (total, count) in sums.items()}
 
     def sent_in_window(self, *, now: float, window_s: float) -> int:
         """Bytes the fleet is known to have sent in [now - T, now] (eq. 5.7)."""
@@ -171,16 +175,19 @@ class FleetKnowledge:
                             horizon_end=horizon_end)
 
 
-def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, float], lag_s: float,
-                    keep: int = 0) -> PlanningView:
+def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, tuple[float, float]],
+                    lag_s: float, keep: int = 0) -> PlanningView:
     """The view with what other agents sent in the last ``lag_s`` (not known before it
     arrives) estimated, and their possibly in-flight messages taken as already decided.
 
     Their senders decided those messages: they are not this agent's to search. Left in the
     tree, a backlog put a hundred of them ahead of the decided message and the search never
     reached it (95 % greedy fallbacks, issue 18). Each sender is assumed to have gone on
-    sending at the rate it was last seen to send (``rates``, bytes/s): ``rate · lag_s``
-    bytes spread evenly over ``[now - lag_s, now]`` join the windows (``root_window``).
+    sending at the rate it was last seen to send (``rates``: bytes/s and mean message
+    bytes): ``rate · lag_s`` bytes, rounded to whole messages, spread evenly over
+    ``[now - lag_s, now]`` join the windows (``root_window``). Whole messages: 8 bytes of a
+    fraction blocked a 2048-byte message the budget had exact room for (the fig. 5.7 fleet
+    fell from 95 to 76 % of the offline optimum).
     Taking the in-flight messages all as sent starves this agent (a full window of others'
     images that were in fact dropped); taking them all as dropped lets every agent fill the
     same window (the fleet sent 2.5 times its budget in the companion benchmark).
@@ -190,11 +197,10 @@ def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, float], 
     """
     window = list(view.root_window)
     if lag_s > 0:
-        n = max(1, math.ceil(lag_s / 0.25))
-        for rate in rates.values():
-            chunk = int(rate * lag_s / n)
-            if chunk > 0:
-                window += [(now - lag_s + (i + 0.5) * lag_s / n, chunk) for i in range(n)]
+        for rate, size in rates.values():
+            # whole messages: a fraction of one would block a send the budget has room for
+            n = math.floor(rate * lag_s / size + 0.5) if size > 0 else 0
+            window += [(now - lag_s + (i + 0.5) * lag_s / n, int(size)) for i in range(n)]
     inflight = [it for it in view.items if it.kind == "inflight"]
     settled = {id(it) for it in inflight[: max(0, len(inflight) - keep)]}
     return replace(view, items=[it for it in view.items if id(it) not in settled],

@@ -59,17 +59,20 @@ def test_settling_estimates_what_others_sent_in_the_last_lag_and_keeps_the_newes
     inflight.append(PlanItem(message=_image("c", 0, 1.5), send_t=1.5, rcv_t=4.0,
                              kind="inflight"))
     own = PlanItem(message=_image("a", 0, 2.0), send_t=2.0, rcv_t=2.1, kind="decide")
-    view = settle_inflight(_view([*inflight, own]), now=2.0, rates={"b": 10_000.0},
-                           lag_s=1.0)
+    view = settle_inflight(_view([*inflight, own]), now=2.0,
+                           rates={"b": (10_000.0, 2500.0)}, lag_s=1.0)
     assert [it.kind for it in view.items] == ["decide"]
-    # b: 10 kB/s over the last 1 s, in 4 chunks of 0.25 s; c: no known rate, nothing
+    # b: 10 kB/s of 2.5 kB messages over the last 1 s: 4 of them; c: no known rate
     assert view.root_window == [(0.5, 1000), (1.125, 2500), (1.375, 2500), (1.625, 2500),
                                 (1.875, 2500)]
     kept = settle_inflight(_view([*inflight, own]), now=2.0, rates={}, lag_s=1.0, keep=2)
     assert [it.message.key for it in kept.items] == [("b", 3), ("c", 0), ("a", 0)]
     assert kept.root_window == [(0.5, 1000)]
-    quiet = settle_inflight(_view([own]), now=2.0, rates={"b": 10_000.0}, lag_s=0.0)
+    quiet = settle_inflight(_view([own]), now=2.0, rates={"b": (10_000.0, 2500.0)}, lag_s=0.0)
     assert quiet.root_window == [(0.5, 1000)] and quiet.items == [own]
+    # 8 bytes' worth of a 2048-byte stream is no message (it blocked an exact fit)
+    tiny = settle_inflight(_view([own]), now=2.0, rates={"b": (819.2, 2048.0)}, lag_s=0.01)
+    assert tiny.root_window == [(0.5, 1000)]
 
 
 def _fleet(make_policy: Any, n: int = 3) -> list[SimAgent]:
@@ -127,14 +130,14 @@ def test_a_deadline_already_past_still_gets_a_tree_decision() -> None:
     assert mw.counters["fallback"] == 0
 
 
-def test_by_default_an_announcement_never_overruns_the_known_window() -> None:
-    """Issue 18: zero planned violations. b's delivered reports fill the 1 s window (the same
-    history as test_an_invisible_stream_announces_itself_once): a's invisible stream waits
-    for room instead of overrunning it; once b goes quiet it announces itself within budget."""
+def test_without_overrun_an_announcement_never_overruns_the_known_window() -> None:
+    """Issue 18: zero planned violations with ``announce_over_budget=False``. b's delivered
+    reports fill the 1 s window (the history of test_an_invisible_stream_announces_itself_once):
+    a's invisible stream waits for room instead of overrunning it, then goes out in budget."""
     from tests.middleware.conftest import T0, msg
     from tests.middleware.test_mw_middleware import _full_window_then_own, _mw
 
-    mw = _mw(budget_bytes_per_s=250.0)
+    mw = _mw(budget_bytes_per_s=250.0, announce_over_budget=False)
     assert [d.send for d in _full_window_then_own(mw)] == [False, False, False]
     assert mw.counters["over_budget"] == 0 and mw.counters["announce"] == 0
     later = mw.decide(msg("a", 200, "battery", T0 + 3.0), T0 + 3.0)

@@ -205,8 +205,7 @@ def _full_window_then_own(mw: Middleware) -> list[Decision]:
 def test_an_invisible_stream_announces_itself_once() -> None:
     """Other agents plan only for streams they have heard of: a stream that never got a
     message out is sent once over a full window (counted), then plans as usual."""
-    decisions = _full_window_then_own(_mw(budget_bytes_per_s=250.0,
-                                          announce_over_budget=True))
+    decisions = _full_window_then_own(_mw(budget_bytes_per_s=250.0))
     assert [d.send for d in decisions] == [True, False, False]
     assert decisions[0].reason == "mcts-announce"
     off = _mw(budget_bytes_per_s=250.0, announce_after_s=None)
