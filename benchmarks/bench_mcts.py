@@ -6,6 +6,10 @@ Speed: reference setup of thesis ch. 5.4 (10 agents, 1500 iterations, 100 s) mea
 p95 <= 30 ms per decision, flat (last 10 % of decisions vs the 2nd 10 %: <= 1.5x; the first
 10 % are cheaper because the fleet is not known yet); image streaming (4 drones, 5 frames/s
 with 3 versions, 1 Hz position, 0.2 Hz battery, 300 iterations) p99 <= 10 ms.
+Companion default configuration (issue 18): the same fleet with ``build_decider``'s settings
+(300 iterations, horizon 3 s, adaptive constraint fed by simulated receiver reports) on a
+1 Mbit/s link near capacity (backlog of in-flight items): decide p99 <= 10 ms and the share
+of decisions made by the greedy fallback <= 1 %.
 Quality: utility >= the thesis reference at its drop shares (mostly-low), >= random at every
 drop share in all scenarios (interpolated), within 5 % of the offline optimum on average over
 20 seeded short missions, fewer violations than the reference (max 9 per run).
@@ -22,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from companion.middleware.adaptive import AdaptiveConstraint
 from companion.middleware.constraint import ConstantConstraint
 from companion.middleware.middleware import Middleware, MiddlewareConfig
 from sitl.netsim import ChannelConfig, SimAgent, StreamConfig, simulate
@@ -31,6 +36,7 @@ from sitl.study.drop_rate import (
     REFERENCE_VIOLATIONS_MAX,
     optimum_gap,
     run_mission,
+    utility_pct,
 )
 from utility_specs.files import builtin_spec
 from utility_specs.message import Version
@@ -84,6 +90,60 @@ def speed_images(t_end: float) -> None:
     cpu = np.array(result.decide_cpu_s[4:]) * 1e3
     check("images 300 it p99", f"{np.percentile(wall, 99):.2f} ms (mean {wall.mean():.2f}; "
           f"cpu p99 {np.percentile(cpu, 99):.2f})", "<= 10 ms", bool(np.percentile(wall, 99) <= 10))
+
+
+def image_fleet(make_policy: Any, *, n: int = 4) -> list[SimAgent]:
+    """4 drones: 5 frames/s in 3 versions, 1 Hz position, 0.2 Hz battery."""
+    versions = (Version(name="full", size=40_000, quality=1.0),
+                Version(name="half", size=10_000, quality=0.5),
+                Version(name="quarter", size=2_500, quality=0.25))
+    agents = []
+    for i in range(n):
+        def red(k: int, g: np.random.Generator, i: int = i) -> dict[str, Any]:
+            return {"red": float(min(1.0, abs(g.normal(0.02 * i, 0.05))))}
+
+        agents.append(SimAgent(name=f"uav{i}", policy=make_policy(f"uav{i}", i), streams=[
+            StreamConfig(type="image", period_s=0.2, size=40_000, phase_s=0.01 * i,
+                         versions=versions, data=red),
+            StreamConfig(type="position", period_s=1.0, size=64, phase_s=0.1 + 0.01 * i),
+            StreamConfig(type="battery", period_s=5.0, size=32, phase_s=0.2 + 0.01 * i,
+                         data=lambda k, g: {"level": max(0.1, 1.0 - 0.001 * k)}),
+        ]))
+    return agents
+
+
+def speed_companion_default(t_end: float) -> None:
+    """The companion's own configuration under backlog (issue 18), not an easier case."""
+    spec = builtin_spec("image_streaming")
+    middlewares: list[Middleware] = []
+
+    def policy(name: str, i: int) -> Middleware:
+        config = MiddlewareConfig(spec=spec, agent=name, max_iterations=300, horizon_s=3.0)
+        mw = Middleware(config, rng=np.random.default_rng(i), constraint=AdaptiveConstraint())
+        middlewares.append(mw)
+        return mw
+
+    agents = image_fleet(policy)
+    result = simulate(agents, channel=ChannelConfig(capacity_bytes_per_s=125_000),
+                      t_end=t_end, rng=np.random.default_rng(5))
+    wall = np.array(result.decide_wall_s[4:]) * 1e3
+    cpu = np.array(result.decide_cpu_s[4:]) * 1e3
+    decisions = sum(mw.counters["decisions"] for mw in middlewares)
+    fallback = sum(mw.counters["fallback"] for mw in middlewares)
+    share = fallback / max(1, decisions)
+    sent = sum(m.size for m in result.sent) / t_end
+    lat = [m.t_rcv - m.t_sent for m in result.delivered
+           if m.t_rcv is not None and m.t_sent is not None]
+    xi = [mw.constraint.limit_bytes_per_s(now=t_end) for mw in middlewares]
+    print(f"    utility {utility_pct(spec, result.generated, t_end):.1f} %, "
+          f"sent {sent / 1e3:.1f} kB/s, latency p95 {np.percentile(lat, 95):.2f} s, "
+          f"link samples {result.link_samples}, xi at end "
+          + " ".join(f"{x / 1e3:.1f}" for x in xi) + " kB/s", flush=True)
+    check("companion default p99", f"{np.percentile(wall, 99):.2f} ms (mean {wall.mean():.2f}; "
+          f"cpu p99 {np.percentile(cpu, 99):.2f})", "<= 10 ms",
+          bool(np.percentile(wall, 99) <= 10))
+    check("companion default fallback share", f"{100 * share:.1f} % ({fallback}/{decisions})",
+          "<= 1 %", share <= 0.01)
 
 
 def quality(t_end: float, out: Path, scenarios: list[str]) -> None:
@@ -146,14 +206,20 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("artifacts/bench_mcts"))
     parser.add_argument("--quick", action="store_true", help="shorter missions (indicative)")
+    parser.add_argument("--only", choices=["companion"], help="run only these rows")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     t_end = 30.0 if args.quick else 100.0
+    if args.only == "companion":
+        speed_companion_default(10.0 if args.quick else 30.0)
+        return 0 if all(ok for *_, ok in ROWS) else 1
     print("speed: reference setup", flush=True)
     speed_reference(t_end)
     print("speed: image streaming", flush=True)
     speed_images(10.0 if args.quick else 30.0)
+    print("speed: companion default configuration under backlog", flush=True)
+    speed_companion_default(10.0 if args.quick else 30.0)
     print("quality: drop share vs utility", flush=True)
     quality(t_end, args.out, ["mostly-low"] if args.quick else
             ["mostly-low", "uniform", "mostly-high"])

@@ -291,6 +291,9 @@ class TelemetryPublisher:
         xi = self._app.constraint_limit()
         if xi is not None:
             data["xi_bytes_per_s"] = xi
+        fallback = self._app.fallback_share()
+        if fallback is not None:
+            data["fallback_share"] = fallback
         if self._statustexts:
             worst = min(self._statustexts, key=lambda s: s.severity)
             data["statustext"] = " | ".join(s.text for s in self._statustexts)[:200]
@@ -327,7 +330,7 @@ class CompanionApp:
         self.counters: dict[str, int] = {
             "generated": 0, "sent": 0, "dropped": 0, "decide_timeouts": 0, "decide_errors": 0,
             "send_errors": 0, "reports": 0, "commands": 0, "frames_skipped": 0,
-            "frame_errors": 0, "not_running": 0,
+            "frame_errors": 0, "not_running": 0, "decided": 0, "fallback": 0,
         }
         self.sent_by_type: dict[str, int] = {}
         self._seq = 0
@@ -451,6 +454,13 @@ class CompanionApp:
         value = float(constraint.limit_bytes_per_s(now=self.clock()))
         return value if math.isfinite(value) else None
 
+    def fallback_share(self) -> float | None:
+        """Share of decisions the optimiser did not make itself (greedy fallback or timeout);
+        None before the first decision."""
+        c = self.counters
+        asked = c["decided"] + c["decide_timeouts"]
+        return (c["fallback"] + c["decide_timeouts"]) / asked if asked else None
+
     def _on_link_state(self, sample: Sample) -> None:
         """Autopilot link changes go to the mission log as state records."""
         if isinstance(sample, LinkStateSample):
@@ -494,6 +504,9 @@ class CompanionApp:
                                                        "reason": "decision timeout"})
             return False
         self._arm_decider_timer()
+        self.counters["decided"] += 1
+        if decision.reason.startswith("fallback"):
+            self.counters["fallback"] += 1
         info = _decision_record(decision)
         if self.mission_state != "running" and message.type != "status":
             # ended (or not started) while the optimiser decided: nothing goes out after end
@@ -809,6 +822,7 @@ def create_app(config: CompanionConfig, *, clock: Clock,
 
 MIDDLEWARE_KEYS = (
     "c", "horizon_s", "tail_s", "default_latency_s", "max_items", "chunk_iterations",
+    "search_inflight",
 )
 """``[middleware]`` keys passed to ``MiddlewareConfig``; ``alpha`` and ``seed`` are ours."""
 

@@ -87,6 +87,8 @@ class DroneState:
     y_m: float | None = None
     heading_deg: float | None = None
     xi_bytes_per_s: float | None = None
+    fallback_share: float | None = None
+    """Share of the drone's decisions not made by its optimiser (greedy fallback, timeout)."""
     delta_s: float | None = None
     loss: float | None = None
     link_lost: bool = False
@@ -271,6 +273,9 @@ class FleetView:
         xi = _num(data, "xi_bytes_per_s", "xi", "constraint_bytes_per_s", "limit_bytes_per_s")
         if xi is not None and newer("xi_bytes_per_s"):
             state.xi_bytes_per_s = xi
+        fallback = _num(data, "fallback_share")
+        if fallback is not None and 0.0 <= fallback <= 1.0:
+            state.fallback_share = fallback
         delta = _num(data, "delta_s", "delta")
         if delta is not None and newer("delta_s"):
             state.delta_s = delta
@@ -411,6 +416,7 @@ class FleetView:
             "y_m": state.y_m,
             "heading_deg": state.heading_deg,
             "xi_bytes_per_s": state.xi_bytes_per_s,
+            "fallback_share": state.fallback_share,
             "delta_s": state.delta_s,
             "loss": state.loss,
             "last_heard": state.last_heard,

@@ -15,6 +15,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 STUDIES: dict[str, tuple[str, str]] = {
     "drop-rate-vs-utility": ("sitl.study.drop_rate", "thesis figure 5.7: utility vs drop share"),
     "adaptive-vs-aimd": ("sitl.study.adaptive", "thesis figure 6.5: adaptive constraint vs AIMD"),
+    "mcts-vs-baselines": ("sitl.study.baselines", "MCTS vs every baseline, equal budget and bytes"),
 }
 
 

@@ -498,6 +498,9 @@ def summarize(plan: FleetPlan, *, t_start: float, t_end: float, policy: str,
         got_all = received.get(slot.drone_id, [])
         got = [r for r in got_all if t_start <= r["t_gen"] <= t_end]
         latencies = sorted(r["t_rcv"] - r["t_gen"] for r in got)
+        reasons = [str(r["decision"].get("reason", "")) for r in records
+                   if isinstance(r.get("decision"), dict)]
+        fallbacks = sum(x.startswith("fallback") or x == "decision timeout" for x in reasons)
         drones[slot.drone_id] = {
             "generated": len(in_window),
             "sent": len(sent),
@@ -512,6 +515,8 @@ def summarize(plan: FleetPlan, *, t_start: float, t_end: float, policy: str,
             "latency_mean_s": sum(latencies) / len(latencies) if latencies else None,
             "latency_p95_s": latencies[min(len(latencies) - 1, int(0.95 * len(latencies)))]
             if latencies else None,
+            "decisions": len(reasons),
+            "fallback_share": fallbacks / len(reasons) if reasons else None,
             "mean_red": (sum(float(r["data"].get("red") or 0.0) for r in in_window)
                          / len(in_window)) if in_window else None,
             "log": str(slot.log_path),
@@ -542,12 +547,14 @@ def summarize(plan: FleetPlan, *, t_start: float, t_end: float, policy: str,
 def format_summary(summary: dict[str, Any]) -> str:
     lines = [f"fleet summary ({summary['policy']}, {summary['duration_s']:.1f} s of mission)",
              f"{'drone':<10} {'generated':>9} {'sent':>6} {'received':>8} {'stored':>6} "
-             f"{'fps':>6} {'latency':>9} {'red':>6}"]
+             f"{'fps':>6} {'latency':>9} {'red':>6} {'fallback':>8}"]
     for name, d in summary["drones"].items():
         lat = "-" if d["latency_mean_s"] is None else f"{1000 * d['latency_mean_s']:.0f} ms"
         red = "-" if d["mean_red"] is None else f"{d['mean_red']:.3f}"
+        share = d.get("fallback_share")
+        fallback = "-" if share is None else f"{100 * share:.1f} %"
         lines.append(f"{name:<10} {d['generated']:>9} {d['sent']:>6} {d['received']:>8} "
-                     f"{d['stored']:>6} {d['fps']:>6.2f} {lat:>9} {red:>6}")
+                     f"{d['stored']:>6} {d['fps']:>6.2f} {lat:>9} {red:>6} {fallback:>8}")
     utility = summary.get("utility") or {}
     if "total" in utility:
         per_type = ", ".join(f"{k} {v:.2f}" for k, v in utility.get("per_type", {}).items())

@@ -8,6 +8,12 @@ and the packet arrives ``propagation_s`` after its transmission ends, or is lost
 probability ``loss``. The medium is a broadcast: the receiver (``ground``) gets the message
 and every agent overhears it, so each agent learns what the fleet delivered (its planning
 knowledge) at the reception time.
+
+Receiver reports: every ``report_interval_s`` (the ground station's default 0.25 s) each
+agent whose messages arrived since the last report gets them as link samples
+(:class:`~companion.middleware.constraint.LinkSample`, like the entries of a real receiver
+report) through its policy's ``constraint.on_samples``, so an adaptive constraint learns in
+every simulated run. Policies without a constraint ignore them.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from companion.middleware.baselines import Policy
+from companion.middleware.constraint import LinkSample
 from companion.middleware.incremental import option_message, window_violations
 from utility_specs.message import Message, Version
 
@@ -37,12 +44,16 @@ class ChannelConfig:
     loss: float = 0.0
     """Probability that a packet is lost."""
     receiver: str = "ground"
+    report_interval_s: float | None = 0.25
+    """Receiver reports (link samples for each sender's constraint) this often; None: none."""
 
     def __post_init__(self) -> None:
         if not (self.capacity_bytes_per_s > 0 and self.overhead_bytes >= 0):
             raise ValueError("capacity must be > 0 and overhead >= 0")
         if not (self.propagation_s >= 0 and 0.0 <= self.loss <= 1.0):
             raise ValueError("propagation_s >= 0 and loss in [0, 1] expected")
+        if self.report_interval_s is not None and not self.report_interval_s > 0:
+            raise ValueError("report_interval_s must be > 0 or None")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -80,6 +91,8 @@ class SimResult:
     decide_t: list[float]
     """Simulated time of each decision."""
     lost: int
+    link_samples: int = 0
+    """Link samples handed to the agents' constraints by simulated receiver reports."""
 
     @property
     def delivered(self) -> list[Message]:
@@ -102,7 +115,21 @@ class SimResult:
         )
 
 
-_GEN, _TX_END, _DELIVER = 0, 1, 2
+_GEN, _TX_END, _DELIVER, _REPORT = 0, 1, 2, 3
+
+
+def _report(agent: SimAgent, messages: list[Message], now: float) -> int:
+    """Hand ``messages`` (this agent's, delivered) to its policy's constraint as link samples,
+    the way the companion turns a receiver report's entries into samples."""
+    constraint = getattr(agent.policy, "constraint", None)
+    on_samples = getattr(constraint, "on_samples", None)
+    if on_samples is None or not messages:
+        return 0
+    samples = [LinkSample(t_sent=m.t_sent, t_rcv=m.t_rcv, size=m.size, sender=m.sender,
+                          seq=m.seq)
+               for m in messages if m.t_sent is not None and m.t_rcv is not None]
+    on_samples(samples, now=now)
+    return len(samples)
 
 
 def simulate(
@@ -145,6 +172,11 @@ def simulate(
     cpu: list[float] = []
     dec_t: list[float] = []
     next_progress = 0.0
+    unreported: list[list[Message]] = [[] for _ in agents]
+    index = {a.name: i for i, a in enumerate(agents)}
+    link_samples = 0
+    if channel.report_interval_s is not None:
+        push(channel.report_interval_s, _REPORT, None)
 
     def start_tx(now: float) -> None:
         nonlocal busy
@@ -196,16 +228,24 @@ def simulate(
             else:
                 push(now + channel.propagation_s, _DELIVER, m)
             start_tx(now)
-        else:
+        elif kind == _DELIVER:
             m = payload.delivered(receiver=channel.receiver, t_rcv=now)
             generated[m.key] = m
             for agent in agents:
                 agent.policy.on_delivered([m], now)
+            if channel.report_interval_s is not None and m.sender in index:
+                unreported[index[m.sender]].append(m)
+        else:
+            assert channel.report_interval_s is not None
+            for i, agent in enumerate(agents):
+                link_samples += _report(agent, unreported[i], now)
+                unreported[i] = []
+            push(now + channel.report_interval_s, _REPORT, None)
     if progress is not None:
         progress(1.0)
     return SimResult(
         generated=[generated[k] for k in order], decide_wall_s=wall, decide_cpu_s=cpu,
-        decide_t=dec_t, lost=lost
+        decide_t=dec_t, lost=lost, link_samples=link_samples
     )
 
 

@@ -136,6 +136,7 @@ function tileFor(drone) {
       <tr><td>mode</td><td class="v-mode"></td><td>armed</td><td class="v-armed"></td></tr>
       <tr><td>GPS</td><td class="v-gps"></td><td>heard</td><td class="v-heard"></td></tr>
       <tr><td>position</td><td class="v-pos" colspan="3"></td></tr>
+      <tr><td title="decisions not made by the optimiser (greedy fallback or timeout)">fallback</td><td class="v-fallback"></td><td></td><td></td></tr>
     </tbody></table>`;
   el.querySelector("header b").textContent = drone;
   el.querySelector("header b").style.color = color(drone);
@@ -190,6 +191,7 @@ function renderTile(d) {
     cell.insertAdjacentHTML("beforeend", ` <small class="age">${now < 1 ? "" : fmt.num(now, 0) + " s"}</small>`);
   }
   el.querySelector(".v-heard").textContent = fmt.age(d.age_s);
+  el.querySelector(".v-fallback").textContent = d.fallback_share == null ? "–" : (d.fallback_share * 100).toFixed(1) + " %";
 }
 function renderSummary() {
   const ds = [...state.drones.values()];
