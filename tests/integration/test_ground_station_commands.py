@@ -22,6 +22,7 @@ from ground_station.config import GroundConfig
 from ground_station.fake_drone import FakeDrone
 from ground_station.keys import LINK
 from ground_station.shell import ApiClient, MissionShell, run_shell
+from tests.keys import TEST_COMMAND_KEY, TEST_COMMAND_PUB
 
 KEY = b"integration-test-fleet-key-0002"
 TOKEN = "integration-token-commands"
@@ -32,7 +33,8 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 async def station(
     tmp_path: Path, aiohttp_client: Callable[..., Any]
 ) -> AsyncIterator[TestClient[Any, Any]]:
-    config = GroundConfig(fleet_id=5, fleet_key=KEY, data_dir=tmp_path / "gs", mission="c",
+    config = GroundConfig(fleet_id=5, fleet_key=KEY, command_key=TEST_COMMAND_KEY,
+                          data_dir=tmp_path / "gs", mission="c",
                           udp_host="127.0.0.1", udp_port=0, report_interval_s=0.1,
                           command_retry_s=0.1, command_reply_timeout_s=0.6, fsync=False)
     client: TestClient[Any, Any] = await aiohttp_client(create_app(config, token=TOKEN))
@@ -51,7 +53,7 @@ async def fleet(station: TestClient[Any, Any]) -> list[FakeDrone]:
     drones = []
     for name in ("ok", "picky", "silent"):
         drone = FakeDrone(name, fleet_id=5, key=KEY, ground=app[LINK].local_addr,
-                          auto_done=name == "ok")
+                          auto_done=name == "ok", command_public_key=TEST_COMMAND_PUB)
         await drone.open()
         drone.send_telemetry("status", {"mode": "GUIDED"})
         drones.append(drone)
