@@ -147,13 +147,15 @@ async def test_dashboard_live_tiles_and_start_mission(
             await page.screenshot(path=str(ARTIFACTS / "dashboard_mission.png"), full_page=True)
             # once the start time passed: the badge follows (issue 11, symptom 6) and every
             # drone's result shows
-            await page.wait_for_function(
-                "document.querySelector('#mission-info').innerText.includes('done 4/4')",
-                timeout=15_000,
+            await wait_js(
+                page,
+                "() => document.querySelector('#mission-info').innerText.includes('done 4/4')",
+                timeout_s=15.0,
             )
-            await page.wait_for_function(  # within one badge refresh (0.5 s) of t_exec
-                "document.querySelector('#mission-phase').innerText === 'running'",
-                timeout=2_000,
+            await wait_js(  # within one badge refresh (0.5 s) of t_exec
+                page,
+                "() => document.querySelector('#mission-phase').innerText === 'running'",
+                timeout_s=2.0,
             )
             assert time.time() >= commands[0].command.t_exec
             await browser.close()

@@ -24,6 +24,7 @@ from test_companion_system import (  # type: ignore[import-not-found]
 )
 
 from companion.mavlink import describe_connect_error
+from tests.keys import write_test_keys
 
 BIN = Path(sys.executable).parent
 SITL = BIN / "uav-sitl"
@@ -60,8 +61,12 @@ def _check(config: Path, *extra: str) -> subprocess.CompletedProcess[str]:
 
 
 def _mini_config(tmp_path: Path, url: str, *, baud: int = 115200) -> Path:
+    # the keys `check` (like `run`) requires: there is no built-in one
+    keys = write_test_keys(tmp_path / "keys")
     path = tmp_path / "c.toml"
-    path.write_text(f'[drone]\nid = "d1"\n[mavlink]\nurl = "{url}"\nbaud = {baud}\n')
+    path.write_text(f'[drone]\nid = "d1"\n[mavlink]\nurl = "{url}"\nbaud = {baud}\n'
+                    f'[ground_station]\nfleet_key_file = "{keys / "fleet.key"}"\n'
+                    f'command_public_key_file = "{keys / "command.pub"}"\n')
     return path
 
 

@@ -42,6 +42,7 @@ import pytest
 from test_companion_system import FLEET, KEY, _start, _stop, _write_config  # type: ignore[import-not-found]
 
 from tests.autopilot_checks import AP_GUIDED, AP_LAND, PX4_HOLD, PX4_LAND, Autopilot, m
+from tests.keys import write_test_keys
 
 BIN = Path(sys.executable).parent
 SITL = BIN / "uav-sitl"
@@ -168,9 +169,12 @@ class GroundStation:
 def ground_station(tmp_path: Path) -> Iterator[GroundStation]:
     udp_port, http_port = _free_port(socket.SOCK_DGRAM), _free_port(socket.SOCK_STREAM)
     config = tmp_path / "gs.toml"
+    # the command key the companion's config (test_companion_system) verifies commands with
+    keys = write_test_keys(tmp_path / "keys", fleet_key=KEY)
     config.write_text(
         "[ground_station]\n"
         f'fleet_key = "{KEY.decode()}"\nfleet_id = {FLEET}\ndata_dir = "gs-data"\n'
+        f'command_key_file = "{keys / "command.key"}"\n'
         f'mission = "fly"\nudp_host = "127.0.0.1"\nudp_port = {udp_port}\n'
         f"http_port = {http_port}\nreport_interval_s = 0.25\n")
     log = tmp_path / "gs.log"
@@ -411,11 +415,8 @@ def _run(target: Target, gs: GroundStation, tmp_path: Path) -> None:
     if zeros:
         problems.append(f"{len(zeros)} positions/geotags stored at 0/0 (issue 17, symptom 2),"
                         f" e.g. {zeros[:3]}")
-    if problems:
-        # Both are fixed on the companion side in parallel (branch ``truth``); until that is
-        # merged this is the expected failure (an xfail that is not strict: the test passes
-        # once they are fixed). Everything else above is asserted hard.
-        pytest.xfail(" | ".join(problems))
+    # both fixed on the companion side (branch ``truth``): asserted hard, like the rest
+    assert not problems, " | ".join(problems)
 
 
 @pytest.mark.timeout(240)

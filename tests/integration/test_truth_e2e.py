@@ -44,6 +44,8 @@ FLEET = 9
 sys.path.insert(0, str(ROOT / "tests" / "companion"))
 from companion_fake_vehicle import FakeVehicle  # noqa: E402
 
+from tests.keys import write_test_keys  # noqa: E402
+
 
 def _free_port(kind: int) -> int:
     with socket.socket(socket.AF_INET, kind) as s:
@@ -78,9 +80,12 @@ class Station:
         self.udp_port = _free_port(socket.SOCK_DGRAM)
         self.http_port = _free_port(socket.SOCK_STREAM)
         self.config = tmp / "gs.toml"
+        # no built-in key: the station signs commands with the test key, drones verify them
+        self.keys = write_test_keys(tmp / "keys", fleet_key=KEY.encode())
         self.config.write_text(
             "[ground_station]\n"
             f'fleet_key = "{KEY}"\nfleet_id = {FLEET}\ndata_dir = "{tmp / "gs-data"}"\n'
+            f'command_key_file = "{self.keys / "command.key"}"\n'
             f'mission = "truth"\nudp_host = "127.0.0.1"\nudp_port = {self.udp_port}\n'
             f"http_port = {self.http_port}\npublic_read = true\nfsync = false\n")
         self.log = tmp / "gs.log"  # a file, not a pipe nobody reads while it runs
@@ -141,6 +146,7 @@ host = "127.0.0.1"
 port = {station.udp_port}
 fleet_id = {FLEET}
 fleet_key = "{KEY}"
+command_public_key_file = "{station.keys / "command.pub"}"
 listen_host = "127.0.0.1"
 [constraint]
 name = "constant"
@@ -237,9 +243,10 @@ class Gcs:
 
 @pytest.fixture
 def vehicle() -> Iterator[int]:
+    # a fix at boot: this test is about mode and arming, not the wait for a GPS fix
     proc = subprocess.Popen([*_script("uav-sitl"), "vehicle", "--port", "0", "--flavour",
-                             "ardupilot"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-                            text=True)
+                             "ardupilot", "--first-fix", "0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.DEVNULL, text=True)
     try:
         assert proc.stdout is not None
         ready = json.loads(proc.stdout.readline().removeprefix("READY "))

@@ -5,16 +5,16 @@ processes built from ``examples/companion.toml`` and one ``uav-ground-station ru
 with their default (INFO) logging, talking over real sockets. The tests drive them through
 the HTTP API, the ``uav-ground-station shell`` and MAVLink, and assert effects: what the
 drones did, what the station stored, what the optimiser decided. Only ports, ids, file
-locations, the fleet key and the camera's size/rate (CPU on a 2-core CI machine) differ
-from the shipped configuration. The processes are shared by the module's tests, which run
-in file order (the last one ends the mission).
+locations, the keys (made with ``uav-ground-station keygen`` as a user makes them) and the
+camera's size/rate (CPU on a 2-core CI machine) differ from the shipped configuration. The
+processes are shared by the module's tests, which run in file order (the last one ends the
+mission).
 """
 
 from __future__ import annotations
 
 import json
 import os
-import secrets
 import socket
 import subprocess
 import sys
@@ -97,7 +97,7 @@ class Product:
 
 
 def _companion_config(run_dir: Path, drone: str, mavlink_port: int, gs_port: int,
-                      key_file: Path) -> Path:
+                      keys: Path) -> Path:
     """``examples/companion.toml`` with this run's ports, id, files and a small camera."""
     text = (ROOT / "examples" / "companion.toml").read_text()
     replacements = {
@@ -109,7 +109,10 @@ def _companion_config(run_dir: Path, drone: str, mavlink_port: int, gs_port: int
         '# log = "/var/lib/uav-companion/mission.jsonl"':
             f'log = "{run_dir / (drone + ".jsonl")}"',
         "port = 14600": f"port = {gs_port}",
-        '# fleet_key_file = "/etc/uav-companion/fleet.key"': f'fleet_key_file = "{key_file}"',
+        '# fleet_key_file = "/etc/uav-companion/fleet.key"':
+            f'fleet_key_file = "{keys / "fleet.key"}"',
+        '# command_public_key_file = "/etc/uav-companion/command.pub"':
+            f'command_public_key_file = "{keys / "command.pub"}"',
     }
     for old, new in replacements.items():
         assert text.count(old) == 1, f"examples/companion.toml no longer has {old!r}"
@@ -145,17 +148,19 @@ def product(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Product]:
     gs_bin, companion_bin, sitl_bin = (_script("uav-ground-station"), _script("uav-companion"),
                                        _script("uav-sitl"))
     run_dir = tmp_path_factory.mktemp("product")
-    key_file = run_dir / "fleet.key"
-    key_file.write_text(secrets.token_hex(32) + "\n")
-    key_file.chmod(0o600)
     gs_udp, http_port = free_port(), free_port(kind=socket.SOCK_STREAM)
     gs_config = run_dir / "gs.toml"
     gs_config.write_text(
         "[ground_station]\n"
         f'data_dir = "{run_dir / "gs"}"\nmission = "product"\n'
         f'udp_host = "127.0.0.1"\nudp_port = {gs_udp}\n'
-        f'http_host = "127.0.0.1"\nhttp_port = {http_port}\n'
-        f'fleet_key_file = "{key_file}"\n')
+        f'http_host = "127.0.0.1"\nhttp_port = {http_port}\n')
+    # the fleet's keys as a user makes them: in data_dir/keys, where `run` finds them
+    keygen = subprocess.run([gs_bin, "keygen", "--config", str(gs_config)],
+                            capture_output=True, text=True, timeout=60, check=False)
+    assert keygen.returncode == 0, keygen.stdout + keygen.stderr
+    keys = run_dir / "gs" / "keys"
+    assert (keys / "fleet.key").is_file() and (keys / "command.pub").is_file(), keygen.stdout
     mavlink_ports = [free_port() for _ in DRONES]
     product = Product(run_dir=run_dir, base_url=f"http://127.0.0.1:{http_port}", token="",
                       gs_config=gs_config, vehicle_ports=[],
@@ -175,7 +180,7 @@ def product(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Product]:
         product.until("the vehicles", ready.exists, 30)
         product.vehicle_ports = [int(r["port"]) for r in json.loads(ready.read_text())]
         for drone, port in zip(DRONES, mavlink_ports, strict=True):
-            config = _companion_config(run_dir, drone, port, gs_udp, key_file)
+            config = _companion_config(run_dir, drone, port, gs_udp, keys)
             _start(product, drone, [companion_bin, "run", "--config", str(config)])
         product.until("both drones' images at the ground station", lambda: {
             i["sender"] for i in product.images()} >= set(DRONES), STARTUP_S)
