@@ -27,6 +27,7 @@ import socket
 import subprocess
 import sys
 import time
+import urllib.error
 import urllib.request
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -88,6 +89,12 @@ def extract_recipes() -> list[Recipe]:
     return recipes
 
 
+README_KEYED_CONFIG = (
+    "sed -e 's,^# fleet_key_file = \"/etc/uav-companion/,fleet_key_file = \"keys/,' -e "
+    "'s,^# command_public_key_file = \"/etc/uav-companion/,command_public_key_file = \"keys/,' "
+    "examples/companion.toml > companion.toml")
+"""README's copy of the example config that names the keys ``keygen --out keys`` made."""
+
 # command as written in the docs -> the test of this module that runs it
 RECIPES: dict[str, str] = {
     # README.md
@@ -99,8 +106,10 @@ RECIPES: dict[str, str] = {
         "test_fleet_recipe_and_evaluate_agree",
     "uav-utility plot 4.9 --out fig49.png": "test_utility_plot_recipe",
     "uav-utility plot all --out out/plots": "test_utility_plot_all_recipe",
+    "uav-ground-station keygen --out keys": "test_readme_companion_recipe",
+    README_KEYED_CONFIG: "test_readme_companion_recipe",
     "uav-sitl vehicle --port 14580 --out 127.0.0.1:14550 &": "test_readme_companion_recipe",
-    "uav-companion check --config examples/companion.toml": "test_readme_companion_recipe",
+    "uav-companion check --config companion.toml": "test_readme_companion_recipe",
     # docs/companion.md
     "uav-sitl vehicle --serial --serial-link /tmp/ttyFC --baud 57600 &":
         "test_companion_serial_recipe",
@@ -112,13 +121,15 @@ RECIPES: dict[str, str] = {
     "uav-sitl fleet --policy random --drop-probability 0.9 --duration 60":
         "test_fleet_variant_recipes",
     # docs/ground_station.md
+    "uav-ground-station keygen": "test_ground_station_recipes",
     "uav-ground-station run": "test_ground_station_recipes",
     "uav-ground-station run --config gs.toml --mission survey-1": "test_ground_station_recipes",
     "uav-ground-station token": "test_ground_station_recipes",
+    "uav-ground-station token --url": "test_ground_station_recipes",
     "uav-ground-station shell": "test_ground_station_recipes",
     'uav-ground-station shell -c "drones 4; start +5"': "test_ground_station_recipes",
     "uav-ground-station export survey-1 --out ./survey-1": "test_ground_station_recipes",
-    "python -m ground_station.fake_drone 127.0.0.1:14600 --drones 4":
+    "python -m ground_station.fake_drone 127.0.0.1:14600 --keys gs-data/keys":
         "test_ground_station_recipes",
     # docs/sitl.md
     "uav-sitl vehicle --port 14550": "test_sitl_quick_start_recipes",
@@ -134,6 +145,8 @@ RECIPES: dict[str, str] = {
         "test_study_recipes",
     "uav-sitl study adaptive-vs-aimd --out out/adaptive [--real] [--time-scale 0.5]":
         "test_study_recipes",
+    "uav-sitl study mcts-vs-baselines --out out/baselines [--quick] [--scenarios images]":
+        "test_baselines_study_recipe",
 }
 DEVELOPER = re.compile(r"^(sudo )?(\w+=\S+ )*\.venv/bin/python (-m pytest|benchmarks/)")
 """Developer commands (tests, benchmarks): checked by test_developer_recipes."""
@@ -246,8 +259,17 @@ def test_developer_recipes() -> None:
             assert files, f"{recipe.doc}:{recipe.line}: {paths} match no test file"
             text = "".join(f.read_text() for f in files)
             options = words[2:]
-            if "-k" in options:
-                assert options[options.index("-k") + 1] in text, recipe
+            if "-k" in options:  # the selection selects: pytest collects something with it
+                selection = options[options.index("-k") + 1]
+                collected = subprocess.run(
+                    [sys.executable, "-m", "pytest", "--collect-only", "-q",
+                     "-p", "no:cacheprovider", *paths, "-k", selection],
+                    cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=120,
+                    check=False)
+                count = re.search(r"^(\d+)(?:/\d+)? tests? collected", collected.stdout, re.M)
+                assert count is not None and int(count.group(1)) > 0, (
+                    f"{recipe.doc}:{recipe.line}: -k {selection!r} selects nothing: "
+                    + collected.stdout[-2000:] + collected.stderr[-2000:])
             if "-m" in options:
                 assert f"mark.{options[options.index('-m') + 1]}" in text, recipe
         else:  # a benchmark: it exists and knows the options the docs give it
@@ -263,22 +285,33 @@ def test_developer_recipes() -> None:
 
 @pytest.mark.timeout(120)
 def test_readme_companion_recipe(tmp_path: Path) -> None:
-    """Issue 11, symptom 3: the example config and the vehicle no longer fight for a port."""
+    """Issue 11, symptom 3: the example config and the vehicle no longer fight for a port;
+    the companion gets the keys ``keygen`` makes (there is no built-in one)."""
     shutil.copytree(ROOT / "examples", tmp_path / "examples")
     listen, vehicle_port = _free_port(), _free_port()
-    config = tmp_path / "examples" / "companion.toml"
-    config.write_text(_sub(config.read_text(), ('url = "udpin:0.0.0.0:14550"',
-                                                f'url = "udpin:0.0.0.0:{listen}"')))
+    example = tmp_path / "examples" / "companion.toml"
+    example.write_text(_sub(example.read_text(), ('url = "udpin:0.0.0.0:14550"',
+                                                  f'url = "udpin:0.0.0.0:{listen}"')))
+    keygen = _bash(_recipe("uav-ground-station keygen --out keys"), tmp_path)
+    assert keygen.returncode == 0, keygen.stdout + keygen.stderr
+    assert sorted(p.name for p in (tmp_path / "keys").iterdir()) == [
+        "command.key", "command.pub", "fleet.key"]
+    copied = _bash(_recipe(README_KEYED_CONFIG), tmp_path)
+    assert copied.returncode == 0, copied.stderr
+    config = (tmp_path / "companion.toml").read_text()
+    assert 'fleet_key_file = "keys/fleet.key"' in config
+    assert 'command_public_key_file = "keys/command.pub"' in config
     vehicle = _background(_sub(_recipe("uav-sitl vehicle --port 14580 --out 127.0.0.1:14550 &"),
                                ("14580", str(vehicle_port)), ("14550", str(listen)),
                                (" &", "")), tmp_path)
     try:
         assert _ready(vehicle)["port"] == vehicle_port
-        result = _bash(_recipe("uav-companion check --config examples/companion.toml"),
-                       tmp_path, timeout=90)
+        result = _bash(_recipe("uav-companion check --config companion.toml"), tmp_path,
+                       timeout=90)
     finally:
         _end(vehicle)
     assert result.returncode == 0, result.stdout + result.stderr[-3000:]
+    assert "keys: fleet key and the ground station's command key loaded" in result.stdout
     assert f"mavlink: udpin:0.0.0.0:{listen}: px4 autopilot" in result.stdout
     assert "camera: synthetic" in result.stdout
     assert result.stdout.rstrip().endswith("check: ok")
@@ -305,6 +338,8 @@ def test_utility_plot_all_recipe(tmp_path: Path) -> None:
 @pytest.mark.timeout(120)
 def test_companion_serial_recipe(tmp_path: Path) -> None:
     link = tmp_path / "ttyFC"
+    keygen = _bash("uav-ground-station keygen --out keys", tmp_path)  # README's step
+    assert keygen.returncode == 0, keygen.stdout + keygen.stderr
     vehicle = _background(_sub(_recipe(
         "uav-sitl vehicle --serial --serial-link /tmp/ttyFC --baud 57600 &"),
         ("/tmp/ttyFC", str(link)), (" &", "")), tmp_path)
@@ -313,7 +348,8 @@ def test_companion_serial_recipe(tmp_path: Path) -> None:
         assert str(ready["tty"]).startswith("/dev/pts/")
         (tmp_path / "serial.toml").write_text(
             f'[drone]\nid = "drone1"\n[mavlink]\nurl = "{link}"\nbaud = 57600\n'
-            '[camera]\nenabled = false\n')
+            '[camera]\nenabled = false\n[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
+            'command_public_key_file = "keys/command.pub"\n')
         result = _bash(_recipe("uav-companion check --config serial.toml"), tmp_path)
     finally:
         _end(vehicle)
@@ -375,6 +411,23 @@ def test_study_recipes(tmp_path: Path) -> None:
     assert list((tmp_path / "out" / "adaptive").glob("*.png"))
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_baselines_study_recipe(tmp_path: Path) -> None:
+    """docs/middleware.md's MCTS-vs-baselines study, quick, on the fastest scenario (the
+    image-streaming one takes about 15 minutes even with ``--quick``)."""
+    study = _bash(_sub(_recipe("uav-sitl study mcts-vs-baselines --out out/baselines "
+                               "[--quick] [--scenarios images]"),
+                       ("[--quick] [--scenarios images]", "--quick --scenarios mostly-low")),
+                  tmp_path, timeout=280)
+    assert study.returncode == 0, study.stdout[-3000:] + study.stderr[-3000:]
+    out = tmp_path / "out" / "baselines"
+    rows = (out / "baselines.csv").read_text().splitlines()
+    assert len(rows) > 1 and all(r.startswith("mostly-low,") for r in rows[1:])
+    table = (out / "baselines.md").read_text()
+    assert "**mostly-low**" in table and "equal budget" in table and "equal bytes" in table
+
+
 # ----------------------------------------------------------------------------- ground station
 
 
@@ -398,11 +451,34 @@ def _get(url: str, token: str) -> object:
         return json.loads(response.read())
 
 
+def _check_login_link(made: subprocess.CompletedProcess[str], http: int) -> None:
+    """``token --url``: a link that logs a browser in once (session cookie), then never."""
+    assert made.returncode == 0, made.stderr
+    link = made.stdout.strip()
+    assert link.startswith(f"http://127.0.0.1:{http}/?login="), link
+    stats = f"http://127.0.0.1:{http}/api/stats"
+    browser = urllib.request.build_opener(urllib.request.HTTPCookieProcessor())
+    with browser.open(link, timeout=5) as page:  # redirected to / with the cookie
+        assert page.status == 200 and "login=" not in page.url, page.url
+    with browser.open(stats, timeout=5) as response:
+        assert response.status == 200
+    again = urllib.request.build_opener(urllib.request.HTTPCookieProcessor())
+    again.open(link, timeout=5).close()
+    with pytest.raises(urllib.error.HTTPError) as refused:
+        again.open(stats, timeout=5)
+    assert refused.value.code == 401
+
+
 @pytest.mark.timeout(180)
 def test_ground_station_recipes(tmp_path: Path) -> None:
     data = tmp_path / "gs-data"
     udp, http = _free_port(), _free_port(socket.SOCK_STREAM)
     ports = f" --data-dir {data} --udp-port {udp} --http-port {http}"
+    # the keys first (no built-in one): `run` finds them in DATA_DIR/keys
+    keygen = _bash(_recipe("uav-ground-station keygen") + f" --data-dir {data}", tmp_path)
+    assert keygen.returncode == 0, keygen.stdout + keygen.stderr
+    assert sorted(p.name for p in (data / "keys").iterdir()) == [
+        "command.key", "command.pub", "fleet.key"]
     # `run` with the defaults (ports moved), then the one with a config file and a mission
     station = _background(_recipe("uav-ground-station run") + ports, tmp_path)
     try:
@@ -419,10 +495,11 @@ def test_ground_station_recipes(tmp_path: Path) -> None:
     drones = None
     try:
         _wait_http(f"http://127.0.0.1:{http}/", station)
+        _check_login_link(_bash(_recipe("uav-ground-station token --url") + " --config gs.toml",
+                                tmp_path), http)
         drones = _background(_sub(_recipe(
-            "python -m ground_station.fake_drone 127.0.0.1:14600 --drones 4"),
-            ("python", shlex.quote(sys.executable)), ("14600", str(udp))) + " --duration 60",
-            tmp_path)
+            "python -m ground_station.fake_drone 127.0.0.1:14600 --keys gs-data/keys"),
+            ("python", shlex.quote(sys.executable)), ("14600", str(udp))), tmp_path)
         gs = f" --config gs.toml --url http://127.0.0.1:{http}"
         scripted = _bash(_recipe('uav-ground-station shell -c "drones 4; start +5"') + gs, tmp_path,
                          timeout=90)
