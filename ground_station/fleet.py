@@ -20,8 +20,9 @@ __all__ = ["Alert", "DroneState", "FleetView", "LatestImage"]
 RATE_WINDOW_S = 5.0
 """Frames per second and goodput share are measured over this trailing window."""
 
-SNAPSHOT_SERIES_VALUES = 2000
-"""Per-drone chart values a snapshot carries at most (bounds ``/api/fleet`` by fleet size)."""
+SNAPSHOT_SERIES_VALUES = 1800
+"""Per-drone chart values a snapshot carries at most (bounds ``/api/fleet`` by fleet size;
+120 points for up to 15 drones: 128 full tiles and the history stay under 300 kB)."""
 STALE_AFTER_S: Mapping[str, float] = {"position": 3.0, "alt_m": 3.0, "heading_deg": 3.0}
 """A field older than this is marked stale on the dashboard (position 1 Hz: three missed)."""
 DEFAULT_STALE_AFTER_S = 12.0

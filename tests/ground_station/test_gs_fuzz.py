@@ -29,6 +29,7 @@ from ground_station.app import create_app
 from ground_station.config import GroundConfig
 from ground_station.keys import FLEET, LINK, STORAGE
 from ground_station.receiver import GroundLink
+from tests.keys import TEST_COMMAND_KEY
 from utility_specs.message import Message
 
 KEY = b"ground-station-fuzz-fleet-key-01"
@@ -94,7 +95,8 @@ class Station:
 
     def __init__(self, data_dir: Path) -> None:
         self.loop = asyncio.new_event_loop()
-        config = GroundConfig(fleet_id=9, fleet_key=KEY, data_dir=data_dir, mission="fz",
+        config = GroundConfig(fleet_id=9, fleet_key=KEY, command_key=TEST_COMMAND_KEY,
+                              data_dir=data_dir, mission="fz",
                               udp_host="127.0.0.1", udp_port=0, fsync=False,
                               # the tests build the reports themselves (link.reports.due)
                               report_interval_s=3600.0)

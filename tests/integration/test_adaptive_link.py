@@ -120,17 +120,27 @@ def test_probe_pair_on_loopback_reports_what_arrived(tmp_path: Path) -> None:
     )
     try:
         assert receiver.stdout is not None and receiver.stdout.readline().strip() == "ready"
-        t0 = time.time() + 5.0  # the sender imports scikit-learn first
-        sender = subprocess.run(
+        # the sender imports scikit-learn, scipy and numba first (seconds on a busy machine):
+        # it says "ready" when it has, and only then is told the start time (on stdin)
+        sender = subprocess.Popen(
             [sys.executable, "-m", "sitl.linkemu", "probe-sender", "--bind", "127.0.0.1",
              "--receiver", "127.0.0.1", "--port", str(data_port), "--report-port",
              str(report_port), "--constraint", "constant",
              "--params", json.dumps({"limit_bytes_per_s": 50_000.0, "window_s": 0.5}),
-             "--demand-bytes-per-s", "100000", "--t0", repr(t0), "--duration-s", "2.0",
+             "--demand-bytes-per-s", "100000", "--duration-s", "2.0",
              "--log", str(snd_log)],
-            capture_output=True, text=True, timeout=30,
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )
-        assert sender.returncode == 0, sender.stderr
+        try:
+            assert sender.stdout is not None and sender.stdin is not None
+            ready = sender.stdout.readline().strip()
+            assert ready == "ready", ready + (sender.stderr.read() if sender.stderr else "")
+            _, sender_err = sender.communicate(f"{time.time() + 0.5!r}\n", timeout=30)
+        finally:
+            if sender.poll() is None:
+                sender.kill()
+                sender.wait()
+        assert sender.returncode == 0, sender_err
     finally:
         receiver.terminate()
         receiver.wait(timeout=5)

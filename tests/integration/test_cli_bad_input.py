@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.keys import write_test_keys
+
 BIN = Path(sys.executable).parent
 DEEP = 50_000  # well past Python's recursion limit
 
@@ -36,6 +38,7 @@ def bad(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         "long_id": root / "long_id.toml",
         "port": root / "port.toml",
         "no_db": root / "no_db",
+        "keyed": root / "keyed.toml",
     }
     files["binary"].write_bytes(bytes(range(256)) * 4)
     files["deep_toml"].write_text("a = " + "[" * DEEP + "]" * DEEP + "\n")
@@ -44,6 +47,10 @@ def bad(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     files["folder"].mkdir()
     files["long_id"].write_text(f'[drone]\nid = "{"d" * 40}"\n')
     files["port"].write_text('[drone]\nid = "d1"\n[mavlink]\nurl = "udpin:0.0.0.0:99999"\n')
+    # The station has no built-in key: runs that are about something else get the test keys.
+    write_test_keys(root / "keys")
+    files["keyed"].write_text('[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
+                              'command_key_file = "keys/command.key"\n')
     return files
 
 
@@ -61,9 +68,10 @@ CASES = [
     ("uav-companion", "run --config {long_id}", 2,
      "drone.id: expected a printable sender id of 1..32 UTF-8 bytes"),
     ("uav-companion", "install-service --dry-run --config {binary}", 2, "not a text file"),
-    ("uav-ground-station", "run --data-dir {a_file} --udp-port 0 --http-port 0", 2,
-     "is a file, not a folder"),
-    ("uav-ground-station", "run --data-dir /proc/uav-gs-data --udp-port 0 --http-port 0", 2,
+    ("uav-ground-station", "run --config {keyed} --data-dir {a_file} --udp-port 0 --http-port 0",
+     2, "is a file, not a folder"),
+    ("uav-ground-station",
+     "run --config {keyed} --data-dir /proc/uav-gs-data --udp-port 0 --http-port 0", 2,
      "data dir /proc/uav-gs-data: not writable"),
     ("uav-ground-station", "token --data-dir {a_file}", 2, "is a file, not a folder"),
     ("uav-ground-station", "run --config {binary}", 2, "a UTF-8 TOML text file"),
@@ -127,6 +135,7 @@ def _free_port() -> int:
 @pytest.mark.timeout(90)
 def test_image_urls_out_of_range_are_404_not_500(tmp_path: Path) -> None:
     http_port = _free_port()
+    write_test_keys(tmp_path / "gs" / "keys")
     proc = subprocess.Popen([_tool("uav-ground-station"), "run", "--data-dir",
                              str(tmp_path / "gs"), "--udp-port", "0", "--http-port",
                              str(http_port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -137,10 +146,12 @@ def test_image_urls_out_of_range_are_404_not_500(tmp_path: Path) -> None:
         assert "control token" in line, line + proc.stderr.read() if proc.stderr else line
         token = line.rsplit(": ", 1)[1].strip()
         base = f"http://127.0.0.1:{http_port}"
+        auth = {"Authorization": f"Bearer {token}"}  # never in the URL
         deadline = time.monotonic() + 30
         while True:
             try:
-                urllib.request.urlopen(f"{base}/api/fleet?token={token}", timeout=2)
+                urllib.request.urlopen(urllib.request.Request(f"{base}/api/fleet", headers=auth),
+                                       timeout=2)
                 break
             except (urllib.error.URLError, ConnectionError):
                 if time.monotonic() > deadline or proc.poll() is not None:
@@ -148,7 +159,7 @@ def test_image_urls_out_of_range_are_404_not_500(tmp_path: Path) -> None:
                 time.sleep(0.2)
         for image_id in ("1" * 26, "9223372036854775808", "-1", "%D9%A3", "1_0", "007"):
             request = urllib.request.Request(f"{base}/api/images/{image_id}.jpg",
-                                             headers={"Authorization": f"Bearer {token}"})
+                                             headers=auth)
             with pytest.raises(urllib.error.HTTPError) as err:
                 urllib.request.urlopen(request, timeout=5)
             assert err.value.code == 404, image_id

@@ -20,6 +20,7 @@ from ground_station.fake_drone import FakeDrone
 from ground_station.storage import Storage
 from tests.integration.test_ground_station_cli import free_port, wait_http
 from tests.integration.test_ground_station_storage_guarantee import hostile_image, reported
+from tests.keys import write_test_keys
 
 KEY = "hostile-cli-fleet-key-0000000"
 TOKEN = "hostile-cli-token-0123456789abcdef"
@@ -32,6 +33,7 @@ async def test_signed_out_of_range_numbers_cost_nothing_else(tmp_path: Path) -> 
     data.mkdir()
     (data / "token").write_text(TOKEN + "\n")
     (data / "token").chmod(0o600)
+    write_test_keys(data / "keys", fleet_key=KEY.encode())  # no built-in key any more
     config = tmp_path / "gs.toml"
     config.write_text(
         "[ground_station]\n"

@@ -27,7 +27,8 @@ def hexdump(data: bytes) -> str:
 
 
 def documented(name: str) -> str:
-    match = re.search(rf"<!-- example:{name} -->\n```\n(.*?)\n```", DOC.read_text(), re.S)
+    # every fence names its language (tests/integration/test_doc_recipes.py): ```text
+    match = re.search(rf"<!-- example:{name} -->\n```text\n(.*?)\n```", DOC.read_text(), re.S)
     assert match is not None, f"example {name} missing from {DOC}"
     return match.group(1)
 
