@@ -253,6 +253,7 @@ class Decoder:
         self._buffered = 0
         self._recent: OrderedDict[MessageKey, None] = OrderedDict()
         self._windows: OrderedDict[str, _ReplayWindow] = OrderedDict()
+        self._window_mask = (1 << self.limits.replay_window) - 1
 
     # -- outputs -------------------------------------------------------------------------
 
@@ -340,7 +341,7 @@ class Decoder:
         if pn > window.highest:
             shift = pn - window.highest
             window.seen = ((window.seen << shift) | 1) if shift < size else 1
-            window.seen &= (1 << size) - 1
+            window.seen &= self._window_mask
             window.highest = pn
         else:
             offset = window.highest - pn
