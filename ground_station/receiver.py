@@ -197,7 +197,7 @@ class GroundLink:
             self.fleet.alert(
                 Alert(t=now, level="info", kind="fleet", drone=message.sender, text="drone joined")
             )
-        state = self.fleet.on_message(message, now=now, addr=addr, utility=utility)
+        self.fleet.on_message(message, now=now, addr=addr, utility=utility)
         report = message.data.get("report")
         if isinstance(report, str) and report:
             self.missions.on_report(message.sender, report, now=now)

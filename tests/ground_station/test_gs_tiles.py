@@ -3,7 +3,6 @@ shows as one later push of its latest image, and no image is missing from the ti
 
 from __future__ import annotations
 
-import asyncio
 import time
 from typing import Any
 
@@ -34,7 +33,7 @@ async def drone_pushes(ws: Any, seconds: float) -> list[tuple[float, str, int]]:
     while (left := end - time.monotonic()) > 0:
         try:
             msg = await ws.receive_json(timeout=left)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             break
         if msg["kind"] == "drone":
             tile = msg["drone"]
