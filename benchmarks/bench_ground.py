@@ -115,8 +115,10 @@ def free_port(kind: int) -> int:
         return int(s.getsockname()[1])
 
 
-def proc_cpu_s(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+def proc_cpu_s(pid: int, *, tid: int | None = None) -> float:
+    """CPU seconds of a process (all threads), or of one of its threads."""
+    stat = Path(f"/proc/{pid}/stat" if tid is None else f"/proc/{pid}/task/{tid}/stat")
+    fields = stat.read_text().rsplit(")", 1)[1].split()
     ticks = os.sysconf("SC_CLK_TCK")
     return (int(fields[11]) + int(fields[12])) / ticks  # utime + stime
 
@@ -248,6 +250,7 @@ async def bench_row(
         await asyncio.sleep(0.5)
         rcvbuf0 = udp_rcvbuf_errors()
         cpu0, t0 = proc_cpu_s(station.pid), time.time()
+        loop_cpu0 = proc_cpu_s(station.pid, tid=station.pid)  # the event loop's thread
         sender = await asyncio.create_subprocess_exec(
             sys.executable,
             __file__,
@@ -280,6 +283,7 @@ async def bench_row(
         assert sender.stdout is not None
         sent = json.loads((await sender.stdout.read()).decode().strip().splitlines()[-1])
         cpu_station = proc_cpu_s(station.pid) - cpu0
+        cpu_loop = proc_cpu_s(station.pid, tid=station.pid) - loop_cpu0
         wall = time.time() - t0
         # let the station finish writing what it received
         async with asyncio.timeout(60):
@@ -331,6 +335,16 @@ async def bench_row(
         ("dashboard lag p95", f"{p95 * 1000:.0f} ms", f"< {LAG_TARGET_S * 1000:.0f} ms"),
         ("dashboard updates seen", f"{len(lags)}", ""),
         ("station CPU", f"{100 * cpu_station / wall:.0f} % of one core", ""),
+        ("  of which the event loop's thread", f"{100 * cpu_loop / wall:.0f} % of one core",
+         ""),
+        # what the station spent per image it received, and so what the whole row needs:
+        # above what the station got, the kernel drops datagrams (receive-buffer drops)
+        ("station CPU per image received",
+         f"{1000 * cpu_station / max(received, 1):.2f} ms", ""),
+        ("  event loop CPU per image", f"{1000 * cpu_loop / max(received, 1):.2f} ms", ""),
+        ("  station CPU the row needs at that cost",
+         f"{cpu_station / max(received, 1) * args.drones * args.rate:.2f} cores", ""),
+        ("UDP receive buffer granted", f"{stats.get('udp_rcvbuf_bytes', 0) >> 20} MiB", ""),
         ("senders CPU", f"{100 * sent['cpu_s'] / sent['wall_s']:.0f} % of one core", ""),
         ("machine", f"{os.cpu_count()} cores, fsync={'on' if args.fsync else 'off'}", ""),
         ("load average before / after", f"{load:.1f} / {os.getloadavg()[0]:.1f}", ""),

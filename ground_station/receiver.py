@@ -53,6 +53,12 @@ MAX_EPOCHS = 1024
 TICK_S = 1.0
 """Link charts are sampled and link loss checked once a second."""
 
+TILE_INTERVAL_S = 0.25
+"""Least time between two dashboard tile pushes of one drone. A drone's first image shows
+at once; later ones within the interval show as one push of the latest tile at its end.
+A browser cannot draw 500 tiles a second, and building and sending one (JSON, a WebSocket
+frame, a syscall per watcher) costs the UDP path as much as decoding half the image."""
+
 
 def is_image(message_type: str, payload: bytes) -> bool:
     """Images carry a payload (JPEG bytes); telemetry travels in the metadata only."""
@@ -109,6 +115,10 @@ class GroundLink:
         self._timer_at: float | None = None
         self._next_tick = now + TICK_S
         self._last_storage_alert = 0.0
+        self._tile_pushed: dict[str, float] = {}
+        """Drone -> when its tile was last pushed to the dashboard."""
+        self._tiles_due: dict[str, float] = {}
+        """Drones whose tile changed since its last push -> when the next push is due."""
 
     # -- lifecycle ------------------------------------------------------------------------
     async def open(self) -> tuple[str, int]:
@@ -237,7 +247,7 @@ class GroundLink:
             self.fleet.alert(
                 Alert(t=now, level="info", kind="fleet", drone=message.sender, text="drone joined")
             )
-        state = self.fleet.on_message(message, now=now, addr=addr, utility=utility)
+        self.fleet.on_message(message, now=now, addr=addr, utility=utility)
         report = message.data.get("report")
         if isinstance(report, str) and report:
             self.missions.on_report(message.sender, report, now=now)
@@ -261,7 +271,24 @@ class GroundLink:
             self.counters["images"] += 1
             self.latest_jpeg[message.sender] = event.payload
         if self.broadcaster.clients:  # the tile costs ~20 us; build it only for a watcher
-            self.broadcaster.publish("drone", {"drone": self.fleet.drone_json(state, now=now)})
+            due = self._tile_pushed.get(message.sender, -TILE_INTERVAL_S) + TILE_INTERVAL_S
+            if now >= due:
+                self._push_tile(message.sender, now)
+            else:
+                self._tiles_due.setdefault(message.sender, due)
+
+    def _push_tile(self, drone: str, now: float) -> None:
+        self._tiles_due.pop(drone, None)
+        state = self.fleet.drones.get(drone)
+        if state is None:  # forgotten since
+            self._tile_pushed.pop(drone, None)
+            return
+        self._tile_pushed[drone] = now
+        self.broadcaster.publish("drone", {"drone": self.fleet.drone_json(state, now=now)})
+
+    def _push_due_tiles(self, now: float) -> None:
+        for drone in [d for d, due in self._tiles_due.items() if due <= now]:
+            self._push_tile(drone, now)
 
     def _on_status(self, event: StatusReceived, now: float) -> None:
         status = event.status
@@ -419,6 +446,8 @@ class GroundLink:
     # -- timer ---------------------------------------------------------------------------
     def _deadline(self) -> float:
         candidates = [self.reports.get_timer(), self._next_tick]
+        if self._tiles_due:
+            candidates.append(min(self._tiles_due.values()))
         for timer in (self.decoder.get_timer(), self.missions.get_timer()):
             if timer is not None:
                 candidates.append(timer)
@@ -440,6 +469,7 @@ class GroundLink:
         now = self.clock()
         self.decoder.handle_timer(now)
         self._process_events(now)
+        self._push_due_tiles(now)
         self._send_report(now)
         self.send_commands(now)
         if now >= self._next_tick:
@@ -450,6 +480,8 @@ class GroundLink:
                 self.missions.forget(drone)
                 if drone not in self.fleet.drones:  # not heard again since
                     self.latest_jpeg.pop(drone, None)
+                    self._tile_pushed.pop(drone, None)
+                    self._tiles_due.pop(drone, None)
             self._flush_alerts()
             self.broadcaster.publish(
                 "tick",  # with the mission: phases and command results change with time

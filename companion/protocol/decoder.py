@@ -284,6 +284,7 @@ class Decoder:
         self._verifier = CommandVerifier(command_key) if command_key is not None else None
         self.epoch = epoch
         self._floors: dict[str, _Floor] = {}
+        self._window_mask = (1 << self.limits.replay_window) - 1
 
     # -- outputs -------------------------------------------------------------------------
 
@@ -451,7 +452,7 @@ class Decoder:
         if pn > window.highest:
             shift = pn - window.highest
             window.seen = ((window.seen << shift) | 1) if shift < size else 1
-            window.seen &= (1 << size) - 1
+            window.seen &= self._window_mask
             window.highest = pn
         else:
             offset = window.highest - pn
