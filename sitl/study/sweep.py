@@ -19,6 +19,7 @@ import logging
 import os
 import sys
 import time
+import uuid
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -109,7 +110,8 @@ def dask_client(
         os.environ.setdefault(name, "1")
     with (
         LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                     dashboard_address=None, silence_logs=logging.ERROR) as cluster,
+                     host="127.0.0.1", dashboard_address="127.0.0.1:0",
+                     silence_logs=logging.ERROR) as cluster,
         Client(cluster) as client,
     ):
         yield client
@@ -153,7 +155,9 @@ def map_cells(
     for params in cells:
         p = dict(params)
         seed = cell_seed(p)
-        fut = client.submit(_call, fn, p, seed, key=f"{label}-{cell_id(p)}", pure=False)
+        # a fresh key each time: a cell that failed is run again, not answered from memory
+        key = f"{label}-{cell_id(p)}-{uuid.uuid4().hex[:8]}"
+        fut = client.submit(_call, fn, p, seed, key=key, pure=False)
         submitted.append(fut)
         by_key[fut.key] = (p, seed)
     del fut
