@@ -253,8 +253,11 @@ def main(argv: list[str] | None = None) -> int:
                     raise result
                 per_scenario[params["scenario"]].append(result["messages"])
                 check[f"{params['scenario']}/{params['drop']}"] = result["utility_pct"]
-    except OSError as exc:
-        print(f"uav-sitl study fig5.7: cannot reach the Dask scheduler: {exc}", file=sys.stderr)
+    except OSError as exc:  # no scheduler there, or the output cannot be written
+        print(f"uav-sitl study fig5.7: {exc}", file=sys.stderr)
+        return 1
+    except ValueError as exc:  # --out holds a CSV of another sweep
+        print(f"uav-sitl study fig5.7: {exc}", file=sys.stderr)
         return 1
     rows = [r for r in sweep.rows if r["scenario"] in scenarios and r["policy"] in policies]
     _same_draws(rows, check)

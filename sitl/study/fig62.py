@@ -100,8 +100,11 @@ def main(argv: list[str] | None = None) -> int:
         with dask_client(args.scheduler, workers=args.workers) as client:
             sweep = run_sweep(point_cell, cells, out=out / "fig6_2.csv", client=client,
                               label="fig6.2")
-    except OSError as exc:
-        print(f"uav-sitl study fig6.2: cannot reach the Dask scheduler: {exc}", file=sys.stderr)
+    except OSError as exc:  # no scheduler there, or the output cannot be written
+        print(f"uav-sitl study fig6.2: {exc}", file=sys.stderr)
+        return 1
+    except ValueError as exc:  # --out holds a CSV of another sweep
+        print(f"uav-sitl study fig6.2: {exc}", file=sys.stderr)
         return 1
     rows = [r for r in sweep.rows if float(r["duration_s"]) == duration]
     summary = _summary(rows)
