@@ -147,3 +147,16 @@ def test_a_failing_cell_is_reported_left_out_and_retried(client, tmp_path: Path)
 def test_non_scalar_parameters_are_refused() -> None:
     with pytest.raises(TypeError, match="not a scalar"):
         cell_seed({"x": [1, 2]})
+
+
+def other_cell(params: dict[str, Any], seed: int) -> dict[str, Any]:
+    return {"z": 1}
+
+
+def test_a_csv_of_another_sweep_is_refused_not_mixed(client, tmp_path: Path) -> None:
+    out = tmp_path / "sweep.csv"
+    run_sweep(square_cell, [{"x": 0}], out=out, client=client, progress=lambda _: None)
+    before = out.read_text()
+    with pytest.raises(ValueError, match="use a new --out"):
+        run_sweep(other_cell, [{"x": 1}], out=out, client=client, progress=lambda _: None)
+    assert out.read_text() == before
