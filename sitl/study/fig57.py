@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from sitl.netsim import simulate
 from sitl.study import drop_rate as dr
 from sitl.study.sweep import cell_seed, dask_client, map_cells, run_sweep
 
@@ -76,7 +77,7 @@ def _simulate(params: dict[str, Any], seed: int) -> tuple[dr.Run, Any, Any]:
                               "n_agents": n_agents})
     factory = dr.policy_factory(policy, param, seed=seed)
     spec, agents = dr.make_agents(scenario, factory, seed=mission_seed, n_agents=n_agents)
-    result = dr.simulate(agents, channel=dr.CHANNEL, t_end=t_end,
+    result = simulate(agents, channel=dr.CHANNEL, t_end=t_end,
                          rng=np.random.default_rng([seed, 3]))
     wall = np.array(result.decide_wall_s) * 1e3
     violations = 0
@@ -128,7 +129,7 @@ def fifths(normalised: np.ndarray) -> list[float]:
 
 
 def _interval(values: Sequence[float]) -> tuple[float, float, float]:
-    from scipy import stats
+    from scipy import stats  # type: ignore[import-untyped]
 
     a = np.asarray(values, dtype=float)
     mean = float(a.mean())

@@ -16,7 +16,6 @@ import csv
 import hashlib
 import json
 import logging
-import os
 import sys
 import time
 import uuid
@@ -101,20 +100,19 @@ def dask_client(
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
-        with Client(scheduler, timeout=connect_timeout_s) as client:
+        client = Client(scheduler, timeout=connect_timeout_s)  # type: ignore[no-untyped-call]
+        with client:
             yield client
         return
     # numba/BLAS inside a cell must not start a thread per core in each worker
-    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                 "NUMBA_NUM_THREADS"):
-        os.environ.setdefault(name, "1")
-    with (
-        LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                     host="127.0.0.1", dashboard_address="127.0.0.1:0",
-                     silence_logs=logging.ERROR) as cluster,
-        Client(cluster) as client,
-    ):
-        yield client
+    one_thread = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                                         "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")}
+    cluster = LocalCluster(  # type: ignore[no-untyped-call]
+        n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+        dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR, env=one_thread,
+    )
+    with cluster, Client(cluster) as local:  # type: ignore[no-untyped-call]
+        yield local
 
 
 def _fmt_s(s: float) -> str:
@@ -162,7 +160,7 @@ def map_cells(
         by_key[fut.key] = (p, seed)
     del fut
     total = len(submitted)
-    pending = as_completed(submitted)
+    pending = as_completed(submitted)  # type: ignore[no-untyped-call]
     submitted.clear()  # as_completed holds them; release each as it is consumed
     for done, fut in enumerate(pending, start=1):
         p, seed = by_key[fut.key]
