@@ -14,6 +14,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 STUDIES: dict[str, tuple[str, str]] = {
     "drop-rate-vs-utility": ("sitl.study.drop_rate", "thesis figure 5.7: utility vs drop share"),
+    "fig5.7": ("sitl.study.fig57", "thesis figure 5.7 at 31 drop shares x 30 runs, on Dask"),
+    "fig6.1": ("sitl.study.fig61", "thesis figure 6.1: reception rate and latency vs rate"),
+    "fig6.2": ("sitl.study.fig62", "thesis figure 6.2: mean backlog vs publishing rate, on Dask"),
     "adaptive-vs-aimd": ("sitl.study.adaptive", "thesis figure 6.5: adaptive constraint vs AIMD"),
     "mcts-vs-baselines": ("sitl.study.baselines", "MCTS vs every baseline, equal budget and bytes"),
 }

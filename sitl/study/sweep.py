@@ -1,0 +1,247 @@
+"""Parameter sweeps on Dask distributed: seeded cells, results streamed to a CSV, resumable.
+
+A study is a list of *cells* (dicts of scalar parameters) and a module-level *cell function*
+``fn(params, seed) -> dict of scalars``. :func:`run_sweep` runs the cells on a Dask cluster
+(a local one by default, or an existing scheduler), appends one CSV row per cell as it
+finishes, prints a progress line with cells done and time left, and on a second call with the
+same CSV skips the cells already there, so an interrupted sweep resumes where it stopped.
+
+Each cell's seed is a hash of its parameters, never of its position in the list: adding,
+removing or reordering cells, or resuming, gives every cell the same draws.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import logging
+import sys
+import time
+import uuid
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "CellFailed",
+    "SweepResult",
+    "cell_id",
+    "cell_seed",
+    "dask_client",
+    "map_cells",
+    "read_done",
+    "run_sweep",
+]
+
+Scalar = str | int | float | bool
+CellFn = Callable[[dict[str, Any], int], dict[str, Any]]
+ID_COLUMN = "cell_id"
+SEED_COLUMN = "seed"
+
+
+class CellFailed(RuntimeError):
+    """A cell raised on its worker; the sweep goes on and reports the failures at the end."""
+
+
+def _canonical(params: Mapping[str, Any]) -> str:
+    for name, value in params.items():
+        if not isinstance(value, str | int | float | bool):
+            raise TypeError(f"cell parameter {name}={value!r} is not a scalar")
+    return json.dumps(dict(params), sort_keys=True, separators=(",", ":"))
+
+
+def cell_id(params: Mapping[str, Any]) -> str:
+    """Stable name of a cell: a hash of its parameters (order of keys does not matter)."""
+    return hashlib.sha256(_canonical(params).encode()).hexdigest()[:16]
+
+
+def cell_seed(params: Mapping[str, Any]) -> int:
+    """The cell's seed (0 .. 2^32-1), derived from its parameters alone."""
+    digest = hashlib.sha256(b"seed:" + _canonical(params).encode()).digest()
+    return int.from_bytes(digest[:4], "big")
+
+
+@dataclass(frozen=True, slots=True)
+class SweepResult:
+    rows: list[dict[str, str]]
+    """Every row of the CSV (earlier runs' and this one's), as read back from the file."""
+    ran: int
+    skipped: int
+    failed: list[tuple[dict[str, Any], str]]
+    wall_s: float
+
+
+def read_done(path: Path) -> tuple[list[str] | None, list[dict[str, str]]]:
+    """(header, complete rows) of a sweep CSV; a row torn by an interruption is cut off."""
+    if not path.exists():
+        return None, []
+    text = path.read_text(encoding="utf-8")
+    if text and not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+        path.write_text(text, encoding="utf-8")
+    lines = text.splitlines()
+    if not lines:
+        return None, []
+    reader = csv.DictReader(lines)
+    header = list(reader.fieldnames or [])
+    rows = [r for r in reader if r.get(ID_COLUMN) and None not in r.values()]
+    return header, rows
+
+
+@contextmanager
+def dask_client(
+    scheduler: str | None = None, *, workers: int = 2, connect_timeout_s: float = 10.0
+) -> Iterator[Any]:
+    """A Dask client: on ``scheduler`` (``tcp://host:8786``) or on a local cluster of
+    ``workers`` single-threaded worker processes that is shut down on exit."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        client = Client(scheduler, timeout=connect_timeout_s)  # type: ignore[no-untyped-call]
+        with client:
+            yield client
+        return
+    # numba/BLAS inside a cell must not start a thread per core in each worker
+    one_thread = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                                         "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")}
+    cluster = LocalCluster(  # type: ignore[no-untyped-call]
+        n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+        dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR, env=one_thread,
+    )
+    with cluster, Client(cluster) as local:  # type: ignore[no-untyped-call]
+        yield local
+
+
+def _fmt_s(s: float) -> str:
+    s = max(0.0, s)
+    if s < 120:
+        return f"{s:.0f}s"
+    if s < 7200:
+        return f"{s / 60:.0f}min"
+    return f"{s / 3600:.1f}h"
+
+
+def _stderr(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def _call(fn: CellFn, params: dict[str, Any], seed: int) -> dict[str, Any]:
+    started = time.perf_counter()
+    out = dict(fn(params, seed))
+    out.setdefault("cell_wall_s", round(time.perf_counter() - started, 3))
+    return out
+
+
+def map_cells(
+    client: Any,
+    fn: CellFn,
+    cells: Sequence[Mapping[str, Any]],
+    *,
+    label: str = "cells",
+    progress: Callable[[str], None] = _stderr,
+) -> Iterator[tuple[dict[str, Any], int, dict[str, Any] | BaseException]]:
+    """Run ``cells`` on ``client``; yield (params, seed, result or exception) as each finishes."""
+    from dask.distributed import as_completed
+
+    if not cells:
+        return
+    started = time.perf_counter()
+    submitted, by_key = [], {}
+    for params in cells:
+        p = dict(params)
+        seed = cell_seed(p)
+        # a fresh key each time: a cell that failed is run again, not answered from memory
+        key = f"{label}-{cell_id(p)}-{uuid.uuid4().hex[:8]}"
+        fut = client.submit(_call, fn, p, seed, key=key, pure=False)
+        submitted.append(fut)
+        by_key[fut.key] = (p, seed)
+    del fut
+    total = len(submitted)
+    pending = as_completed(submitted)  # type: ignore[no-untyped-call]
+    submitted.clear()  # as_completed holds them; release each as it is consumed
+    for done, fut in enumerate(pending, start=1):
+        p, seed = by_key[fut.key]
+        try:
+            result: dict[str, Any] | BaseException = fut.result()
+        except Exception as exc:  # a cell's own error, reported at the end
+            result = exc
+        fut.release()
+        elapsed = time.perf_counter() - started
+        left = elapsed / done * (total - done)
+        width = 24
+        bar = "#" * round(width * done / total)
+        progress(f"{label} [{bar:<{width}}] {done}/{total} done, {_fmt_s(elapsed)} elapsed, "
+                 f"~{_fmt_s(left)} left")
+        yield p, seed, result
+
+
+def run_sweep(
+    fn: CellFn,
+    cells: Sequence[Mapping[str, Any]],
+    *,
+    out: Path,
+    scheduler: str | None = None,
+    workers: int = 2,
+    label: str = "cells",
+    progress: Callable[[str], None] = _stderr,
+    client: Any = None,
+) -> SweepResult:
+    """Run the cells not yet in ``out``; append each result to ``out`` as it finishes.
+
+    The CSV columns are the cell's parameters, ``cell_id``, ``seed`` and then the result's
+    keys (every cell of one sweep returns the same keys). A cell that raises is reported and
+    left out of the CSV, so the next run retries it.
+    """
+    started = time.perf_counter()
+    header, rows = read_done(out)
+    done_ids = {r[ID_COLUMN] for r in rows}
+    todo, seen = [], set()
+    for params in cells:
+        cid = cell_id(params)
+        if cid in done_ids or cid in seen:
+            continue
+        seen.add(cid)
+        todo.append(dict(params))
+    skipped = len({cell_id(p) for p in cells} & done_ids)
+    if skipped:
+        progress(f"{label}: {skipped} of {skipped + len(todo)} cells already in {out}, "
+                 f"running {len(todo)}")
+    failed: list[tuple[dict[str, Any], str]] = []
+    if todo:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with _client_or(client, scheduler, workers) as c, out.open("a", newline="",
+                                                                  encoding="utf-8") as f:
+            writer: csv.DictWriter[str] | None = None
+            if header is not None:
+                writer = csv.DictWriter(f, fieldnames=header)
+            for p, seed, result in map_cells(c, fn, todo, label=label, progress=progress):
+                if isinstance(result, BaseException):
+                    failed.append((p, f"{type(result).__name__}: {result}"))
+                    progress(f"{label}: cell {p} failed: {type(result).__name__}: {result}")
+                    continue
+                row = {**p, ID_COLUMN: cell_id(p), SEED_COLUMN: seed, **result}
+                if writer is None:
+                    writer = csv.DictWriter(f, fieldnames=list(row))
+                    writer.writeheader()
+                missing = set(writer.fieldnames) - set(row)
+                extra = set(row) - set(writer.fieldnames)
+                if missing or extra:
+                    raise ValueError(f"cell {p} returned columns {sorted(row)}, the CSV has "
+                                     f"{list(writer.fieldnames)}; use a new --out")
+                writer.writerow(row)
+                f.flush()
+    _, rows = read_done(out)
+    return SweepResult(rows=rows, ran=len(todo) - len(failed), skipped=skipped, failed=failed,
+                       wall_s=time.perf_counter() - started)
+
+
+@contextmanager
+def _client_or(client: Any, scheduler: str | None, workers: int) -> Iterator[Any]:
+    if client is not None:
+        yield client
+        return
+    with dask_client(scheduler, workers=workers) as c:
+        yield c
