@@ -149,13 +149,26 @@ async def api_fleet(request: web.Request) -> web.Response:
     now = app[CLOCK]()
     snap = app[FLEET].snapshot(now=now)
     snap["mission"] = app[MISSIONS].state(now=now)
-    snap["config"] = {
-        "station_id": app[CONFIG].station_id,
-        "mission": app[CONFIG].mission,
-        "high_utility": app[CONFIG].high_utility,
-        "alpha": app[CONFIG].alpha,
-    }
+    snap["config"] = {"station_id": app[CONFIG].station_id, "alpha": app[CONFIG].alpha} | (
+        _dashboard_config(app))
     return _json(snap)
+
+
+def _dashboard_config(app: web.Application) -> dict[str, Any]:
+    """What the page needs to read utilities: mission name and the spec's utility scale."""
+    config = app[CONFIG]
+    gain = app[IMAGE_UTILITY].max_gain()
+    return {
+        "mission": config.mission,
+        "high_utility": app[FLEET].high_utility,
+        "utility_scale": {
+            "plain": 1.0,
+            "max": 1.0 + gain,
+            "fraction": None if config.high_utility is not None else config.high_utility_fraction,
+            "source": (f"spec {config.spec.name}" if config.spec is not None
+                       else f"alpha {config.alpha:g}"),
+        },
+    }
 
 
 async def api_mission(request: web.Request) -> web.Response:
@@ -352,7 +365,7 @@ async def websocket(request: web.Request) -> web.WebSocketResponse:
     now = app[CLOCK]()
     snapshot = app[FLEET].snapshot(now=now)
     snapshot["mission"] = app[MISSIONS].state(now=now)
-    snapshot["config"] = {"high_utility": app[CONFIG].high_utility, "mission": app[CONFIG].mission}
+    snapshot["config"] = _dashboard_config(app)
     await ws.send_str(json.dumps({"kind": "snapshot", **snapshot}, default=str))
 
     async def writer() -> None:
@@ -418,7 +431,7 @@ async def link_ctx(app: web.Application) -> AsyncIterator[None]:
             utility=row.utility,
             red=row.red,
             object=row.object,
-            high=row.utility >= config.high_utility,
+            high=fleet.is_high(row.utility),
         )
         if row.path is not None:
             path = config.data_dir / row.path
@@ -452,14 +465,16 @@ def create_app(
     app[CLOCK] = clock
     app[TOKEN] = token if token is not None else ensure_token(config.token_path)[0]
     app[LOGIN_CODES] = LoginCodes(app[TOKEN])
-    app[FLEET] = FleetView(high_utility=config.high_utility, link_lost_s=config.link_lost_s)
+    app[IMAGE_UTILITY] = image_utility_from_spec(config.spec, alpha=config.alpha)
+    high_utility = (config.high_utility if config.high_utility is not None
+                    else app[IMAGE_UTILITY].high_threshold(config.high_utility_fraction))
+    app[FLEET] = FleetView(high_utility=high_utility, link_lost_s=config.link_lost_s)
     app[MISSIONS] = MissionManager(
         retry_s=config.command_retry_s,
         reply_timeout_s=config.command_reply_timeout_s,
         first_command_id=int(clock() * 10) % (2**31)
     )
     app[BROADCASTER] = Broadcaster(queue_size=config.ws_queue_size)
-    app[IMAGE_UTILITY] = image_utility_from_spec(config.spec, alpha=config.alpha)
     app[LATEST_JPEG] = {}
     app[WEBSOCKETS] = weakref.WeakSet()
     app.cleanup_ctx.append(storage_ctx)

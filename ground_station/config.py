@@ -76,8 +76,12 @@ class GroundConfig:
     """Bound on partially received images held in memory by the decoder."""
     alpha: float = 10.0
     """α of eq. 7.1/7.2, weight of red share / object in image utility."""
-    high_utility: float = 3.0
-    """Images at or above this utility weight get a red border (thesis fig. 7.5)."""
+    high_utility: float | None = None
+    """Images at or above this utility weight get a red border (thesis fig. 7.5); default:
+    derived from the spec's utility scale with ``high_utility_fraction``."""
+    high_utility_fraction: float = 0.1
+    """Share of the largest utility gain an image type can give (α of eq. 7.1/7.2) from
+    which its images count as high: 1 + 0.1·α, a 10 % red share."""
     spec: Path | None = None
     """Mission spec TOML; when given, image utility follows its ``red_image``/``object_image``."""
     public_read: bool = False
@@ -112,6 +116,8 @@ class GroundConfig:
             ("reassembly_timeout_s", self.reassembly_timeout_s > 0, "a number > 0"),
             ("max_pending_messages", self.max_pending_messages > 0, "an integer > 0"),
             ("alpha", self.alpha >= 0, "a number >= 0"),
+            ("high_utility_fraction", 0 < self.high_utility_fraction <= 1,
+             "a number in (0, 1]"),
             ("ws_queue_size", self.ws_queue_size > 0, "an integer > 0"),
             ("clock_tolerance_s", self.clock_tolerance_s > 0, "a number > 0"),
         ]
@@ -150,6 +156,7 @@ _TYPES: dict[str, tuple[type | tuple[type, ...], str]] = {
     "max_pending_messages": (int, "an integer"),
     "alpha": ((int, float), "a number"),
     "high_utility": ((int, float), "a number"),
+    "high_utility_fraction": ((int, float), "a number in (0, 1]"),
     "spec": (str, "a path string"),
     "public_read": (bool, "true or false"),
     "ws_queue_size": (int, "an integer"),

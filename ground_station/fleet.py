@@ -126,7 +126,8 @@ class FleetView:
     Parameters
     ----------
     high_utility
-        Images whose utility weight reaches this get ``high = True`` (red border, fig. 7.5).
+        Images whose utility weight reaches this get ``high = True`` (red border, fig. 7.5);
+        None: none does (a spec whose images cannot gain over plain video).
     link_lost_s
         Silence after which a drone is flagged lost (alert once, cleared when heard again).
     forget_after_s
@@ -139,7 +140,7 @@ class FleetView:
     def __init__(
         self,
         *,
-        high_utility: float,
+        high_utility: float | None,
         link_lost_s: float,
         series_len: int = 600,
         alerts_len: int = 500,
@@ -161,6 +162,9 @@ class FleetView:
         self.drops: Counter[str] = Counter()
         self._origin: tuple[float, float] | None = None
         self._new_alerts: list[Alert] = []
+
+    def is_high(self, utility: float) -> bool:
+        return self.high_utility is not None and utility >= self.high_utility
 
     # -- inputs -------------------------------------------------------------------------
     def heard(self, drone: str, *, now: float, addr: tuple[str, int] | None = None) -> DroneState:
@@ -212,7 +216,7 @@ class FleetView:
                 utility=utility,
                 red=_num(message.data, "red"),
                 object=bool(obj) if isinstance(obj, bool | int | float) else False,
-                high=utility >= self.high_utility,
+                high=self.is_high(utility),
             )
         state.prune(now)
         return state

@@ -1,8 +1,9 @@
 // Ground-station dashboard: plain JS, no libraries, no network beyond this server.
 "use strict";
 
-const PALETTE = ["#4aa3ff", "#3fb950", "#d29922", "#f778ba", "#a371f7", "#56d4dd",
-  "#ff7b72", "#e3b341", "#7ee787", "#79c0ff", "#ffa657", "#d2a8ff"];
+// 12 colours readable on the dark background, neighbours far apart in hue (uav1, uav2, ...).
+const PALETTE = ["#4aa3ff", "#ffa657", "#3fb950", "#f778ba", "#e3b341", "#a371f7",
+  "#56d4dd", "#ff7b72", "#b5e853", "#d2a8ff", "#2ec4a6", "#c9b18a"];
 const state = {
   drones: new Map(), series: [], alerts: [], drops: {}, mission: null,
   config: {}, ws: null, dirty: new Set(), frame: false, colors: new Map(), imgTimes: new Map(),
@@ -45,8 +46,18 @@ const fmt = {
   age: (s) => (s === null || s === undefined ? "–" : s < 1 ? "now" : s < 60 ? s.toFixed(0) + " s ago" : (s / 60).toFixed(1) + " min ago"),
   fix: (f) => (f === null || f === undefined ? "–" : ["no GPS", "no fix", "2D", "3D", "DGPS", "RTK float", "RTK fixed"][f] || String(f)),
 };
+// A drone's colour follows from its id alone, so it is the same after a reload, whatever order
+// the drones were heard in: a trailing number picks the palette slot (uav1..uav12 all differ),
+// any other id is hashed (FNV-1a) into it.
+function colorIndex(drone) {
+  const m = /(\d+)$/.exec(drone);
+  if (m) return (Number(m[1].slice(-6)) + PALETTE.length - 1) % PALETTE.length;
+  let h = 0x811c9dc5;
+  for (const ch of drone) { h ^= ch.codePointAt(0); h = Math.imul(h, 0x01000193) >>> 0; }
+  return h % PALETTE.length;
+}
 function color(drone) {
-  if (!state.colors.has(drone)) state.colors.set(drone, PALETTE[state.colors.size % PALETTE.length]);
+  if (!state.colors.has(drone)) state.colors.set(drone, PALETTE[colorIndex(String(drone))]);
   return state.colors.get(drone);
 }
 function esc(s) { return String(s).replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]); }
@@ -140,6 +151,8 @@ function tileFor(drone) {
     </tbody></table>`;
   el.querySelector("header b").textContent = drone;
   el.querySelector("header b").style.color = color(drone);
+  el.querySelector("header").style.borderBottom = `3px solid ${color(drone)}`;
+  el.dataset.color = color(drone);
   const tiles = $("tiles");
   const after = [...tiles.children].find((t) => t.dataset.drone > drone);
   tiles.insertBefore(el, after || null);

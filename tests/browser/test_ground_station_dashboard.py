@@ -52,11 +52,38 @@ async def wait_js(page: Any, predicate: str, arg: Any = None, *, timeout_s: floa
             await asyncio.sleep(0.1)
 
 
+EXPECTED_COLOURS = {"uav1": "#4aa3ff", "uav2": "#ffa657", "uav3": "#3fb950", "uav4": "#f778ba"}
+"""The palette slots of ids ending in 1..4 (app.js PALETTE), whatever the arrival order."""
+
+SPEC = """\
+[mission]
+name = "browser"
+t_end = 600.0
+
+[types.image]
+utility = "red_image"
+aggregation = "max"
+weight = 1.0
+per_sender = true
+markovian = false
+params = { alpha = 100.0, S = 0.1, f_max = 5.0, f_1 = 2.5 }
+"""
+
+
+async def tile_colours(page: Any) -> dict[str, str]:
+    """Each tile's colour as the page drew it: tile, map dot and chart legend must agree."""
+    return dict(await page.evaluate("""() => Object.fromEntries(
+        [...document.querySelectorAll('.tile')].map((t) => [t.dataset.drone, t.dataset.color]))"""))
+
+
 async def test_dashboard_live_tiles_and_start_mission(
     tmp_path: Path, aiohttp_server: Callable[..., Any]
 ) -> None:
     playwright_api = pytest.importorskip("playwright.async_api")
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC)
     config = GroundConfig(
+        spec=spec,
         fleet_id=21,
         fleet_key=KEY,
         command_key=TEST_COMMAND_KEY,
@@ -116,10 +143,22 @@ async def test_dashboard_live_tiles_and_start_mission(
                 timeout_s=15.0,
             )
             assert await page.locator(".tile").count() == 4
-            # uav2 sees red (1 + 10·0.45 = 5.5 >= 3): red border; uav1 does not
+            # the spec's scale (alpha 100): high from 1 + 0.1·100 = 11, sent in the snapshot;
+            # uav2 sees red (1 + 100·0.45 = 46): red border; uav1 (1 + 100·0.02 = 3.0, high
+            # under the old fixed 3.0) and uav3 (object flag, no weight under red_image) not
+            assert await page.evaluate("state.config.high_utility") == 11.0
             assert "high" in (await tile.get_attribute("class") or "")
-            uav1_class = await page.locator('.tile[data-drone="uav1"]').get_attribute("class")
-            assert "high" not in (uav1_class or "")
+            for calm in ("uav1", "uav3"):
+                calm_class = await page.locator(f'.tile[data-drone="{calm}"]').get_attribute(
+                    "class")
+                assert "high" not in (calm_class or "")
+            # colours follow the id, not the order drones were heard in, and survive a reload
+            colours = await tile_colours(page)
+            assert colours == EXPECTED_COLOURS
+            await page.reload()
+            await wait_js(page, "() => document.querySelectorAll('.tile').length === 4",
+                          timeout_s=15.0)
+            assert await tile_colours(page) == EXPECTED_COLOURS
             await wait_js(
                 page,
                 "() => document.querySelector('#map').querySelectorAll('circle').length === 4",

@@ -1,0 +1,75 @@
+"""The red-border threshold follows the spec's utility scale (issue 12), not a fixed 3.0."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from ground_station.app import create_app
+from ground_station.config import ConfigError, GroundConfig, config_from_mapping
+from ground_station.utility import ImageUtility, image_utility_from_spec
+from tests.ground_station.conftest import TOKEN, auth
+
+SPECS = Path(__file__).resolve().parents[2] / "utility_specs" / "missions"
+
+
+def test_threshold_is_a_fraction_of_the_specs_gain() -> None:
+    streaming = image_utility_from_spec(SPECS / "image_streaming.toml", alpha=3.0)
+    assert streaming.max_gain() == 10.0  # the spec's alpha wins over the config's
+    assert streaming.high_threshold(0.1) == pytest.approx(2.0)
+    assert ImageUtility(alpha=40.0).high_threshold(0.25) == pytest.approx(11.0)
+    # only plain video: no image can gain, so none is ever high
+    plain = ImageUtility(alpha=10.0, by_type={"video": ("plain", 0.0)})
+    assert plain.max_gain() == 0.0 and plain.high_threshold(0.1) is None
+
+
+@given(alpha=st.floats(0.1, 1000.0), fraction=st.floats(0.01, 1.0), red=st.floats(0.0, 1.0))
+def test_high_exactly_from_the_fraction_of_red_share(alpha: float, fraction: float,
+                                                     red: float) -> None:
+    """Under eq. 7.1 an image is high iff its red share reaches the fraction."""
+    u = ImageUtility(alpha=alpha, by_type={"image": ("red", alpha)})
+    threshold = u.high_threshold(fraction)
+    assert threshold is not None
+    weight = u.weight("image", {"red": red})
+    if red >= fraction * (1 + 1e-9):
+        assert weight >= threshold
+    elif red <= fraction * (1 - 1e-9):
+        assert weight < threshold
+
+
+def test_config_fraction_checked_and_explicit_threshold_kept() -> None:
+    with pytest.raises(ConfigError, match="high_utility_fraction"):
+        config_from_mapping({"high_utility_fraction": 0})
+    with pytest.raises(ConfigError, match="high_utility_fraction"):
+        config_from_mapping({"high_utility_fraction": 1.5})
+    assert config_from_mapping({"high_utility": 4}).high_utility == 4.0
+    assert config_from_mapping({}).high_utility is None
+
+
+@pytest.mark.parametrize(
+    ("changes", "high", "top", "fraction"),
+    [
+        ({}, 2.0, 11.0, 0.1),  # no spec: the config's alpha 10
+        ({"alpha": 30.0, "high_utility_fraction": 0.2}, 7.0, 31.0, 0.2),
+        ({"spec": SPECS / "image_streaming.toml", "alpha": 50.0}, 2.0, 11.0, 0.1),
+        ({"high_utility": 3.0}, 3.0, 11.0, None),  # an operator's explicit value stays
+    ],
+)
+async def test_snapshot_carries_the_threshold(
+    gs_config: GroundConfig, aiohttp_client: Callable[..., Any], changes: dict[str, Any],
+    high: float, top: float, fraction: float | None,
+) -> None:
+    client = await aiohttp_client(create_app(gs_config.with_overrides(**changes), token=TOKEN))
+    body = await (await client.get("/api/fleet", headers=auth())).json()
+    assert body["config"]["high_utility"] == pytest.approx(high)
+    scale = body["config"]["utility_scale"]
+    assert scale["max"] == pytest.approx(top) and scale["fraction"] == fraction
+    async with client.ws_connect("/ws", headers=auth()) as ws:
+        snapshot = await ws.receive_json()
+    assert snapshot["config"]["high_utility"] == pytest.approx(high)
+    assert snapshot["config"]["utility_scale"] == scale
