@@ -22,7 +22,7 @@ from aiohttp import WSCloseCode, WSMsgType, web
 
 from ground_station.broadcast import Broadcaster
 from ground_station.config import GroundConfig
-from ground_station.fleet import Alert, FleetView, LatestImage
+from ground_station.fleet import RATE_WINDOW_S, Alert, FleetView, LatestImage
 from ground_station.http_guard import add_security_headers, same_origin
 from ground_station.keys import (
     BROADCASTER,
@@ -198,11 +198,16 @@ async def api_images(request: web.Request) -> web.Response:
     except ValueError:
         return _json({"error": "limit must be an integer"}, status=400)
 
-    def query(s: Storage) -> list[ImageRow]:
-        return s.images(mission, sender=drone, object_only=object_only, order=order, limit=limit)
+    senders = list(app[FLEET].drones)
 
-    rows = await app[STORAGE].read(query)
-    return _json({"mission": mission, "images": [_image_json(r) for r in rows]})
+    def query(s: Storage) -> list[dict[str, Any]]:
+        rows = s.images(mission, sender=drone, object_only=object_only, order=order, limit=limit)
+        # "why sent": the sender's share of the link when the image arrived
+        return [_image_json(r) | {"window_share": s.window_share(
+            mission, r, senders, window_s=RATE_WINDOW_S)} for r in rows]
+
+    images = await app[STORAGE].read(query)
+    return _json({"mission": mission, "images": images, "window_s": RATE_WINDOW_S})
 
 
 async def api_image_file(request: web.Request) -> web.StreamResponse:

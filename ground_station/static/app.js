@@ -86,7 +86,7 @@ function handle(msg) {
       state.drops = msg.drops || {};
       state.mission = msg.mission;
       state.config = msg.config || {};
-      renderAlerts(); renderMission(); renderCharts(); renderDrops(); fillDroneFilter();
+      renderAlerts(); renderMission(); renderCharts(); renderDrops(); fillDroneFilter(); renderKey();
       break;
     case "drone":
     case "status":
@@ -140,10 +140,10 @@ function tileFor(drone) {
   el.dataset.drone = drone;
   el.innerHTML = `
     <header><b></b><span class="dot"></span></header>
-    <div class="imgbox"><img alt=""><span class="util"></span></div>
+    <div class="imgbox"><img alt=""><span class="util" title="U: utility weight of the latest image (1 = plain); the red border marks high utility for this mission's spec"></span></div>
     <table><tbody>
       <tr><td>fps</td><td class="v-fps"></td><td>latency</td><td class="v-lat"></td></tr>
-      <tr><td>share</td><td class="v-share"></td><td>battery</td><td class="v-batt"></td></tr>
+      <tr><td title="this drone's part of the fleet's goodput over the last 5 s">share</td><td class="v-share"></td><td>battery</td><td class="v-batt"></td></tr>
       <tr><td>mode</td><td class="v-mode"></td><td>armed</td><td class="v-armed"></td></tr>
       <tr><td>GPS</td><td class="v-gps"></td><td>heard</td><td class="v-heard"></td></tr>
       <tr><td>position</td><td class="v-pos" colspan="3"></td></tr>
@@ -210,6 +210,17 @@ function renderSummary() {
   const ds = [...state.drones.values()];
   const lost = ds.filter((d) => d.link_lost).length;
   $("fleet-summary").textContent = `${ds.length} heard${lost ? `, ${lost} lost` : ""}`;
+}
+
+// The legend states the utility scale the server derived from the mission spec.
+function renderKey() {
+  const c = state.config, sc = c.utility_scale;
+  $("key-high").textContent = c.high_utility == null ? "never (no image type gains)" : "U " + fmt.num(c.high_utility, 2);
+  if (sc) {
+    $("key-scale").textContent = `${fmt.num(sc.plain, 0)} plain … ${fmt.num(sc.max, 0)} best (${sc.source})`;
+    $("key-high").title = sc.fraction == null ? "set in the ground-station config"
+      : `1 + ${sc.fraction} × ${fmt.num(sc.max - sc.plain, 1)}: ${Math.round(sc.fraction * 100)} % of the largest gain`;
+  }
 }
 
 // -- fleet map -------------------------------------------------------------------------------
@@ -366,16 +377,23 @@ function fillDroneFilter() {
     if (!have.has(d)) { const o = document.createElement("option"); o.value = d; o.textContent = d; sel.appendChild(o); }
   }
 }
+function whySent(im) {
+  const what = im.object ? "object" : im.red != null ? "red " + fmt.pct(im.red) : "plain";
+  const version = im.version == null ? "single version" : im.version === 0 ? "v0 (best)" : "v" + im.version;
+  return `U ${fmt.num(im.utility, 2)} (${what}) · ${version} · ${fmt.pct(im.window_share)} of link`;
+}
 async function renderGallery() {
   fillDroneFilter();
   const q = new URLSearchParams({ limit: "24", object: $("g-object").value });
   if ($("g-drone").value) q.set("drone", $("g-drone").value);
   try {
     const body = await api("/api/images?" + q);
+    const high = state.config.high_utility;
     $("gallery").innerHTML = body.images.map((im) => `
-      <figure class="${im.utility >= (state.config.high_utility || 1e9) ? "high" : ""}" data-id="${im.id}">
+      <figure class="${high != null && im.utility >= high ? "high" : ""}" data-id="${im.id}">
         <img loading="lazy" src="${im.url}" alt="${esc(im.sender)} #${im.seq}">
-        <figcaption><b style="color:${color(im.sender)}">${esc(im.sender)}</b> #${im.seq} · U ${fmt.num(im.utility, 2)}${im.object ? " · object" : ""}<br><span class="muted">${fmt.time(im.t_gen)}</span>${im.pose === "none" ? ` · <span class="stale">no position</span>` : im.pose === "stale" ? ` · <span class="stale">position ${fmt.num(im.pose_age_s, 1)} s old</span>` : ""}</figcaption>
+        <figcaption><b style="color:${color(im.sender)}">${esc(im.sender)}</b> #${im.seq} · <span class="muted">${fmt.time(im.t_gen)}</span>${im.pose === "none" ? ` · <span class="stale">no position</span>` : im.pose === "stale" ? ` · <span class="stale">position ${fmt.num(im.pose_age_s, 1)} s old</span>` : ""}
+        <div class="why" title="why the drone sent it: its utility, the version it chose (0 = best quality) and the drone's share of the link in the ${body.window_s || 5} s before it arrived">why sent: ${whySent(im)}</div></figcaption>
       </figure>`).join("") || `<p class="muted">no stored images yet</p>`;
   } catch (e) { /* token box already shown */ }
 }

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import re
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -165,6 +166,19 @@ async def test_dashboard_live_tiles_and_start_mission(
                 timeout_s=10.0,
             )
             await page.wait_for_selector("#gallery figure", timeout=15_000)
+            # the legend explains the numbers, with the threshold the spec gives
+            key = await page.inner_text("#key")
+            for term in ("U", "share", "ξ", "Δ", "fallback"):
+                assert f"{term}\n" in key or key.startswith(term), (term, key)
+            assert await page.inner_text("#key-high") == "U 11.00"
+            assert "1 plain … 101 best (spec spec.toml)" in key
+            # each gallery image says why it was sent; the best first: uav2's red images
+            await wait_js(page, "() => document.querySelector('#gallery .why') !== null",
+                          timeout_s=10.0)
+            why = await page.inner_text("#gallery figure:first-child .why")
+            assert re.fullmatch(
+                r"why sent: U 46\.00 \(red 45 %\) · single version · \d{1,3} % of link", why
+            ), why
             await page.screenshot(path=str(ARTIFACTS / "dashboard_live.png"), full_page=True)
 
             # start mission: the COMMAND reaches every drone, which acks it

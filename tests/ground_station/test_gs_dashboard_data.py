@@ -1,4 +1,5 @@
-"""The red-border threshold follows the spec's utility scale (issue 12), not a fixed 3.0."""
+"""Data the dashboard explains itself with (issue 12): the red-border threshold follows the
+spec's utility scale, not a fixed 3.0; each gallery image says why it was sent."""
 
 from __future__ import annotations
 
@@ -10,10 +11,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from companion.protocol import Encoder
 from ground_station.app import create_app
 from ground_station.config import ConfigError, GroundConfig, config_from_mapping
+from ground_station.keys import STORAGE
 from ground_station.utility import ImageUtility, image_utility_from_spec
-from tests.ground_station.conftest import TOKEN, auth
+from tests.ground_station.conftest import KEY, TOKEN, auth
+from tests.ground_station.test_gs_app import feed
 
 SPECS = Path(__file__).resolve().parents[2] / "utility_specs" / "missions"
 
@@ -73,3 +77,25 @@ async def test_snapshot_carries_the_threshold(
         snapshot = await ws.receive_json()
     assert snapshot["config"]["high_utility"] == pytest.approx(high)
     assert snapshot["config"]["utility_scale"] == scale
+
+
+async def test_gallery_image_says_its_share_of_the_window(
+    gs_config: GroundConfig, aiohttp_client: Callable[..., Any]
+) -> None:
+    """window_share: the sender's bytes among all drones' in the 5 s before it arrived."""
+    t = [1_700_000_000.0]
+    client = await aiohttp_client(create_app(gs_config, clock=lambda: t[0], token=TOKEN))
+    a, b = Encoder(7, "uav1", KEY), Encoder(7, "uav2", KEY)
+    feed(client, a, 1, now=t[0], payload=b"a" * 100, red=0.1)       # alone: 100 %
+    t[0] += 1.0
+    feed(client, b, 1, now=t[0], payload=b"b" * 300, red=0.9)       # 300 of 400
+    t[0] += 6.0
+    feed(client, b, 2, now=t[0], payload=b"b" * 100, red=0.5)       # the first two are out
+    t[0] += 3.0
+    feed(client, a, 2, now=t[0], payload=b"a" * 300, red=0.0)       # 300 of 400
+    await client.server.app[STORAGE].flush()
+    body = await (await client.get("/api/images", headers=auth())).json()
+    shares = {(im["sender"], im["seq"]): im["window_share"] for im in body["images"]}
+    assert shares == {("uav2", 1): pytest.approx(0.75), ("uav2", 2): pytest.approx(1.0),
+                      ("uav1", 1): pytest.approx(1.0), ("uav1", 2): pytest.approx(0.75)}
+    assert body["window_s"] == 5.0
