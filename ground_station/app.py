@@ -39,6 +39,7 @@ from ground_station.keys import (
 )
 from ground_station.missions import MissionError, MissionManager, parse_params, parse_when
 from ground_station.receiver import GroundLink
+from ground_station.scene_map import load_scene_map
 from ground_station.storage import ImageRow, Storage
 from ground_station.store_service import StorageService
 from ground_station.token import (
@@ -56,6 +57,7 @@ log = logging.getLogger(__name__)
 
 STATIC_DIR = Path(__file__).parent / "static"
 LOGIN_CODES: web.AppKey[LoginCodes] = web.AppKey("login_codes")
+SCENE_MAP: web.AppKey[dict[str, Any] | None] = web.AppKey("scene_map")
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
 
@@ -161,6 +163,7 @@ def _dashboard_config(app: web.Application) -> dict[str, Any]:
     return {
         "mission": config.mission,
         "high_utility": app[FLEET].high_utility,
+        "scene": app[SCENE_MAP],
         "utility_scale": {
             "plain": 1.0,
             "max": 1.0 + gain,
@@ -474,6 +477,10 @@ def create_app(
     high_utility = (config.high_utility if config.high_utility is not None
                     else app[IMAGE_UTILITY].high_threshold(config.high_utility_fraction))
     app[FLEET] = FleetView(high_utility=high_utility, link_lost_s=config.link_lost_s)
+    scene = load_scene_map(config.scene) if config.scene is not None else None
+    if scene is not None:  # the map's frame: east/north metres from the scene's home
+        app[FLEET].set_origin(scene["home"]["lat_deg"], scene["home"]["lon_deg"])
+    app[SCENE_MAP] = scene
     app[MISSIONS] = MissionManager(
         retry_s=config.command_retry_s,
         reply_timeout_s=config.command_reply_timeout_s,

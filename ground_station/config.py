@@ -84,6 +84,9 @@ class GroundConfig:
     which its images count as high: 1 + 0.1·α, a 10 % red share."""
     spec: Path | None = None
     """Mission spec TOML; when given, image utility follows its ``red_image``/``object_image``."""
+    scene: Path | None = None
+    """Scene TOML of the mission area (``uav-sitl`` format): the dashboard map draws its
+    outline, targets and home, and local coordinates start at its home."""
     public_read: bool = False
     """Whether read-only views (dashboard, /api GETs, WebSocket) are open without the token."""
     ws_queue_size: int = 64
@@ -158,6 +161,7 @@ _TYPES: dict[str, tuple[type | tuple[type, ...], str]] = {
     "high_utility": ((int, float), "a number"),
     "high_utility_fraction": ((int, float), "a number in (0, 1]"),
     "spec": (str, "a path string"),
+    "scene": (str, "a path string"),
     "public_read": (bool, "true or false"),
     "ws_queue_size": (int, "an integer"),
     "clock_tolerance_s": ((int, float), "a number of seconds"),
@@ -183,7 +187,7 @@ def config_from_mapping(raw: dict[str, Any], *, file: str = "<config>") -> Groun
         # bool is an int subclass: refuse true/false where a number is expected.
         if not isinstance(value, want) or (isinstance(value, bool) and want is not bool):
             raise ConfigError(file, key, text, value)
-        if key in ("data_dir", "spec", "token_file"):
+        if key in ("data_dir", "spec", "scene", "token_file"):
             path = Path(str(value)).expanduser()
             values[key] = path if path.is_absolute() else base / path
         elif key == "fleet_key":

@@ -163,6 +163,10 @@ class FleetView:
         self._origin: tuple[float, float] | None = None
         self._new_alerts: list[Alert] = []
 
+    def set_origin(self, lat: float, lon: float) -> None:
+        """Local coordinates around this point (the scene's home) instead of the first fix."""
+        self._origin = (lat, lon)
+
     def is_high(self, utility: float) -> bool:
         return self.high_utility is not None and utility >= self.high_utility
 

@@ -77,14 +77,87 @@ async def tile_colours(page: Any) -> dict[str, str]:
         [...document.querySelectorAll('.tile')].map((t) => [t.dataset.drone, t.dataset.color]))"""))
 
 
+SCENE = """\
+name = "browser"
+[home]
+lat_deg = 51.1
+lon_deg = 17.0
+alt_m = 120.0
+[ground]
+width_m = 300.0
+height_m = 240.0
+[[red_objects]]
+east_m = 40.0
+north_m = 30.0
+radius_m = 8.0
+[[red_objects]]
+east_m = -50.0
+north_m = -20.0
+shape = "box"
+width_m = 6.0
+length_m = 12.0
+[[targets]]
+id = 7
+east_m = 0.0
+north_m = 60.0
+"""
+
+LABEL_BOXES = """() => [...document.querySelectorAll('#map text.label')].map((t) => {
+    const b = t.getBBox(); return [b.x, b.y, b.width, b.height]; })"""
+
+
+def assert_labels_apart_and_inside(boxes: list[list[float]]) -> None:
+    assert boxes
+    for x, y, w, h in boxes:
+        assert min(x, y) >= 0 and max(x + w, y + h) <= 300, (x, y, w, h)
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1:]:
+            apart = (a[0] + a[2] <= b[0] or b[0] + b[2] <= a[0]
+                     or a[1] + a[3] <= b[1] or b[1] + b[3] <= a[1])
+            assert apart, (a, b)
+
+
+async def check_map(page: Any) -> None:
+    """The scene under the fleet: area, red objects, target, home, trails, a true scale bar,
+    labels apart and inside the map, also when every drone is at one spot or in a corner."""
+    svg = page.locator("#map")
+    assert await svg.locator("rect.area").count() == 1
+    assert await svg.locator(".red-object").count() == 2
+    assert await svg.locator("rect.target").count() == 1
+    assert await svg.locator("path.home").count() == 1
+    await wait_js(page, "() => document.querySelectorAll('#map polyline.trail').length === 4",
+                  timeout_s=10.0)
+    # the bar says as many metres as it is long: the area rect is 300 m wide
+    bar_m, bar_px, area_px = await page.evaluate("""() => {
+        const l = document.querySelector('#map .scalebar line');
+        return [parseFloat(document.querySelector('#map .scalebar text').textContent),
+                l.x2.baseVal.value - l.x1.baseVal.value,
+                document.querySelector('#map rect.area').width.baseVal.value]; }""")
+    assert bar_m in (10, 20, 50, 100) and abs(bar_px / area_px * 300.0 - bar_m) < 0.2
+    assert_labels_apart_and_inside(await page.evaluate(LABEL_BOXES))
+    for x, y in ((0.0, 0.0), (-150.0, 120.0), (150.0, -120.0)):
+        boxes = await page.evaluate("""([x, y, boxes]) => {
+            const saved = state.drones;
+            state.drones = new Map([...saved].map(([k, d]) => [k, { ...d, x_m: x, y_m: y }]));
+            renderMap();
+            const out = eval_boxes();
+            state.drones = saved; renderMap();
+            return out; }""".replace("eval_boxes()", f"({LABEL_BOXES})()"), [x, y, None])
+        assert len(boxes) == 4
+        assert_labels_apart_and_inside(boxes)
+
+
 async def test_dashboard_live_tiles_and_start_mission(
     tmp_path: Path, aiohttp_server: Callable[..., Any]
 ) -> None:
     playwright_api = pytest.importorskip("playwright.async_api")
     spec = tmp_path / "spec.toml"
     spec.write_text(SPEC)
+    scene = tmp_path / "scene.toml"
+    scene.write_text(SCENE)
     config = GroundConfig(
         spec=spec,
+        scene=scene,
         fleet_id=21,
         fleet_key=KEY,
         command_key=TEST_COMMAND_KEY,
@@ -162,9 +235,10 @@ async def test_dashboard_live_tiles_and_start_mission(
             assert await tile_colours(page) == EXPECTED_COLOURS
             await wait_js(
                 page,
-                "() => document.querySelector('#map').querySelectorAll('circle').length === 4",
+                "() => document.querySelectorAll('#map circle.drone').length === 4",
                 timeout_s=10.0,
             )
+            await check_map(page)
             await page.wait_for_selector("#gallery figure", timeout=15_000)
             # the legend explains the numbers, with the threshold the spec gives
             key = await page.inner_text("#key")

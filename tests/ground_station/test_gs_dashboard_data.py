@@ -3,6 +3,8 @@ spec's utility scale, not a fixed 3.0; each gallery image says why it was sent."
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -15,6 +17,7 @@ from companion.protocol import Encoder
 from ground_station.app import create_app
 from ground_station.config import ConfigError, GroundConfig, config_from_mapping
 from ground_station.keys import STORAGE
+from ground_station.scene_map import load_scene_map
 from ground_station.utility import ImageUtility, image_utility_from_spec
 from tests.ground_station.conftest import KEY, TOKEN, auth
 from tests.ground_station.test_gs_app import feed
@@ -99,3 +102,33 @@ async def test_gallery_image_says_its_share_of_the_window(
     assert shares == {("uav2", 1): pytest.approx(0.75), ("uav2", 2): pytest.approx(1.0),
                       ("uav1", 1): pytest.approx(1.0), ("uav1", 2): pytest.approx(0.75)}
     assert body["window_s"] == 5.0
+
+
+def test_scene_map_is_the_scene_in_local_metres() -> None:
+    from sitl.scenes import load_scene, scene_path
+
+    scene = load_scene("demo")
+    m = load_scene_map(scene_path("demo"))
+    assert m["home"] == {"lat_deg": 47.397742, "lon_deg": 8.545594}
+    assert m["area"] == {"west_m": -120.0, "east_m": 120.0, "south_m": -100.0, "north_m": 100.0}
+    assert [(r["east_m"], r["north_m"]) for r in m["red_objects"]] == [
+        (r.east_m, r.north_m) for r in scene.red_objects]
+    assert [t["id"] for t in m["targets"]] == [t.id for t in scene.targets]
+
+
+def test_a_broken_scene_stops_run_with_one_line(tmp_path: Path) -> None:
+    station = Path(sys.executable).parent / "uav-ground-station"
+    data = tmp_path / "data"
+    keygen = subprocess.run([str(station), "keygen", "--data-dir", str(data)],
+                            capture_output=True, text=True, timeout=60)
+    assert keygen.returncode == 0, keygen.stderr
+    (tmp_path / "bad.toml").write_text("name = 'x'\n[ground]\nwidth_m = 10\n")
+    config = tmp_path / "gs.toml"
+    config.write_text('data_dir = "data"\nscene = "bad.toml"\nhttp_port = 0\nudp_port = 0\n')
+    run = subprocess.run([str(station), "run", "--config", str(config)],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2
+    assert run.stderr.strip().splitlines() == [
+        f"uav-ground-station: scene: {tmp_path / 'bad.toml'}: [home] with lat_deg, lon_deg,"
+        " alt_m is required"]
+    assert not (data / "token").exists()  # stopped before a token is made and shown
