@@ -193,7 +193,7 @@ async def test_dashboard_live_tiles_and_start_mission(
                 executable_path=str(CHROMIUM),
                 args=LAUNCH_ARGS,
                 headless=True,
-                viewport={"width": 1400, "height": 1000},
+                viewport={"width": 1400, "height": 900},
             )
             page = browser.pages[0] if browser.pages else await browser.new_page()
             page.on("pageerror", lambda exc: errors.append(str(exc)))
@@ -254,6 +254,19 @@ async def test_dashboard_live_tiles_and_start_mission(
                 r"why sent: U 46\.00 \(red 45 %\) · single version · \d{1,3} % of link", why
             ), why
             await page.screenshot(path=str(ARTIFACTS / "dashboard_live.png"), full_page=True)
+            # above the fold at 1400x900: every tile, the link charts, map, the gallery's start
+            fold = await page.evaluate("""() => {
+                scrollTo(0, 0);
+                const r = (s) => document.querySelector(s).getBoundingClientRect();
+                return { tiles: Math.max(...[...document.querySelectorAll('.tile')]
+                           .map((t) => t.getBoundingClientRect().bottom)),
+                         link: r('.link').bottom, map: r('#map').bottom,
+                         gallery: r('#gallery figure').top,
+                         width: document.documentElement.scrollWidth }; }""")
+            await page.screenshot(path=str(ARTIFACTS / "dashboard_1400x900.png"))
+            assert max(fold["tiles"], fold["link"], fold["map"]) <= 900, fold
+            assert fold["gallery"] <= 900 - 120, fold  # at least a row's picture shows
+            assert fold["width"] <= 1400, fold  # no sideways scrolling
 
             # start mission: the COMMAND reaches every drone, which acks it
             await page.fill("#start-delay", "5")
