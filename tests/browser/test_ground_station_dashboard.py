@@ -262,11 +262,15 @@ async def test_dashboard_live_tiles_and_start_mission(
                            .map((t) => t.getBoundingClientRect().bottom)),
                          link: r('.link').bottom, map: r('#map').bottom,
                          gallery: r('#gallery figure').top,
-                         width: document.documentElement.scrollWidth }; }""")
+                         width: document.documentElement.scrollWidth,
+                         clipped: [...document.querySelectorAll('.tile')].filter(
+                           (t) => t.querySelector('table').scrollWidth > t.clientWidth)
+                           .map((t) => t.dataset.drone) }; }""")
             await page.screenshot(path=str(ARTIFACTS / "dashboard_1400x900.png"))
             assert max(fold["tiles"], fold["link"], fold["map"]) <= 900, fold
             assert fold["gallery"] <= 900 - 120, fold  # at least a row's picture shows
             assert fold["width"] <= 1400, fold  # no sideways scrolling
+            assert fold["clipped"] == [], fold  # no tile cuts its table off
 
             # start mission: the COMMAND reaches every drone, which acks it
             await page.fill("#start-delay", "5")
