@@ -42,7 +42,7 @@ function toast(text, ms = 4000) {
 // -- formatting ----------------------------------------------------------------------------
 const fmt = {
   num: (v, d = 1) => (v === null || v === undefined ? "–" : Number(v).toFixed(d)),
-  pct: (v) => (v === null || v === undefined ? "–" : Math.round(v * 100) + " %"),
+  pct: (v) => (v === null || v === undefined ? "–" : Math.round(v * 100) + "\u00a0%"),  // never "23 / %"
   time: (t) => (t ? new Date(t * 1000).toLocaleTimeString() : "–"),
   age: (s) => (s === null || s === undefined ? "–" : s < 1 ? "now" : s < 60 ? s.toFixed(0) + " s ago" : (s / 60).toFixed(1) + " min ago"),
   fix: (f) => (f === null || f === undefined ? "–" : ["no GPS", "no fix", "2D", "3D", "DGPS", "RTK float", "RTK fixed"][f] || String(f)),

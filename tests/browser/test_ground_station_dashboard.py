@@ -249,7 +249,7 @@ async def test_dashboard_live_tiles_and_start_mission(
             # each gallery image says why it was sent; the best first: uav2's red images
             await wait_js(page, "() => document.querySelector('#gallery .why') !== null",
                           timeout_s=10.0)
-            why = await page.inner_text("#gallery figure:first-child .why")
+            why = (await page.inner_text("#gallery figure:first-child .why")).replace("\xa0", " ")
             assert re.fullmatch(
                 r"why sent: U 46\.00 \(red 45 %\) · single version · \d{1,3} % of link", why
             ), why
