@@ -186,9 +186,9 @@ function renderTile(d) {
   }
   el.querySelector(".v-fps").textContent = fmt.num(d.fps, 1);
   el.querySelector(".v-lat").textContent = d.latency_s === null ? "–" : fmt.num(d.latency_s * 1000, 0) + " ms";
-  el.querySelector(".v-share").innerHTML = `<span class="meter"><i style="width:${Math.round((d.goodput_share || 0) * 100)}%"></i></span>${fmt.pct(d.goodput_share)}`;
+  el.querySelector(".v-share").innerHTML = `${fmt.pct(d.goodput_share)}<span class="meter"><i style="width:${Math.round((d.goodput_share || 0) * 100)}%"></i></span>`;
   const b = d.battery;
-  el.querySelector(".v-batt").innerHTML = b === null ? "–" : `<span class="meter batt${b < 0.25 ? " low" : ""}"><i style="width:${Math.round(b * 100)}%"></i></span>${fmt.pct(b)}`;
+  el.querySelector(".v-batt").innerHTML = b === null ? "–" : `${fmt.pct(b)}<span class="meter batt${b < 0.25 ? " low" : ""}"><i style="width:${Math.round(b * 100)}%"></i></span>`;
   el.querySelector(".v-mode").textContent = (d.mode || "–") + (d.failsafe ? " · FAILSAFE" : "") + (d.autopilot_connected === false ? " · autopilot lost" : "");
   el.querySelector(".v-armed").textContent = d.armed === null ? "–" : d.armed ? "ARMED" : "disarmed";
   el.querySelector(".v-gps").textContent = fmt.fix(d.gps_fix);
@@ -203,7 +203,8 @@ function renderTile(d) {
     const old = stale.has(name) || now > ((d.stale_after_s || {})[name] ?? 12);
     cell.classList.toggle("stale", old);
     cell.title = `${name}: ${fmt.age(now)}${old ? " (stale)" : ""}`;
-    cell.insertAdjacentHTML("beforeend", ` <small class="age">${now < 1 ? "" : fmt.num(now, 0) + " s"}</small>`);
+    const meter = cell.querySelector(".meter");  // the age goes next to the value, above its bar
+    (meter || cell).insertAdjacentHTML(meter ? "beforebegin" : "beforeend", ` <small class="age">${now < 1 ? "" : fmt.num(now, 0) + " s"}</small>`);
   }
   el.querySelector(".v-heard").textContent = fmt.age(d.age_s);
   el.querySelector(".v-fallback").textContent = d.fallback_share == null ? "–" : (d.fallback_share * 100).toFixed(1) + " %";
@@ -349,6 +350,7 @@ function renderMap() {
   }
   if (!pts.length) html += `<text x="${W / 2}" y="${H / 2}" fill="#8b98a5" font-size="12" text-anchor="middle">no positions yet</text>`;
   svg.innerHTML = html;
+  $("map-key").classList.toggle("hidden", !scene);
 }
 
 // -- charts ----------------------------------------------------------------------------------

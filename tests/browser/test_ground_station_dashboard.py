@@ -125,6 +125,7 @@ async def check_map(page: Any) -> None:
     assert await svg.locator(".red-object").count() == 2
     assert await svg.locator("rect.target").count() == 1
     assert await svg.locator("path.home").count() == 1
+    assert "home" in await page.inner_text("#map-key")  # the symbols are explained
     await wait_js(page, "() => document.querySelectorAll('#map polyline.trail').length === 4",
                   timeout_s=10.0)
     # the bar says as many metres as it is long: the area rect is 300 m wide
