@@ -22,7 +22,7 @@ from aiohttp import WSCloseCode, WSMsgType, web
 
 from ground_station.broadcast import Broadcaster
 from ground_station.config import GroundConfig
-from ground_station.fleet import Alert, FleetView, LatestImage
+from ground_station.fleet import RATE_WINDOW_S, Alert, FleetView, LatestImage
 from ground_station.http_guard import add_security_headers, same_origin
 from ground_station.keys import (
     BROADCASTER,
@@ -39,6 +39,7 @@ from ground_station.keys import (
 )
 from ground_station.missions import MissionError, MissionManager, parse_params, parse_when
 from ground_station.receiver import GroundLink
+from ground_station.scene_map import load_scene_map
 from ground_station.storage import ImageRow, Storage
 from ground_station.store_service import StorageService
 from ground_station.token import (
@@ -56,6 +57,7 @@ log = logging.getLogger(__name__)
 
 STATIC_DIR = Path(__file__).parent / "static"
 LOGIN_CODES: web.AppKey[LoginCodes] = web.AppKey("login_codes")
+SCENE_MAP: web.AppKey[dict[str, Any] | None] = web.AppKey("scene_map")
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
 
@@ -149,13 +151,27 @@ async def api_fleet(request: web.Request) -> web.Response:
     now = app[CLOCK]()
     snap = app[FLEET].snapshot(now=now)
     snap["mission"] = app[MISSIONS].state(now=now)
-    snap["config"] = {
-        "station_id": app[CONFIG].station_id,
-        "mission": app[CONFIG].mission,
-        "high_utility": app[CONFIG].high_utility,
-        "alpha": app[CONFIG].alpha,
-    }
+    snap["config"] = {"station_id": app[CONFIG].station_id, "alpha": app[CONFIG].alpha} | (
+        _dashboard_config(app))
     return _json(snap)
+
+
+def _dashboard_config(app: web.Application) -> dict[str, Any]:
+    """What the page needs to read utilities: mission name and the spec's utility scale."""
+    config = app[CONFIG]
+    gain = app[IMAGE_UTILITY].max_gain()
+    return {
+        "mission": config.mission,
+        "high_utility": app[FLEET].high_utility,
+        "scene": app[SCENE_MAP],
+        "utility_scale": {
+            "plain": 1.0,
+            "max": 1.0 + gain,
+            "fraction": None if config.high_utility is not None else config.high_utility_fraction,
+            "source": (f"spec {config.spec.name}" if config.spec is not None
+                       else f"alpha {config.alpha:g}"),
+        },
+    }
 
 
 async def api_mission(request: web.Request) -> web.Response:
@@ -185,11 +201,16 @@ async def api_images(request: web.Request) -> web.Response:
     except ValueError:
         return _json({"error": "limit must be an integer"}, status=400)
 
-    def query(s: Storage) -> list[ImageRow]:
-        return s.images(mission, sender=drone, object_only=object_only, order=order, limit=limit)
+    senders = list(app[FLEET].drones)
 
-    rows = await app[STORAGE].read(query)
-    return _json({"mission": mission, "images": [_image_json(r) for r in rows]})
+    def query(s: Storage) -> list[dict[str, Any]]:
+        rows = s.images(mission, sender=drone, object_only=object_only, order=order, limit=limit)
+        # "why sent": the sender's share of the link when the image arrived
+        return [_image_json(r) | {"window_share": s.window_share(
+            mission, r, senders, window_s=RATE_WINDOW_S)} for r in rows]
+
+    images = await app[STORAGE].read(query)
+    return _json({"mission": mission, "images": images, "window_s": RATE_WINDOW_S})
 
 
 async def api_image_file(request: web.Request) -> web.StreamResponse:
@@ -352,7 +373,7 @@ async def websocket(request: web.Request) -> web.WebSocketResponse:
     now = app[CLOCK]()
     snapshot = app[FLEET].snapshot(now=now)
     snapshot["mission"] = app[MISSIONS].state(now=now)
-    snapshot["config"] = {"high_utility": app[CONFIG].high_utility, "mission": app[CONFIG].mission}
+    snapshot["config"] = _dashboard_config(app)
     await ws.send_str(json.dumps({"kind": "snapshot", **snapshot}, default=str))
 
     async def writer() -> None:
@@ -418,7 +439,7 @@ async def link_ctx(app: web.Application) -> AsyncIterator[None]:
             utility=row.utility,
             red=row.red,
             object=row.object,
-            high=row.utility >= config.high_utility,
+            high=fleet.is_high(row.utility),
         )
         if row.path is not None:
             path = config.data_dir / row.path
@@ -452,14 +473,20 @@ def create_app(
     app[CLOCK] = clock
     app[TOKEN] = token if token is not None else ensure_token(config.token_path)[0]
     app[LOGIN_CODES] = LoginCodes(app[TOKEN])
-    app[FLEET] = FleetView(high_utility=config.high_utility, link_lost_s=config.link_lost_s)
+    app[IMAGE_UTILITY] = image_utility_from_spec(config.spec, alpha=config.alpha)
+    high_utility = (config.high_utility if config.high_utility is not None
+                    else app[IMAGE_UTILITY].high_threshold(config.high_utility_fraction))
+    app[FLEET] = FleetView(high_utility=high_utility, link_lost_s=config.link_lost_s)
+    scene = load_scene_map(config.scene) if config.scene is not None else None
+    if scene is not None:  # the map's frame: east/north metres from the scene's home
+        app[FLEET].set_origin(scene["home"]["lat_deg"], scene["home"]["lon_deg"])
+    app[SCENE_MAP] = scene
     app[MISSIONS] = MissionManager(
         retry_s=config.command_retry_s,
         reply_timeout_s=config.command_reply_timeout_s,
         first_command_id=int(clock() * 10) % (2**31)
     )
     app[BROADCASTER] = Broadcaster(queue_size=config.ws_queue_size)
-    app[IMAGE_UTILITY] = image_utility_from_spec(config.spec, alpha=config.alpha)
     app[LATEST_JPEG] = {}
     app[WEBSOCKETS] = weakref.WeakSet()
     app.cleanup_ctx.append(storage_ctx)

@@ -152,6 +152,14 @@ def _run(args: argparse.Namespace, config: GroundConfig) -> int:
     except UtilitySpecsError as exc:
         print(f"uav-ground-station: mission spec {config.spec}: {exc}", file=sys.stderr)
         return 2
+    if config.scene is not None:
+        from ground_station.scene_map import SceneMapError, load_scene_map
+
+        try:
+            load_scene_map(config.scene)
+        except SceneMapError as exc:
+            print(f"uav-ground-station: scene: {exc}", file=sys.stderr)
+            return 2
     problem = data_dir_problem(config.data_dir)
     if problem is not None:
         print(f"uav-ground-station: {problem}", file=sys.stderr)

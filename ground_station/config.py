@@ -76,10 +76,17 @@ class GroundConfig:
     """Bound on partially received images held in memory by the decoder."""
     alpha: float = 10.0
     """α of eq. 7.1/7.2, weight of red share / object in image utility."""
-    high_utility: float = 3.0
-    """Images at or above this utility weight get a red border (thesis fig. 7.5)."""
+    high_utility: float | None = None
+    """Images at or above this utility weight get a red border (thesis fig. 7.5); default:
+    derived from the spec's utility scale with ``high_utility_fraction``."""
+    high_utility_fraction: float = 0.1
+    """Share of the largest utility gain an image type can give (α of eq. 7.1/7.2) from
+    which its images count as high: 1 + 0.1·α, a 10 % red share."""
     spec: Path | None = None
     """Mission spec TOML; when given, image utility follows its ``red_image``/``object_image``."""
+    scene: Path | None = None
+    """Scene TOML of the mission area (``uav-sitl`` format): the dashboard map draws its
+    outline, targets and home, and local coordinates start at its home."""
     public_read: bool = False
     """Whether read-only views (dashboard, /api GETs, WebSocket) are open without the token."""
     ws_queue_size: int = 64
@@ -112,6 +119,8 @@ class GroundConfig:
             ("reassembly_timeout_s", self.reassembly_timeout_s > 0, "a number > 0"),
             ("max_pending_messages", self.max_pending_messages > 0, "an integer > 0"),
             ("alpha", self.alpha >= 0, "a number >= 0"),
+            ("high_utility_fraction", 0 < self.high_utility_fraction <= 1,
+             "a number in (0, 1]"),
             ("ws_queue_size", self.ws_queue_size > 0, "an integer > 0"),
             ("clock_tolerance_s", self.clock_tolerance_s > 0, "a number > 0"),
         ]
@@ -150,7 +159,9 @@ _TYPES: dict[str, tuple[type | tuple[type, ...], str]] = {
     "max_pending_messages": (int, "an integer"),
     "alpha": ((int, float), "a number"),
     "high_utility": ((int, float), "a number"),
+    "high_utility_fraction": ((int, float), "a number in (0, 1]"),
     "spec": (str, "a path string"),
+    "scene": (str, "a path string"),
     "public_read": (bool, "true or false"),
     "ws_queue_size": (int, "an integer"),
     "clock_tolerance_s": ((int, float), "a number of seconds"),
@@ -176,7 +187,7 @@ def config_from_mapping(raw: dict[str, Any], *, file: str = "<config>") -> Groun
         # bool is an int subclass: refuse true/false where a number is expected.
         if not isinstance(value, want) or (isinstance(value, bool) and want is not bool):
             raise ConfigError(file, key, text, value)
-        if key in ("data_dir", "spec", "token_file"):
+        if key in ("data_dir", "spec", "scene", "token_file"):
             path = Path(str(value)).expanduser()
             values[key] = path if path.is_absolute() else base / path
         elif key == "fleet_key":

@@ -127,7 +127,8 @@ class FleetView:
     Parameters
     ----------
     high_utility
-        Images whose utility weight reaches this get ``high = True`` (red border, fig. 7.5).
+        Images whose utility weight reaches this get ``high = True`` (red border, fig. 7.5);
+        None: none does (a spec whose images cannot gain over plain video).
     link_lost_s
         Silence after which a drone is flagged lost (alert once, cleared when heard again).
     forget_after_s
@@ -140,7 +141,7 @@ class FleetView:
     def __init__(
         self,
         *,
-        high_utility: float,
+        high_utility: float | None,
         link_lost_s: float,
         series_len: int = 600,
         alerts_len: int = 500,
@@ -162,6 +163,13 @@ class FleetView:
         self.drops: Counter[str] = Counter()
         self._origin: tuple[float, float] | None = None
         self._new_alerts: list[Alert] = []
+
+    def set_origin(self, lat: float, lon: float) -> None:
+        """Local coordinates around this point (the scene's home) instead of the first fix."""
+        self._origin = (lat, lon)
+
+    def is_high(self, utility: float) -> bool:
+        return self.high_utility is not None and utility >= self.high_utility
 
     # -- inputs -------------------------------------------------------------------------
     def heard(self, drone: str, *, now: float, addr: tuple[str, int] | None = None) -> DroneState:
@@ -213,7 +221,7 @@ class FleetView:
                 utility=utility,
                 red=_num(message.data, "red"),
                 object=bool(obj) if isinstance(obj, bool | int | float) else False,
-                high=utility >= self.high_utility,
+                high=self.is_high(utility),
             )
         state.prune(now)
         return state

@@ -22,7 +22,7 @@ import math
 import os
 import re
 import sqlite3
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -577,6 +577,23 @@ class Storage:
         sql = f"SELECT * FROM images WHERE {' AND '.join(where)} ORDER BY {by} LIMIT ?"
         args.append(max(1, min(int(limit), 1000)))
         return [self._row(r) for r in self.db.execute(sql, args)]
+
+    def window_share(
+        self, mission: str, row: ImageRow, senders: Iterable[str], *, window_s: float
+    ) -> float | None:
+        """The sender's share of the bytes received from ``senders`` in the ``window_s``
+        before ``row`` arrived (the tile's goodput share at that moment); None: nothing."""
+        lo = row.t_rcv - window_s
+        sql = ("SELECT COALESCE(SUM(size), 0) FROM messages"
+               " WHERE mission = ? AND sender = ? AND t_rcv > ? AND t_rcv <= ?")
+        own = 0
+        total = 0
+        for sender in {*senders, row.sender}:
+            (n,) = self.db.execute(sql, (mission, sender, lo, row.t_rcv)).fetchone()
+            total += n
+            if sender == row.sender:
+                own = n
+        return own / total if total > 0 else None
 
     def iter_images(self, mission: str) -> Iterator[ImageRow]:
         for r in self.db.execute(

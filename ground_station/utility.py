@@ -62,6 +62,24 @@ class ImageUtility:
         return quality
 
 
+    def max_gain(self) -> float:
+        """Largest α any image type can add over a plain image (1 + α is its top weight).
+
+        With a spec, over its ``red_image``/``object_image`` types (0 when it has only plain
+        video); without one, the configured α."""
+        if not self.by_type:
+            return self.alpha
+        return max((alpha for kind, alpha in self.by_type.values() if kind != "plain"),
+                   default=0.0)
+
+    def high_threshold(self, fraction: float) -> float | None:
+        """Weight from which an image counts as high utility (red border): a plain image
+        plus ``fraction`` of the largest gain, e.g. 1 + 0.1·10 = 2.0 for α = 10, the weight
+        of a 10 % red share. None when no image type can gain (nothing is ever high)."""
+        gain = self.max_gain()
+        return 1.0 + fraction * gain if gain > 0 else None
+
+
 def image_utility_from_spec(spec_path: Path | None, *, alpha: float) -> ImageUtility:
     """α and rule per type from a mission spec's ``red_image``/``object_image`` types."""
     if spec_path is None:

@@ -237,6 +237,8 @@ def companion_toml(plan: FleetPlan, drone: DroneSlot) -> str:
 
 def ground_station_toml(plan: FleetPlan) -> str:
     """The ``uav-ground-station`` configuration of the run."""
+    from sitl.scenes import scene_path
+
     table: dict[str, Any] = {
         "station_id": "gs",
         "fleet_id": plan.fleet_id,
@@ -249,6 +251,7 @@ def ground_station_toml(plan: FleetPlan) -> str:
         "http_host": "127.0.0.1",
         "http_port": plan.gs_http_port,
         "spec": str(plan.spec_path),
+        "scene": str(scene_path(plan.scene).resolve()),  # the dashboard map draws it
     }
     if plan.alpha is not None:
         table["alpha"] = plan.alpha

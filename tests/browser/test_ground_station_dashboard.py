@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import re
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -52,11 +53,112 @@ async def wait_js(page: Any, predicate: str, arg: Any = None, *, timeout_s: floa
             await asyncio.sleep(0.1)
 
 
+EXPECTED_COLOURS = {"uav1": "#4aa3ff", "uav2": "#ffa657", "uav3": "#3fb950", "uav4": "#f778ba"}
+"""The palette slots of ids ending in 1..4 (app.js PALETTE), whatever the arrival order."""
+
+SPEC = """\
+[mission]
+name = "browser"
+t_end = 600.0
+
+[types.image]
+utility = "red_image"
+aggregation = "max"
+weight = 1.0
+per_sender = true
+markovian = false
+params = { alpha = 100.0, S = 0.1, f_max = 5.0, f_1 = 2.5 }
+"""
+
+
+async def tile_colours(page: Any) -> dict[str, str]:
+    """Each tile's colour as the page drew it: tile, map dot and chart legend must agree."""
+    return dict(await page.evaluate("""() => Object.fromEntries(
+        [...document.querySelectorAll('.tile')].map((t) => [t.dataset.drone, t.dataset.color]))"""))
+
+
+SCENE = """\
+name = "browser"
+[home]
+lat_deg = 51.1
+lon_deg = 17.0
+alt_m = 120.0
+[ground]
+width_m = 300.0
+height_m = 240.0
+[[red_objects]]
+east_m = 40.0
+north_m = 30.0
+radius_m = 8.0
+[[red_objects]]
+east_m = -50.0
+north_m = -20.0
+shape = "box"
+width_m = 6.0
+length_m = 12.0
+[[targets]]
+id = 7
+east_m = 0.0
+north_m = 60.0
+"""
+
+LABEL_BOXES = """() => [...document.querySelectorAll('#map text.label')].map((t) => {
+    const b = t.getBBox(); return [b.x, b.y, b.width, b.height]; })"""
+
+
+def assert_labels_apart_and_inside(boxes: list[list[float]]) -> None:
+    assert boxes
+    for x, y, w, h in boxes:
+        assert min(x, y) >= 0 and max(x + w, y + h) <= 300, (x, y, w, h)
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1:]:
+            apart = (a[0] + a[2] <= b[0] or b[0] + b[2] <= a[0]
+                     or a[1] + a[3] <= b[1] or b[1] + b[3] <= a[1])
+            assert apart, (a, b)
+
+
+async def check_map(page: Any) -> None:
+    """The scene under the fleet: area, red objects, target, home, trails, a true scale bar,
+    labels apart and inside the map, also when every drone is at one spot or in a corner."""
+    svg = page.locator("#map")
+    assert await svg.locator("rect.area").count() == 1
+    assert await svg.locator(".red-object").count() == 2
+    assert await svg.locator("rect.target").count() == 1
+    assert await svg.locator("path.home").count() == 1
+    assert "home" in await page.inner_text("#map-key")  # the symbols are explained
+    await wait_js(page, "() => document.querySelectorAll('#map polyline.trail').length === 4",
+                  timeout_s=10.0)
+    # the bar says as many metres as it is long: the area rect is 300 m wide
+    bar_m, bar_px, area_px = await page.evaluate("""() => {
+        const l = document.querySelector('#map .scalebar line');
+        return [parseFloat(document.querySelector('#map .scalebar text').textContent),
+                l.x2.baseVal.value - l.x1.baseVal.value,
+                document.querySelector('#map rect.area').width.baseVal.value]; }""")
+    assert bar_m in (10, 20, 50, 100) and abs(bar_px / area_px * 300.0 - bar_m) < 0.2
+    assert_labels_apart_and_inside(await page.evaluate(LABEL_BOXES))
+    for x, y in ((0.0, 0.0), (-150.0, 120.0), (150.0, -120.0)):
+        boxes = await page.evaluate("""([x, y, boxes]) => {
+            const saved = state.drones;
+            state.drones = new Map([...saved].map(([k, d]) => [k, { ...d, x_m: x, y_m: y }]));
+            renderMap();
+            const out = eval_boxes();
+            state.drones = saved; renderMap();
+            return out; }""".replace("eval_boxes()", f"({LABEL_BOXES})()"), [x, y, None])
+        assert len(boxes) == 4
+        assert_labels_apart_and_inside(boxes)
+
+
 async def test_dashboard_live_tiles_and_start_mission(
     tmp_path: Path, aiohttp_server: Callable[..., Any]
 ) -> None:
     playwright_api = pytest.importorskip("playwright.async_api")
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC)
+    scene = tmp_path / "scene.toml"
+    scene.write_text(SCENE)
     config = GroundConfig(
+        spec=spec,
+        scene=scene,
         fleet_id=21,
         fleet_key=KEY,
         command_key=TEST_COMMAND_KEY,
@@ -92,7 +194,7 @@ async def test_dashboard_live_tiles_and_start_mission(
                 executable_path=str(CHROMIUM),
                 args=LAUNCH_ARGS,
                 headless=True,
-                viewport={"width": 1400, "height": 1000},
+                viewport={"width": 1400, "height": 900},
             )
             page = browser.pages[0] if browser.pages else await browser.new_page()
             page.on("pageerror", lambda exc: errors.append(str(exc)))
@@ -116,17 +218,60 @@ async def test_dashboard_live_tiles_and_start_mission(
                 timeout_s=15.0,
             )
             assert await page.locator(".tile").count() == 4
-            # uav2 sees red (1 + 10·0.45 = 5.5 >= 3): red border; uav1 does not
+            # the spec's scale (alpha 100): high from 1 + 0.1·100 = 11, sent in the snapshot;
+            # uav2 sees red (1 + 100·0.45 = 46): red border; uav1 (1 + 100·0.02 = 3.0, high
+            # under the old fixed 3.0) and uav3 (object flag, no weight under red_image) not
+            assert await page.evaluate("state.config.high_utility") == 11.0
             assert "high" in (await tile.get_attribute("class") or "")
-            uav1_class = await page.locator('.tile[data-drone="uav1"]').get_attribute("class")
-            assert "high" not in (uav1_class or "")
+            for calm in ("uav1", "uav3"):
+                calm_class = await page.locator(f'.tile[data-drone="{calm}"]').get_attribute(
+                    "class")
+                assert "high" not in (calm_class or "")
+            # colours follow the id, not the order drones were heard in, and survive a reload
+            colours = await tile_colours(page)
+            assert colours == EXPECTED_COLOURS
+            await page.reload()
+            await wait_js(page, "() => document.querySelectorAll('.tile').length === 4",
+                          timeout_s=15.0)
+            assert await tile_colours(page) == EXPECTED_COLOURS
             await wait_js(
                 page,
-                "() => document.querySelector('#map').querySelectorAll('circle').length === 4",
+                "() => document.querySelectorAll('#map circle.drone').length === 4",
                 timeout_s=10.0,
             )
+            await check_map(page)
             await page.wait_for_selector("#gallery figure", timeout=15_000)
+            # the legend explains the numbers, with the threshold the spec gives
+            key = await page.inner_text("#key")
+            for term in ("U", "share", "ξ", "Δ", "fallback"):
+                assert f"{term}\n" in key or key.startswith(term), (term, key)
+            assert await page.inner_text("#key-high") == "U 11.00"
+            assert "1 plain … 101 best (spec spec.toml)" in key
+            # each gallery image says why it was sent; the best first: uav2's red images
+            await wait_js(page, "() => document.querySelector('#gallery .why') !== null",
+                          timeout_s=10.0)
+            why = (await page.inner_text("#gallery figure:first-child .why")).replace("\xa0", " ")
+            assert re.fullmatch(
+                r"why sent: U 46\.00 \(red 45 %\) · single version · \d{1,3} % of link", why
+            ), why
             await page.screenshot(path=str(ARTIFACTS / "dashboard_live.png"), full_page=True)
+            # above the fold at 1400x900: every tile, the link charts, map, the gallery's start
+            fold = await page.evaluate("""() => {
+                scrollTo(0, 0);
+                const r = (s) => document.querySelector(s).getBoundingClientRect();
+                return { tiles: Math.max(...[...document.querySelectorAll('.tile')]
+                           .map((t) => t.getBoundingClientRect().bottom)),
+                         link: r('.link').bottom, map: r('#map').bottom,
+                         gallery: r('#gallery figure').top,
+                         width: document.documentElement.scrollWidth,
+                         clipped: [...document.querySelectorAll('.tile')].filter(
+                           (t) => t.querySelector('table').scrollWidth > t.clientWidth)
+                           .map((t) => t.dataset.drone) }; }""")
+            await page.screenshot(path=str(ARTIFACTS / "dashboard_1400x900.png"))
+            assert max(fold["tiles"], fold["link"], fold["map"]) <= 900, fold
+            assert fold["gallery"] <= 900 - 120, fold  # at least a row's picture shows
+            assert fold["width"] <= 1400, fold  # no sideways scrolling
+            assert fold["clipped"] == [], fold  # no tile cuts its table off
 
             # start mission: the COMMAND reaches every drone, which acks it
             await page.fill("#start-delay", "5")

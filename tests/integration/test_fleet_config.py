@@ -29,6 +29,7 @@ from sitl.fleet import (
     summarize,
 )
 from sitl.fleet_config import mission_spec_path, toml_value, write_fleet_key, write_run_configs
+from sitl.scenes import scene_path
 
 
 def _plan(tmp_path: Path, *extra: str):  # type: ignore[no-untyped-def]
@@ -45,6 +46,7 @@ def test_configs_are_accepted_by_the_companion_and_the_ground_station(tmp_path: 
     assert gs.fleet_key == key and gs.udp_port == plan.gs_udp_port
     assert gs.http_port == plan.gs_http_port and gs.data_dir == plan.gs_data_dir
     assert gs.spec == mission_spec_path("image_streaming") and gs.alpha == 7.0
+    assert gs.scene == scene_path("demo").resolve()  # the dashboard map draws the flown scene
     ids = set()
     for drone in plan.drones:
         cfg = load_companion_config(drone.config_path)
