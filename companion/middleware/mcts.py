@@ -113,9 +113,10 @@ class Tree:
 class MCTS:
     """One decision's search: build with a :class:`Problem`, :meth:`run`, read :meth:`result`."""
 
-    __slots__ = ("c", "lam", "problem", "top", "tree")
+    __slots__ = ("best", "best_at", "c", "lam", "plan", "problem", "top", "tree")
 
-    def __init__(self, problem: Problem, *, c: float = 0.35, max_nodes: int = 1501) -> None:
+    def __init__(self, problem: Problem, *, c: float = 0.35, max_nodes: int = 1501,
+                 knapsack_seed: bool = False) -> None:
         if not c >= 0:
             raise ValueError(f"discovery factor c must be >= 0, got {c}")
         self.problem = problem
@@ -123,6 +124,17 @@ class MCTS:
         self.top = float(problem.all_send_norm()[-1])
         self.lam = rollout_threshold(problem)
         self.tree = Tree(max_nodes=max(2, max_nodes + 1), max_opt=problem.max_opt)
+        self.plan = np.full(max(1, problem.n), -1, dtype=np.int64)
+        """The knapsack-greedy plan (one option per level) with ``knapsack_seed``, else -1."""
+        if knapsack_seed and problem.n:
+            _kernel.knapsack_plan(problem.nopt, problem.size, problem.send_t, problem.gain,
+                                  problem.root_win_t, problem.root_win_bytes,
+                                  float(problem.budget_bytes), float(problem.window_s),
+                                  self.plan)
+        self.best = np.full(1, -np.inf)
+        """Utility of the best complete plan any iteration evaluated."""
+        self.best_at = np.full(1, -1, dtype=np.int64)
+        """That plan's option at the decided level (-1: none yet)."""
 
     @property
     def iterations(self) -> int:
@@ -144,6 +156,7 @@ class MCTS:
                     p.stream, p.pos, p.nopt, p.size, p.send_t, p.gain, p.nslot, p.stream_markov,
                     p.root_win_t, p.root_win_bytes, float(p.budget_bytes), float(p.window_s),
                     int(p.max_versions), self.top, self.lam,
+                    self.plan, int(p.decided_level), self.best, self.best_at,
                     t.parent, t.depth, t.option, t.visits, t.value, t.delta,
                     t.children, t.tried, t.live, t.dead, t.hkeys, t.hvals, t.counters,
                 )
@@ -176,14 +189,26 @@ class MCTS:
             node = child
         return path
 
+    @property
+    def seeded(self) -> bool:
+        return bool(self.plan[0] >= 0)
+
     def result(self) -> SearchResult:
+        """Seeded: the decided level's option of the best complete plan evaluated (the model is
+        deterministic, so the best plan seen is the answer and more iterations can only raise
+        its utility); else the most visited path's (alg. 2)."""
         t = self.tree
         path = self.most_visited_path()
         level = self.problem.decided_level
         option: int | None = None
         score = float("nan")
         visits = 0
-        if 0 <= level < len(path):
+        if self.seeded and self.best_at[0] >= 0:
+            option = int(self.best_at[0])
+            score = float(self.best[0]) / self.top if self.top > 1e-9 else 1.0
+            if 0 <= level < len(path) and int(t.option[path[level]]) == option:
+                visits = int(t.visits[path[level]])
+        elif 0 <= level < len(path):
             chosen = path[level]
             option = int(t.option[chosen])
             score = t.mean(chosen)

@@ -42,7 +42,8 @@ from utility_specs.spec import MissionSpec
 
 __all__ = ["KnapsackFill", "image_fleet", "main", "run_one"]
 
-POLICIES = ("mcts300", "greedy", "knapsack", "knapsack-fill", "random")
+POLICIES = ("mcts300", "mcts300ks", "greedy", "knapsack", "knapsack-fill", "random")
+"""mcts300ks: the same MCTS seeded with the knapsack-greedy plan (``knapsack_seed``)."""
 IMAGE_VERSIONS = (Version(name="full", size=40_000, quality=1.0),
                   Version(name="half", size=10_000, quality=0.5),
                   Version(name="quarter", size=2_500, quality=0.25))
@@ -94,8 +95,10 @@ def _policy(name: str, param: float, *, spec: MissionSpec, agent: str, index: in
         return ConstantConstraint(limit_bytes_per_s=budget_bytes / window_s, window_s=window_s)
 
     if name.startswith("mcts"):
-        config = MiddlewareConfig(spec=spec, agent=agent, max_iterations=int(name[4:]),
-                                  horizon_s=horizon_s)
+        seeded = name.endswith("ks")
+        config = MiddlewareConfig(spec=spec, agent=agent,
+                                  max_iterations=int(name[4:].removesuffix("ks")),
+                                  horizon_s=horizon_s, knapsack_seed=seeded)
         return Middleware(config, rng=np.random.default_rng([seed, index]),
                           constraint=constraint())
     if name == "random":
