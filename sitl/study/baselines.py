@@ -172,16 +172,17 @@ def _interval(values: Sequence[float]) -> tuple[float, float]:
     return float(arr.mean()), float(t * arr.std(ddof=1) / math.sqrt(len(arr)))
 
 
-def tables(rows: Sequence[dict[str, Any]]) -> str:
+def tables(rows: Sequence[dict[str, Any]], reference: str | None = None) -> str:
     """Markdown tables per scenario: MCTS utility, then each baseline's utility minus MCTS's
-    on the same seed (paired; negative: MCTS better) at equal budget and at equal bytes."""
+    on the same seed (paired; negative: MCTS better) at equal budget and at equal bytes.
+    ``reference``: the MCTS policy the others are compared with (default: the first)."""
     runs: dict[tuple[str, str, float], dict[int, dict[str, Any]]] = defaultdict(dict)
     for r in rows:
         runs[(r["scenario"], r["policy"], float(r["param"]))][int(r["seed"])] = r
     order = ["mostly-low", "uniform", "mostly-high", "images"]
     scenarios = sorted({r["scenario"] for r in rows}, key=order.index)
     policies = [p for p in POLICIES if any(r["policy"] == p for r in rows)]
-    mcts = next(p for p in policies if p.startswith("mcts"))
+    mcts = reference or next(p for p in policies if p.startswith("mcts"))
     budgeted = [p for p in policies if p not in (mcts, "random")]
     others = [p for p in policies if p != mcts]
 
@@ -256,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
             writer = csv.DictWriter(f, fieldnames=list(rows[0]))
             writer.writeheader()
             writer.writerows(rows)
-    text = tables(rows)
+    text = tables(rows) + tables(rows, reference="mcts300ks")
     (args.out / "baselines.md").write_text(text, encoding="utf-8")
     print(text)
     return 0
