@@ -28,6 +28,11 @@ gained (U(𝓜) = 0) scores 1.
 The decision follows the most visited path (alg. 2); ties go to the higher mean score, then
 to sending. If the budget ends before the decided message's level is reached on that path,
 :func:`greedy_option` answers instead (stated in the decision's reason).
+
+With ``knapsack_seed`` the search starts from knapsack-greedy's plan (expanded first at
+every node, and a second default policy that follows it) and answers with the decided
+level's option of the best complete plan any iteration evaluated: never worse in the model
+than the knapsack plan, and never worse with more iterations (issue 18).
 """
 
 from __future__ import annotations
