@@ -242,26 +242,24 @@ def rollout_threshold(problem: Problem, *, chain: bool = False) -> float:
     the offline optimum) and hurts the 10-agent mostly-low scenario (e.g. 83.9 against
     87.9 % at 83 % drops), so the default is off.
     """
-    if problem.n == 0:
+    n = problem.n
+    if n == 0:
         return 0.0
-    dens: list[tuple[float, int]] = []
-    for i in range(problem.n):
-        s = int(problem.stream[i])
-        q = int(problem.pos[i])
-        slot = 1 + (q - 1) * problem.max_versions if chain and s >= 0 and q > 0 else 0
-        best = 0.0
-        for o in range(1, int(problem.nopt[i])):
-            size = max(1, int(problem.size[i, o]))
-            best = max(best, float(problem.gain[i, o, slot]) / size)
-        dens.append((best, max(1, int(problem.size[i, 1]))))
+    slot = np.zeros(n, dtype=np.int64)
+    if chain:
+        later = (problem.stream >= 0) & (problem.pos > 0)
+        slot[later] = 1 + (problem.pos[later] - 1) * problem.max_versions
+    opts = np.arange(1, problem.size.shape[1])
+    gains = problem.gain[np.arange(n)[:, None], opts[None, :], slot[:, None]]
+    per_byte = gains / np.maximum(1, problem.size[:, 1:])
+    per_byte[opts[None, :] >= problem.nopt[:, None]] = 0.0
+    density = np.maximum(per_byte.max(axis=1), 0.0)
+    first = np.maximum(1, problem.size[:, 1])
     span = float(problem.send_t[-1] - problem.send_t[0])
     capacity = problem.budget_bytes * max(1.0, span / problem.window_s)
-    used = 0.0
-    for density, size in sorted(dens, reverse=True):
-        used += size
-        if used > capacity:
-            return density
-    return 0.0
+    order = np.lexsort((first, density))[::-1]  # densest first; ties: larger first
+    over = np.nonzero(np.cumsum(first[order], dtype=np.float64) > capacity)[0]
+    return float(density[order[over[0]]]) if len(over) else 0.0
 
 
 def greedy_option(problem: Problem, level: int) -> int:

@@ -11,7 +11,7 @@ from companion.middleware import _kernel
 from companion.middleware.baselines import knapsack_option, offline_optimum
 from companion.middleware.incremental import Problem, build_problem
 from companion.middleware.knowledge import PlanItem
-from companion.middleware.mcts import MCTS
+from companion.middleware.mcts import MCTS, rollout_threshold
 from tests.middleware.conftest import T0, msg, problem_of, small_spec
 
 SPEC = small_spec()
@@ -97,3 +97,32 @@ def test_unseeded_search_is_unchanged() -> None:
     result = search.result()
     assert result.option == int(search.tree.option[search.most_visited_path()[0]])
     assert _kernel.NO_CHILD == -1
+
+
+def _threshold_loop(problem: Problem, chain: bool) -> float:
+    """The rollout threshold as first written (plain loops): the vectorised one must match."""
+    dens: list[tuple[float, int]] = []
+    for i in range(problem.n):
+        s, q = int(problem.stream[i]), int(problem.pos[i])
+        slot = 1 + (q - 1) * problem.max_versions if chain and s >= 0 and q > 0 else 0
+        best = 0.0
+        for o in range(1, int(problem.nopt[i])):
+            best = max(best, float(problem.gain[i, o, slot]) / max(1, int(problem.size[i, o])))
+        dens.append((best, max(1, int(problem.size[i, 1]))))
+    span = float(problem.send_t[-1] - problem.send_t[0])
+    capacity = problem.budget_bytes * max(1.0, span / problem.window_s)
+    used = 0.0
+    for density, size in sorted(dens, reverse=True):
+        used += size
+        if used > capacity:
+            return density
+    return 0.0
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 12), budget=st.integers(0, 400),
+       chain=st.booleans())
+def test_vectorised_rollout_threshold_is_exact(seed: int, n: int, budget: int,
+                                               chain: bool) -> None:
+    problem = _problem(seed, n, budget)
+    assert rollout_threshold(problem, chain=chain) == _threshold_loop(problem, chain)
