@@ -126,3 +126,18 @@ def test_vectorised_rollout_threshold_is_exact(seed: int, n: int, budget: int,
                                                chain: bool) -> None:
     problem = _problem(seed, n, budget)
     assert rollout_threshold(problem, chain=chain) == _threshold_loop(problem, chain)
+
+
+def test_study_policy_names_select_the_seed() -> None:
+    """``mcts300ks`` in the mcts-vs-baselines study is the seeded search, ``mcts300`` not."""
+    from companion.middleware.middleware import Middleware
+    from sitl.study.baselines import _policy
+
+    made = {name: _policy(name, 0.0, spec=SPEC, agent="a", index=0, seed=1,
+                          budget_bytes=1000.0, window_s=1.0, horizon_s=3.0)
+            for name in ("mcts300", "mcts300ks", "mcts1500ks")}
+    assert all(isinstance(p, Middleware) for p in made.values())
+    seeded = {n: (p.config.knapsack_seed, p.config.max_iterations)  # type: ignore[union-attr]
+              for n, p in made.items()}
+    assert seeded == {"mcts300": (False, 300), "mcts300ks": (True, 300),
+                      "mcts1500ks": (True, 1500)}
