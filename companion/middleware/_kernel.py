@@ -28,6 +28,7 @@ __all__ = [
     "NO_CHILD",
     "REJ_MERGED",
     "REJ_PRUNED",
+    "knapsack_plan",
     "search",
 ]
 
@@ -73,9 +74,13 @@ def _rollout(
     stream: Any, pos: Any, nopt: Any, size: Any, send_t: Any, gain: Any, nslot: Any,
     budget: float,
     window_s: float, maxv: int, lam: float, r_win_t: Any, r_win_b: Any,
+    plan: Any, dlevel: int, pick: Any,
 ) -> float:
     """Default policy from level ``d0`` on (the simulation step of alg. 1): send the option
-    with the highest gain whose utility per byte reaches ``lam`` and that fits the window."""
+    with the highest gain whose utility per byte reaches ``lam`` and that fits the window.
+
+    With ``plan[0] >= 0`` it follows the knapsack plan instead (level i's option ``plan[i]``
+    when it fits the window, else drop). ``pick[0]`` gets the option taken at ``dlevel``."""
     n = stream.shape[0]
     for s in range(last.shape[0]):
         r_last[s] = last[s]
@@ -95,13 +100,21 @@ def _rollout(
         slot = r_last[s] if s >= 0 else 0
         best_o = 0
         best_g = 0.0
-        for o in range(1, nopt[i]):
-            sz = size[i, o]
-            g = gain[i, o, slot]
-            if g <= best_g or g < lam * sz or wbytes + sz > budget + _EPS:
-                continue
-            best_o = o
-            best_g = g
+        if plan[0] >= 0:
+            o = plan[i]
+            if o > 0 and wbytes + size[i, o] <= budget + _EPS:
+                best_o = o
+                best_g = gain[i, o, slot]
+        else:
+            for o in range(1, nopt[i]):
+                sz = size[i, o]
+                g = gain[i, o, slot]
+                if g <= best_g or g < lam * sz or wbytes + sz > budget + _EPS:
+                    continue
+                best_o = o
+                best_g = g
+        if i == dlevel:
+            pick[0] = best_o
         if best_o != 0:
             total += best_g
             r_win_t[t_] = send_t[i]
@@ -159,6 +172,73 @@ def _hash_find(key: Any, hkeys: Any, hvals: Any) -> Any:
 
 
 @_jit
+def knapsack_plan(
+    nopt: Any, size: Any, send_t: Any, gain: Any, root_win_t: Any, root_win_b: Any,
+    budget: float, window_s: float, plan: Any,
+) -> None:
+    """Write into ``plan`` the knapsack-greedy baseline's option for every level, each level
+    decided in turn like :class:`~companion.middleware.baselines.KnapsackGreedy` does: the
+    level's densest version is sent when it makes the utility-per-byte cut among the later
+    items of the next window T, in the room the window (root sends and the plan's earlier
+    sends) leaves. The search starts from this plan, so it can only improve on it."""
+    n = nopt.shape[0]
+    dens = np.zeros(n, dtype=np.float64)
+    best = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        for o in range(1, nopt[i]):
+            d = gain[i, o, 0] / max(1, size[i, o])
+            if d > 0.0 and d >= dens[i]:
+                dens[i] = d
+                best[i] = o
+    order = np.argsort(-dens, kind="mergesort")
+    for i in range(n):
+        plan[i] = 0
+        if best[i] == 0:
+            continue
+        lo = send_t[i] - window_s - _EPS
+        used = 0
+        for k in range(root_win_t.shape[0]):
+            if root_win_t[k] >= lo:
+                used += root_win_b[k]
+        for j in range(i):
+            if plan[j] > 0 and send_t[j] >= lo:
+                used += size[j, plan[j]]
+        room = budget - used
+        hi = send_t[i] + window_s
+        for j in order:
+            if j == i:
+                if size[i, best[i]] <= room + _EPS:
+                    plan[i] = best[i]
+                break
+            if send_t[j] < send_t[i] or send_t[j] > hi or dens[j] <= dens[i]:
+                continue
+            sz = size[j, best[j]]
+            if sz <= room + _EPS:
+                room -= sz
+
+
+@_jit
+def _option_at(t: int, first: int, n_opt: int) -> int:
+    """The t-th option to expand: ``first`` (when >= 0), then versions best first, drop last."""
+    if first >= 0:
+        if t == 0:
+            return first
+        k = t - 1
+        if k >= (first - 1 if first > 0 else n_opt - 1):
+            k += 1
+        t = k
+    return t + 1 if t < n_opt - 1 else 0
+
+
+@_jit
+def _option_on_path(node: int, level: int, parent: Any, depth: Any, option: Any) -> int:
+    """Option taken at ``level`` on the path from the root to ``node`` (depth > level)."""
+    while depth[node] > level + 1:
+        node = parent[node]
+    return int(option[node])
+
+
+@_jit
 def search(
     n_iter: int,
     c: float,
@@ -166,12 +246,17 @@ def search(
     stream: Any, pos: Any, nopt: Any, size: Any, send_t: Any, gain: Any, nslot: Any,
     markov: Any,
     root_win_t: Any, root_win_b: Any, budget: float, window_s: float, maxv: int, top: float,
-    lam: float,
+    lam: float, plan: Any, dlevel: int, best_u: Any, best_at: Any,
     # tree
     parent: Any, depth: Any, option: Any, visits: Any, value: Any, delta: Any,
     children: Any, tried: Any, live: Any, dead: Any, hkeys: Any, hvals: Any, counters: Any,
 ) -> int:
-    """Run up to ``n_iter`` MCTS iterations; return how many ran (fewer: tree exhausted)."""
+    """Run up to ``n_iter`` MCTS iterations; return how many ran (fewer: tree exhausted).
+
+    With a knapsack ``plan`` (``plan[0] >= 0``) its option is expanded first at every node and
+    a leaf is valued by the better of the two default policies (greedy above ``lam``, the
+    plan). Either way ``best_u[0]`` keeps the best complete plan's utility seen so far and
+    ``best_at[0]`` its option at ``dlevel`` (-1: none yet)."""
     n = stream.shape[0]
     n_streams = markov.shape[0]
     n_root = root_win_t.shape[0]
@@ -183,6 +268,10 @@ def search(
     r_last = np.zeros(max(n_streams, 1), dtype=np.int64)
     r_win_t = np.zeros(cap, dtype=np.float64)
     r_win_b = np.zeros(cap, dtype=np.int64)
+    noplan = np.full(1, -1, dtype=np.int64)
+    pick = np.zeros(1, dtype=np.int64)
+    pick2 = np.zeros(1, dtype=np.int64)
+    seeded = plan[0] >= 0
     max_nodes = parent.shape[0]
     done = 0
     for _ in range(n_iter):
@@ -206,6 +295,9 @@ def search(
         while True:
             d = depth[node]
             if d == n:
+                if u > best_u[0]:
+                    best_u[0] = u
+                    best_at[0] = _option_on_path(node, dlevel, parent, depth, option)
                 _backprop(node, _score(u, top), parent, visits, value)
                 break
             lim = send_t[d] - window_s - _EPS
@@ -219,7 +311,7 @@ def search(
                 while tried[node] < nopt[d]:
                     t = tried[node]
                     tried[node] += 1
-                    o = t + 1 if t < nopt[d] - 1 else 0
+                    o = _option_at(t, plan[d] if seeded else -1, nopt[d])
                     sz = size[d, o]
                     if o != 0 and wbytes + sz > budget + _EPS:
                         children[node, o] = REJ_PRUNED
@@ -303,11 +395,26 @@ def search(
                     old = last[s] if s >= 0 else 0
                     if o != 0 and s >= 0:
                         last[s] = nslot[d, o, old]
+                    pick[0] = -1
                     rest = _rollout(d + 1, last, r_last, win_t, win_b, head, rt, rw, stream, pos,
                                     nopt, size, send_t, gain, nslot, budget, window_s, maxv, lam,
-                                    r_win_t, r_win_b)
+                                    r_win_t, r_win_b, noplan, dlevel, pick)
+                    if seeded:
+                        pick2[0] = -1
+                        rest2 = _rollout(d + 1, last, r_last, win_t, win_b, head, rt, rw, stream,
+                                         pos, nopt, size, send_t, gain, nslot, budget, window_s,
+                                         maxv, lam, r_win_t, r_win_b, plan, dlevel, pick2)
+                        if rest2 > rest:
+                            rest = rest2
+                            pick[0] = pick2[0]
                     if s >= 0:
                         last[s] = old
+                    if cu + rest > best_u[0]:
+                        best_u[0] = cu + rest
+                        if d >= dlevel:
+                            best_at[0] = _option_on_path(created, dlevel, parent, depth, option)
+                        else:
+                            best_at[0] = pick[0]
                     _backprop(created, _score(cu + rest, top), parent, visits, value)
                     break
                 if live[node] == 0:

@@ -29,6 +29,7 @@ __all__ = [
     "Policy",
     "RandomDrop",
     "SendAll",
+    "knapsack_option",
     "offline_optimum",
 ]
 
@@ -137,28 +138,37 @@ class KnapsackGreedy(_Knowing):
             budget_bytes=self.constraint.budget_bytes(now=now), window_s=window_s,
             root_window=view.root_window,
         )
-        level = problem.decided_level
         used = self.knowledge.sent_in_window(now=now, window_s=window_s)
-        room = problem.budget_bytes - used
-        candidates: list[tuple[float, int, int]] = []
-        for i in range(problem.n):
-            if problem.send_t[i] > now + window_s or (i != level and problem.send_t[i] < now):
-                continue
-            density, best = max(
-                (float(problem.gain[i, o, 0]) / max(1, int(problem.size[i, o])), o)
-                for o in range(1, int(problem.nopt[i]))
-            )
-            if density > 0:
-                candidates.append((density, i, best))
-        candidates.sort(key=lambda c: (-c[0], c[1] != level))
-        for _, i, o in candidates:
-            size = int(problem.size[i, o])
-            if size > room + 1e-9:
-                continue
-            if i == level:
-                return self._commit(message, _send(message, "knapsack", o - 1), now)
-            room -= size
+        o = knapsack_option(problem, problem.decided_level, room=problem.budget_bytes - used,
+                            now=now)
+        if o:
+            return self._commit(message, _send(message, "knapsack", o - 1), now)
         return self._commit(message, Decision(send=False, reason="knapsack-out"), now)
+
+
+def knapsack_option(problem: Problem, level: int, *, room: float, now: float) -> int:
+    """Knapsack-greedy's option for ``level`` (0: drop): its densest version when it makes
+    the utility-per-byte cut, in ``room`` bytes, among the items of the next window T."""
+    window_s = problem.window_s
+    candidates: list[tuple[float, int, int]] = []
+    for i in range(problem.n):
+        if problem.send_t[i] > now + window_s or (i != level and problem.send_t[i] < now):
+            continue
+        density, best = max(
+            (float(problem.gain[i, o, 0]) / max(1, int(problem.size[i, o])), o)
+            for o in range(1, int(problem.nopt[i]))
+        )
+        if density > 0:
+            candidates.append((density, i, best))
+    candidates.sort(key=lambda c: (-c[0], c[1] != level))
+    for _, i, o in candidates:
+        size = int(problem.size[i, o])
+        if size > room + 1e-9:
+            continue
+        if i == level:
+            return o
+        room -= size
+    return 0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

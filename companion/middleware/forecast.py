@@ -172,20 +172,23 @@ class StreamForecaster:
         last = stream.last
         size = self.mean_size(key)
         versions = _scaled_versions(last, size)
-        out = []
+        out: list[Message] = []
         for i, t in enumerate(self.predict(key, t_from=t_from, t_to=t_to)):
-            out.append(
-                Message(
-                    sender=last.sender,
-                    seq=-1 - i,
-                    type=last.type,
-                    t_gen=t,
-                    size=versions[0].size if versions else size,
-                    data=last.data,
-                    versions=versions,
-                    version=0 if versions else None,
+            if not out or not math.isfinite(t):
+                out.append(
+                    Message(
+                        sender=last.sender,
+                        seq=-1 - i,
+                        type=last.type,
+                        t_gen=t,
+                        size=versions[0].size if versions else size,
+                        data=last.data,
+                        versions=versions,
+                        version=0 if versions else None,
+                    )
                 )
-            )
+            else:  # the first one was validated; the others differ only in seq and t_gen
+                out.append(_with_seq_time(out[0], -1 - i, t))
         return out
 
     def forget(self, older_than: float) -> None:
@@ -206,6 +209,17 @@ def _seq_paced(times: list[float], seqs: list[int]) -> bool:
         return False
     lo, hi = min(per_step), max(per_step)
     return hi > 0 and hi - lo <= 0.2 * hi
+
+
+def _with_seq_time(message: Message, seq: int, t_gen: float) -> Message:
+    """A copy of a validated message with another seq and (finite) t_gen, not re-validated:
+    forecasts build tens of messages per decision (the hot path)."""
+    copy = object.__new__(Message)
+    for name in Message.__slots__:
+        object.__setattr__(copy, name, getattr(message, name))
+    object.__setattr__(copy, "seq", seq)
+    object.__setattr__(copy, "t_gen", t_gen)
+    return copy
 
 
 def _best_size(message: Message) -> int:

@@ -572,11 +572,11 @@ def build_problem(
     max_pos = max([len(v) for v in members.values()] + [0])
     n_slots = 1 + max_pos * max_versions
     gain = np.zeros((n, max_opt, n_slots), dtype=np.float64)
-    nslot = np.zeros((n, max_opt, n_slots), dtype=np.int64)
-    for i in range(n):
-        for o in range(1, max_opt):
-            nslot[i, o, :] = 1 + int(pos[i]) * max_versions + (o - 1)
-        nslot[i, 0, :] = np.arange(n_slots)
+    nslot = np.empty((n, max_opt, n_slots), dtype=np.int64)
+    # sending option o makes the item itself the stream's state; dropping keeps the state
+    nslot[:, 1:, :] = (1 + pos[:, None] * max_versions + np.arange(max_opt - 1)[None, :])[
+        :, :, None]
+    nslot[:, 0, :] = np.arange(n_slots)[None, :]
     h = horizon_end
     vectorised: set[int] = set()
     families: dict[int, tuple[Shape, list[_Pred], list[_Item]]] = {}

@@ -28,6 +28,11 @@ gained (U(𝓜) = 0) scores 1.
 The decision follows the most visited path (alg. 2); ties go to the higher mean score, then
 to sending. If the budget ends before the decided message's level is reached on that path,
 :func:`greedy_option` answers instead (stated in the decision's reason).
+
+With ``knapsack_seed`` the search starts from knapsack-greedy's plan (expanded first at
+every node, and a second default policy that follows it) and answers with the decided
+level's option of the best complete plan any iteration evaluated: never worse in the model
+than the knapsack plan, and never worse with more iterations (issue 18).
 """
 
 from __future__ import annotations
@@ -113,9 +118,10 @@ class Tree:
 class MCTS:
     """One decision's search: build with a :class:`Problem`, :meth:`run`, read :meth:`result`."""
 
-    __slots__ = ("c", "lam", "problem", "top", "tree")
+    __slots__ = ("best", "best_at", "c", "lam", "plan", "problem", "top", "tree")
 
-    def __init__(self, problem: Problem, *, c: float = 0.35, max_nodes: int = 1501) -> None:
+    def __init__(self, problem: Problem, *, c: float = 0.35, max_nodes: int = 1501,
+                 knapsack_seed: bool = False) -> None:
         if not c >= 0:
             raise ValueError(f"discovery factor c must be >= 0, got {c}")
         self.problem = problem
@@ -123,6 +129,17 @@ class MCTS:
         self.top = float(problem.all_send_norm()[-1])
         self.lam = rollout_threshold(problem)
         self.tree = Tree(max_nodes=max(2, max_nodes + 1), max_opt=problem.max_opt)
+        self.plan = np.full(max(1, problem.n), -1, dtype=np.int64)
+        """The knapsack-greedy plan (one option per level) with ``knapsack_seed``, else -1."""
+        if knapsack_seed and problem.n:
+            _kernel.knapsack_plan(problem.nopt, problem.size, problem.send_t, problem.gain,
+                                  problem.root_win_t, problem.root_win_bytes,
+                                  float(problem.budget_bytes), float(problem.window_s),
+                                  self.plan)
+        self.best = np.full(1, -np.inf)
+        """Utility of the best complete plan any iteration evaluated."""
+        self.best_at = np.full(1, -1, dtype=np.int64)
+        """That plan's option at the decided level (-1: none yet)."""
 
     @property
     def iterations(self) -> int:
@@ -144,6 +161,7 @@ class MCTS:
                     p.stream, p.pos, p.nopt, p.size, p.send_t, p.gain, p.nslot, p.stream_markov,
                     p.root_win_t, p.root_win_bytes, float(p.budget_bytes), float(p.window_s),
                     int(p.max_versions), self.top, self.lam,
+                    self.plan, int(p.decided_level), self.best, self.best_at,
                     t.parent, t.depth, t.option, t.visits, t.value, t.delta,
                     t.children, t.tried, t.live, t.dead, t.hkeys, t.hvals, t.counters,
                 )
@@ -176,14 +194,26 @@ class MCTS:
             node = child
         return path
 
+    @property
+    def seeded(self) -> bool:
+        return bool(self.plan[0] >= 0)
+
     def result(self) -> SearchResult:
+        """Seeded: the decided level's option of the best complete plan evaluated (the model is
+        deterministic, so the best plan seen is the answer and more iterations can only raise
+        its utility); else the most visited path's (alg. 2)."""
         t = self.tree
         path = self.most_visited_path()
         level = self.problem.decided_level
         option: int | None = None
         score = float("nan")
         visits = 0
-        if 0 <= level < len(path):
+        if self.seeded and self.best_at[0] >= 0:
+            option = int(self.best_at[0])
+            score = float(self.best[0]) / self.top if self.top > 1e-9 else 1.0
+            if 0 <= level < len(path) and int(t.option[path[level]]) == option:
+                visits = int(t.visits[path[level]])
+        elif 0 <= level < len(path):
             chosen = path[level]
             option = int(t.option[chosen])
             score = t.mean(chosen)
@@ -212,26 +242,24 @@ def rollout_threshold(problem: Problem, *, chain: bool = False) -> float:
     the offline optimum) and hurts the 10-agent mostly-low scenario (e.g. 83.9 against
     87.9 % at 83 % drops), so the default is off.
     """
-    if problem.n == 0:
+    n = problem.n
+    if n == 0:
         return 0.0
-    dens: list[tuple[float, int]] = []
-    for i in range(problem.n):
-        s = int(problem.stream[i])
-        q = int(problem.pos[i])
-        slot = 1 + (q - 1) * problem.max_versions if chain and s >= 0 and q > 0 else 0
-        best = 0.0
-        for o in range(1, int(problem.nopt[i])):
-            size = max(1, int(problem.size[i, o]))
-            best = max(best, float(problem.gain[i, o, slot]) / size)
-        dens.append((best, max(1, int(problem.size[i, 1]))))
+    slot = np.zeros(n, dtype=np.int64)
+    if chain:
+        later = (problem.stream >= 0) & (problem.pos > 0)
+        slot[later] = 1 + (problem.pos[later] - 1) * problem.max_versions
+    opts = np.arange(1, problem.size.shape[1])
+    gains = problem.gain[np.arange(n)[:, None], opts[None, :], slot[:, None]]
+    per_byte = gains / np.maximum(1, problem.size[:, 1:])
+    per_byte[opts[None, :] >= problem.nopt[:, None]] = 0.0
+    density = np.maximum(per_byte.max(axis=1), 0.0)
+    first = np.maximum(1, problem.size[:, 1])
     span = float(problem.send_t[-1] - problem.send_t[0])
     capacity = problem.budget_bytes * max(1.0, span / problem.window_s)
-    used = 0.0
-    for density, size in sorted(dens, reverse=True):
-        used += size
-        if used > capacity:
-            return density
-    return 0.0
+    order = np.lexsort((first, density))[::-1]  # densest first; ties: larger first
+    over = np.nonzero(np.cumsum(first[order], dtype=np.float64) > capacity)[0]
+    return float(density[order[over[0]]]) if len(over) else 0.0
 
 
 def greedy_option(problem: Problem, level: int) -> int:

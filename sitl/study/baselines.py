@@ -42,7 +42,8 @@ from utility_specs.spec import MissionSpec
 
 __all__ = ["KnapsackFill", "image_fleet", "main", "run_one"]
 
-POLICIES = ("mcts300", "greedy", "knapsack", "knapsack-fill", "random")
+POLICIES = ("mcts300", "mcts300ks", "greedy", "knapsack", "knapsack-fill", "random")
+"""mcts300ks: the same MCTS seeded with the knapsack-greedy plan (``knapsack_seed``)."""
 IMAGE_VERSIONS = (Version(name="full", size=40_000, quality=1.0),
                   Version(name="half", size=10_000, quality=0.5),
                   Version(name="quarter", size=2_500, quality=0.25))
@@ -94,8 +95,10 @@ def _policy(name: str, param: float, *, spec: MissionSpec, agent: str, index: in
         return ConstantConstraint(limit_bytes_per_s=budget_bytes / window_s, window_s=window_s)
 
     if name.startswith("mcts"):
-        config = MiddlewareConfig(spec=spec, agent=agent, max_iterations=int(name[4:]),
-                                  horizon_s=horizon_s)
+        seeded = name.endswith("ks")
+        config = MiddlewareConfig(spec=spec, agent=agent,
+                                  max_iterations=int(name[4:].removesuffix("ks")),
+                                  horizon_s=horizon_s, knapsack_seed=seeded)
         return Middleware(config, rng=np.random.default_rng([seed, index]),
                           constraint=constraint())
     if name == "random":
@@ -169,16 +172,17 @@ def _interval(values: Sequence[float]) -> tuple[float, float]:
     return float(arr.mean()), float(t * arr.std(ddof=1) / math.sqrt(len(arr)))
 
 
-def tables(rows: Sequence[dict[str, Any]]) -> str:
+def tables(rows: Sequence[dict[str, Any]], reference: str | None = None) -> str:
     """Markdown tables per scenario: MCTS utility, then each baseline's utility minus MCTS's
-    on the same seed (paired; negative: MCTS better) at equal budget and at equal bytes."""
+    on the same seed (paired; negative: MCTS better) at equal budget and at equal bytes.
+    ``reference``: the MCTS policy the others are compared with (default: the first)."""
     runs: dict[tuple[str, str, float], dict[int, dict[str, Any]]] = defaultdict(dict)
     for r in rows:
         runs[(r["scenario"], r["policy"], float(r["param"]))][int(r["seed"])] = r
     order = ["mostly-low", "uniform", "mostly-high", "images"]
     scenarios = sorted({r["scenario"] for r in rows}, key=order.index)
     policies = [p for p in POLICIES if any(r["policy"] == p for r in rows)]
-    mcts = next(p for p in policies if p.startswith("mcts"))
+    mcts = reference or next(p for p in policies if p.startswith("mcts"))
     budgeted = [p for p in policies if p not in (mcts, "random")]
     others = [p for p in policies if p != mcts]
 
@@ -253,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
             writer = csv.DictWriter(f, fieldnames=list(rows[0]))
             writer.writeheader()
             writer.writerows(rows)
-    text = tables(rows)
+    text = tables(rows) + tables(rows, reference="mcts300ks")
     (args.out / "baselines.md").write_text(text, encoding="utf-8")
     print(text)
     return 0
