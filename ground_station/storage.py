@@ -205,6 +205,15 @@ def _geo(data: Mapping[str, Any], *keys: str) -> float | None:
     return None
 
 
+def _angle_deg(data: Mapping[str, Any], *keys: str, radians: str) -> float | None:
+    """An attitude angle in degrees; the companion's geotags carry MAVLink's radians."""
+    value = _geo(data, *keys)
+    if value is not None:
+        return value
+    rad = _geo(data, radians)
+    return math.degrees(rad) if rad is not None else None
+
+
 class Storage:
     """SQLite index and files under ``root``. Not thread-safe: one thread per instance."""
 
@@ -513,9 +522,9 @@ class Storage:
                     _geo(d, "alt_m", "alt_rel_m", "alt") if placed else None,
                     _geo(d, "x_m", "x") if placed else None,
                     _geo(d, "y_m", "y") if placed else None,
-                    _geo(d, "roll_deg", "roll"),
-                    _geo(d, "pitch_deg", "pitch"),
-                    _geo(d, "yaw_deg", "yaw", "heading_deg"),
+                    _angle_deg(d, "roll_deg", "roll", radians="roll_rad"),
+                    _angle_deg(d, "pitch_deg", "pitch", radians="pitch_rad"),
+                    _angle_deg(d, "yaw_deg", "yaw", "heading_deg", radians="yaw_rad"),
                     path,
                     error,
                     pose_age,

@@ -178,3 +178,21 @@ def test_log_record_is_json_with_versions(tmp_path: Path) -> None:
         "size": 0,
         "data": {"level": 0.5},
     }
+
+
+def test_attitude_in_radians_is_stored_in_degrees(tmp_path: Path) -> None:
+    """The companion's geotag has MAVLink's ``roll_rad``/``pitch_rad``/``yaw_rad``: before, the
+    database and ``export`` left roll and pitch empty."""
+    item = image(1)
+    data = {k: v for k, v in item.message.data.items() if not k.endswith("_deg")}
+    data.update(roll_rad=0.1, pitch_rad=-0.05, yaw_rad=1.5)
+    message = Message(sender="d1", seq=1, type="image", t_gen=T0, t_sent=T0, t_rcv=T0 + 0.2,
+                      size=1001, receiver="gs", data=data)
+    s = Storage(tmp_path)
+    s.write_batch([StoreItem(mission="m", message=message, payload=b"x" * 1001, utility=1.0)],
+                  now=T0 + 1)
+    roll, pitch, yaw = s.db.execute("SELECT roll_deg, pitch_deg, yaw_deg FROM images").fetchone()
+    s.close()
+    assert roll == pytest.approx(5.729577951308232)
+    assert pitch == pytest.approx(-2.864788975654116)
+    assert yaw == pytest.approx(85.94366926962348)
