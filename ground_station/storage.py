@@ -592,17 +592,12 @@ class Storage:
     ) -> float | None:
         """The sender's share of the bytes received from ``senders`` in the ``window_s``
         before ``row`` arrived (the tile's goodput share at that moment); None: nothing."""
-        lo = row.t_rcv - window_s
-        sql = ("SELECT COALESCE(SUM(size), 0) FROM messages"
-               " WHERE mission = ? AND sender = ? AND t_rcv > ? AND t_rcv <= ?")
-        own = 0
-        total = 0
-        for sender in {*senders, row.sender}:
-            (n,) = self.db.execute(sql, (mission, sender, lo, row.t_rcv)).fetchone()
-            total += n
-            if sender == row.sender:
-                own = n
-        return own / total if total > 0 else None
+        names = sorted({*senders, row.sender})
+        sql = ("SELECT sender, SUM(size) FROM messages WHERE mission = ? AND sender IN"
+               f" ({', '.join('?' * len(names))}) AND t_rcv > ? AND t_rcv <= ? GROUP BY sender")
+        sums = dict(self.db.execute(sql, (mission, *names, row.t_rcv - window_s, row.t_rcv)))
+        total = sum(v or 0 for v in sums.values())
+        return (sums.get(row.sender) or 0) / total if total > 0 else None
 
     def iter_images(self, mission: str) -> Iterator[ImageRow]:
         for r in self.db.execute(
