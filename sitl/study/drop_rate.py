@@ -375,19 +375,23 @@ def _plot(path: Path, runs: list[Run], chars: dict[str, list[float]],
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
         hx = axes[1][col]
-        values = np.array(chars.get(scenario, []))
-        if len(values):
-            hx.hist(values, bins=20, range=(0, 1), color="grey")
-            ecdf = hx.twinx()
-            xs = np.sort(values)
-            ecdf.plot(xs, np.arange(1, len(xs) + 1) / len(xs), color="green")
-            ecdf.set_ylim(0, 1.02)
-            ecdf.set_ylabel("eCDF")
-        hx.set_xlabel("expected utility of a message (normalised)")
-        hx.set_ylabel("messages")
+        histogram_panel(hx, np.array(chars.get(scenario, [])))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def histogram_panel(hx: Any, values: np.ndarray) -> None:
+    """The lower panel of fig. 5.7: the scenario's message utilities, histogram and eCDF."""
+    if len(values):
+        hx.hist(values, bins=20, range=(0, 1), color="grey")
+        ecdf = hx.twinx()
+        xs = np.sort(values)
+        ecdf.plot(xs, np.arange(1, len(xs) + 1) / len(xs), color="green")
+        ecdf.set_ylim(0, 1.02)
+        ecdf.set_ylabel("eCDF")
+    hx.set_xlabel("expected utility of a message (normalised)")
+    hx.set_ylabel("messages")
 
 
 if __name__ == "__main__":  # pragma: no cover

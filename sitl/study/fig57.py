@@ -34,7 +34,7 @@ import numpy as np
 
 from sitl.netsim import simulate
 from sitl.study import drop_rate as dr
-from sitl.study.sweep import cell_seed, dask_client, map_cells, run_sweep
+from sitl.study.sweep import add_cluster_options, cell_seed, dask_client, map_cells, run_sweep
 
 __all__ = ["DROPS", "POLICIES", "cells", "characteristics", "fifths", "main", "mission_cell",
            "summarise"]
@@ -220,10 +220,7 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"repeatable; default {' and '.join(DEFAULT_POLICIES)}")
     parser.add_argument("--scenario", action="append", choices=sorted(dr.SCENARIOS),
                         help="only these scenarios (repeatable; default all three)")
-    parser.add_argument("--scheduler", metavar="ADDRESS",
-                        help="Dask scheduler to use (tcp://host:8786); default a local cluster")
-    parser.add_argument("--workers", type=int, default=2,
-                        help="worker processes of the local cluster (default 2)")
+    add_cluster_options(parser)
     parser.add_argument("--quick", action="store_true",
                         help="10 s missions, 2 drop shares, 2 runs, MCTS 300 iterations")
     args = parser.parse_args(argv)
@@ -323,16 +320,7 @@ def _plot(path: Path, summary: Sequence[dict[str, Any]], hist: dict[str, np.ndar
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
         hx = axes[1][col]
-        values = hist.get(scenario, np.array([]))
-        if len(values):
-            hx.hist(values, bins=20, range=(0, 1), color="grey")
-            ecdf = hx.twinx()
-            xs = np.sort(values)
-            ecdf.plot(xs, np.arange(1, len(xs) + 1) / len(xs), color="green")
-            ecdf.set_ylim(0, 1.02)
-            ecdf.set_ylabel("eCDF")
-        hx.set_xlabel("expected utility of a message (normalised)")
-        hx.set_ylabel("messages")
+        dr.histogram_panel(hx, hist.get(scenario, np.array([])))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

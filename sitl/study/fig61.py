@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from sitl.study.sweep import dask_client, run_sweep
+from sitl.study.sweep import add_cluster_options, dask_client, run_sweep
 
 __all__ = ["SIGMAS", "jittered_link", "main", "point_cell"]
 
@@ -100,10 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--runs", type=int, default=5, help="seeded runs per point (default 5)")
-    parser.add_argument("--scheduler", metavar="ADDRESS",
-                        help="Dask scheduler to use (tcp://host:8786); default a local cluster")
-    parser.add_argument("--workers", type=int, default=2,
-                        help="worker processes of the local cluster (default 2)")
+    add_cluster_options(parser)
     parser.add_argument("--quick", action="store_true", help="2 runs at every other rate")
     args = parser.parse_args(argv)
     if args.runs < 1 or args.workers < 1:

@@ -12,6 +12,7 @@ removing or reordering cells, or resuming, gives every cell the same draws.
 
 from __future__ import annotations
 
+import argparse
 import csv
 import hashlib
 import json
@@ -113,6 +114,14 @@ def dask_client(
     )
     with cluster, Client(cluster) as local:  # type: ignore[no-untyped-call]
         yield local
+
+
+def add_cluster_options(parser: argparse.ArgumentParser) -> None:
+    """``--scheduler`` and ``--workers``, the same for every study on this runner."""
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="Dask scheduler to use (tcp://host:8786); default a local cluster")
+    parser.add_argument("--workers", type=int, default=2,
+                        help="worker processes of the local cluster (default 2)")
 
 
 def _fmt_s(s: float) -> str:
