@@ -22,7 +22,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from sitl.vehicle.core import VehicleConfig, VehicleCore
-from sitl.vehicle.shell import SimClock
+from sitl.vehicle.shell import CoreTimer, SimClock
 
 __all__ = ["PtySerialLink", "start_serial_vehicle"]
 
@@ -67,7 +67,7 @@ class PtySerialLink:
             self.path = str(link)
         self._budget = float(tx_buffer_bytes)
         self._t_budget = clock.loop.time()
-        self._timer: asyncio.TimerHandle | None = None
+        self._timer = CoreTimer(core, clock, self.transmit)
         self._closed = False
 
     def start(self) -> None:
@@ -78,8 +78,7 @@ class PtySerialLink:
         if self._closed:
             return
         self._closed = True
-        if self._timer is not None:
-            self._timer.cancel()
+        self._timer.cancel()
         self.clock.loop.remove_reader(self._master)
         for fd in (self._master, self._slave):
             with contextlib.suppress(OSError):
@@ -128,15 +127,7 @@ class PtySerialLink:
                     continue
                 self._budget -= len(frame)
                 self.counters["tx_bytes"] += len(frame)
-        if self._timer is not None:
-            self._timer.cancel()
-        delay = self.clock.wall_delay(self.core.get_timer())
-        self._timer = self.clock.loop.call_later(delay, self._on_timer)
-
-    def _on_timer(self) -> None:
-        self._timer = None
-        self.core.handle_timer(self.clock())
-        self.transmit()
+        self._timer.rearm()
 
 
 def start_serial_vehicle(config: VehicleConfig, *, baud: int = 115200, link: Path | None = None,

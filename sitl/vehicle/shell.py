@@ -11,7 +11,7 @@ must not be starved because another client talks.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import cast
 
@@ -44,6 +44,32 @@ class SimClock:
         return max(0.0, (sim_deadline - self()) / self.speedup)
 
 
+class CoreTimer:
+    """The core's next deadline as one ``call_later``, re-armed after every output
+    (aioquic's transmit/timer pattern); shared by the UDP and the serial endpoints."""
+
+    def __init__(self, core: VehicleCore, clock: SimClock, on_fire: Callable[[], None]) -> None:
+        self.core = core
+        self.clock = clock
+        self._on_fire = on_fire
+        self._handle: asyncio.TimerHandle | None = None
+
+    def rearm(self) -> None:
+        self.cancel()
+        delay = self.clock.wall_delay(self.core.get_timer())
+        self._handle = self.clock.loop.call_later(delay, self._fire)
+
+    def cancel(self) -> None:
+        if self._handle is not None:
+            self._handle.cancel()
+            self._handle = None
+
+    def _fire(self) -> None:
+        self._handle = None
+        self.core.handle_timer(self.clock())
+        self._on_fire()
+
+
 class VehicleProtocol(asyncio.DatagramProtocol):
     """Feeds datagrams and timers into one core and sends its output."""
 
@@ -55,7 +81,7 @@ class VehicleProtocol(asyncio.DatagramProtocol):
         self.max_peers = max_peers
         self.peers: dict[Addr, float] = {}
         self.transport: asyncio.DatagramTransport | None = None
-        self._timer: asyncio.TimerHandle | None = None
+        self._timer = CoreTimer(core, clock, self.transmit)
         self.send_errors = 0
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
@@ -77,9 +103,7 @@ class VehicleProtocol(asyncio.DatagramProtocol):
         self.send_errors += 1
 
     def connection_lost(self, exc: Exception | None) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
+        self._timer.cancel()
 
     def destinations(self) -> list[Addr]:
         dests = list(self.peers)
@@ -96,15 +120,7 @@ class VehicleProtocol(asyncio.DatagramProtocol):
             for frame in frames:
                 for dest in dests:
                     self.transport.sendto(frame, dest)
-        if self._timer is not None:
-            self._timer.cancel()
-        delay = self.clock.wall_delay(self.core.get_timer())
-        self._timer = self.clock.loop.call_later(delay, self._on_timer)
-
-    def _on_timer(self) -> None:
-        self._timer = None
-        self.core.handle_timer(self.clock())
-        self.transmit()
+        self._timer.rearm()
 
 
 @dataclass(slots=True)
