@@ -458,7 +458,7 @@ function renderMission() {
   const reports = Object.entries(m.reports || {}).map(([k, v]) => `${esc(k)}: ${v}`).join(", ");
   const params = Object.entries(m.params || {}).map(([k, v]) => `${esc(k)}=${esc(v)}`).join(", ");
   $("mission-info").innerHTML = `<div>drones known: <b>${m.drones.length}</b></div>` +
-    `<div>reports: ${reports || "–"}</div><div>params: ${params || "–"}</div>` + (cmds || "<div class='muted'>no commands yet</div>");
+    `<div>reports: ${reports || "–"}</div><div title="what was asked; each command below says which drones applied it">params requested: ${params || "–"}</div>` + (cmds || "<div class='muted'>no commands yet</div>");
 }
 
 // -- gallery ------------------------------------------------------------------------------------
