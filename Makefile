@@ -6,6 +6,9 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 DEMO_DRONES ?= 4
 DEMO_DURATION ?= 0
+# pytest workers: the suite mostly waits on real subprocesses and sockets, so two workers on the
+# 2-core CI machine halve its wall time; each test file stays on one worker (--dist loadfile).
+TEST_WORKERS ?= 2
 
 .PHONY: help test demo lint typecheck pytest system-deps bench plots clean
 
@@ -65,7 +68,7 @@ $(MAVPROXY_DIR)/bin/mavproxy.py: $(VENV)/bin/python
 pytest: $(VENV)/.installed-test system-deps $(MAVPROXY_DIR)/bin/mavproxy.py
 	@if [ -x $(MAVPROXY_DIR)/bin/mavproxy.py ]; then \
 	  export UAV_SITL_MAVPROXY=$(CURDIR)/$(MAVPROXY_DIR)/bin/mavproxy.py PYTHONPATH=$(CURDIR)/$(MAVPROXY_DIR); fi; \
-	$(PY) -m pytest -q -m "not slow" -p no:cacheprovider
+	$(PY) -m pytest -q -m "not slow" -p no:cacheprovider -n $(TEST_WORKERS) --dist loadfile
 
 test: lint typecheck pytest
 
