@@ -13,7 +13,12 @@ from abc import ABC, abstractmethod
 import numpy as np
 from numpy.typing import NDArray
 
-from utility_specs._envelope import falsi_point, falsi_update
+from utility_specs import _envelope
+
+# The root finder's steps as plain Python (the same source the compiled kernels use): called
+# from Python, numba's dispatch would cost more than the step itself.
+falsi_point = getattr(_envelope.falsi_point, "py_func", _envelope.falsi_point)
+falsi_update = getattr(_envelope.falsi_update, "py_func", _envelope.falsi_update)
 
 FloatArray = NDArray[np.float64]
 
