@@ -13,6 +13,9 @@ of decisions made by the greedy fallback <= 1 %.
 Quality: utility >= the thesis reference at its drop shares (mostly-low), >= random at every
 drop share in all scenarios (interpolated), within 5 % of the offline optimum on average over
 20 seeded short missions, fewer violations than the reference (max 9 per run).
+Like for like (``--only like-for-like``): the same checks against the thesis numbers on the
+reference code's own message sequence (data/infdist_preset0_seed0.csv), on which they were
+measured, instead of this project's draw of the scenario.
 """
 
 from __future__ import annotations
