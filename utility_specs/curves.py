@@ -204,12 +204,6 @@ class Shape(ABC):
     def critical(self, s1: float, g1: float, s2: float, g2: float) -> tuple[float, ...]:
         return ()
 
-    def critical_array(
-        self, s1: FloatArray, g1: FloatArray, s2: FloatArray, g2: FloatArray
-    ) -> FloatArray | None:
-        """:meth:`critical` elementwise (NaN where there is none), or None if never any."""
-        return None
-
 
 class ShapeCurve(Curve):
     """scale · φ(t - t_gen): position, status_poisson and the video family."""

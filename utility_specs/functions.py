@@ -603,13 +603,6 @@ class _CappedLog(Shape):
             return ()
         return ((s1 * g2 - s2 * g1) / (s1 - s2),)
 
-    def critical_array(
-        self, s1: FloatArray, g1: FloatArray, s2: FloatArray, g2: FloatArray
-    ) -> FloatArray | None:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            result: FloatArray = np.where(s1 != s2, (s1 * g2 - s2 * g1) / (s1 - s2), np.nan)
-        return result
-
 
 class Video(UtilityFunction):
     """Eq. 4.28: U = max(0, min(1, l - k·log2(t - t_gen))), scaled per message; ``max``.
