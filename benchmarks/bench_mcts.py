@@ -13,6 +13,9 @@ of decisions made by the greedy fallback <= 1 %.
 Quality: utility >= the thesis reference at its drop shares (mostly-low), >= random at every
 drop share in all scenarios (interpolated), within 5 % of the offline optimum on average over
 20 seeded short missions, fewer violations than the reference (max 9 per run).
+Like for like (``--only like-for-like``): the same checks against the thesis numbers on the
+reference code's own message sequence (data/infdist_preset0_seed0.csv), on which they were
+measured, instead of this project's draw of the scenario.
 """
 
 from __future__ import annotations
@@ -31,10 +34,15 @@ from companion.middleware.constraint import ConstantConstraint
 from companion.middleware.middleware import Middleware, MiddlewareConfig
 from sitl.netsim import ChannelConfig, SimAgent, StreamConfig, simulate
 from sitl.study.drop_rate import (
+    CHANNEL,
     REFERENCE_DROP,
     REFERENCE_MCTS,
+    REFERENCE_RANDOM,
     REFERENCE_VIOLATIONS_MAX,
+    WINDOW_S,
+    budget_bytes,
     optimum_gap,
+    policy_factory,
     run_mission,
     utility_pct,
 )
@@ -146,6 +154,63 @@ def speed_companion_default(t_end: float) -> None:
           "<= 1 %", share <= 0.01)
 
 
+REFERENCE_SEQUENCE = Path(__file__).with_name("data") / "infdist_preset0_seed0.csv"
+"""The thesis code's own message sequence (preset 0, 10 agents, 100 s, np.random.seed(0));
+see data/make_infdist_preset0.py for how it was made."""
+
+
+def reference_sequence_agents(policy: str, param: float, *, seed: int) -> list[SimAgent]:
+    """The 10 agents of the reference sequence, each replaying its recorded messages."""
+    spec = builtin_spec("sim_mostly_low")
+    with REFERENCE_SEQUENCE.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    make = policy_factory(policy, param, seed=seed)
+    agents = []
+    for i in sorted({int(r["sender"]) for r in rows}):
+        mine = sorted((r for r in rows if int(r["sender"]) == i), key=lambda r: int(r["k"]))
+        rho = [float(r["depletion_rate"]) for r in mine]
+        stream = StreamConfig(
+            type=f"battery_{i}", period_s=1.0, size=int(mine[0]["size"]),
+            times=tuple(float(r["t_gen"]) for r in mine),
+            data=lambda k, g, rho=rho: {"level": 1.0, "depletion_rate": rho[k]},
+        )
+        agents.append(SimAgent(name=f"agent{i}", policy=make(f"agent{i}", spec),
+                               streams=[stream]))
+    return agents
+
+
+def like_for_like(t_end: float = 100.0) -> None:
+    """MCTS 1500 and random on the reference's own sequence, at its drop shares (issue 18):
+    the thesis numbers (REFERENCE_MCTS / REFERENCE_RANDOM) were measured on this sequence."""
+    spec = builtin_spec("sim_mostly_low")
+    curves: dict[str, list[tuple[float, float]]] = {"mcts1500": [], "random": []}
+    worst_violations = 0
+    for policy, params in (("mcts1500", [25.0, 19.25, 15.75, 12.0, 9.25, 5.5, 2.5, 1.0]),
+                           ("random", [0.0, 0.1, 0.23, 0.37, 0.52, 0.63, 0.78, 0.9, 1.0])):
+        for param in params:
+            agents = reference_sequence_agents(policy, param, seed=21)
+            result = simulate(agents, channel=CHANNEL, t_end=t_end,
+                              rng=np.random.default_rng([21, 3]))
+            pct = utility_pct(spec, result.generated, t_end)
+            curves[policy].append((result.drop_share, pct))
+            if policy != "random":
+                worst_violations = max(worst_violations, result.violations(
+                    window_s=WINDOW_S, budget_bytes=budget_bytes(param)))
+            print(f"    like-for-like {policy} {param:g}: drop={result.drop_share:.2f} "
+                  f"utility={pct:.1f}%", flush=True)
+    at = {p: [float(np.interp(x, *zip(*sorted(c), strict=True))) for x in REFERENCE_DROP]
+          for p, c in curves.items()}
+    print("    like-for-like random at the reference drop shares: "
+          + " ".join(f"{v:.1f}" for v in at["random"]) + " (reference's random: "
+          + " ".join(f"{v:.1f}" for v in REFERENCE_RANDOM) + ")")
+    diff = min(o - r for o, r in zip(at["mcts1500"], REFERENCE_MCTS, strict=True))
+    check("like-for-like (reference's own sequence) vs thesis MCTS",
+          " ".join(f"{v:.1f}" for v in at["mcts1500"]),
+          " ".join(f"{r:.1f}" for r in REFERENCE_MCTS), diff >= 0)
+    check("like-for-like: violations per run (max)", str(worst_violations),
+          f"< {REFERENCE_VIOLATIONS_MAX}", worst_violations < REFERENCE_VIOLATIONS_MAX)
+
+
 def quality(t_end: float, out: Path, scenarios: list[str]) -> None:
     budgets = [25.0, 22.0, 19.25, 15.75, 12.0, 9.25, 5.5, 2.5]
     drops = [0.0, 0.1, 0.23, 0.37, 0.52, 0.63, 0.78, 0.9, 1.0]
@@ -206,13 +271,17 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("artifacts/bench_mcts"))
     parser.add_argument("--quick", action="store_true", help="shorter missions (indicative)")
-    parser.add_argument("--only", choices=["companion"], help="run only these rows")
+    parser.add_argument("--only", choices=["companion", "like-for-like"],
+                        help="run only these rows")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     t_end = 30.0 if args.quick else 100.0
     if args.only == "companion":
         speed_companion_default(10.0 if args.quick else 30.0)
+        return 0 if all(ok for *_, ok in ROWS) else 1
+    if args.only == "like-for-like":
+        like_for_like(t_end)
         return 0 if all(ok for *_, ok in ROWS) else 1
     print("speed: reference setup", flush=True)
     speed_reference(t_end)
@@ -223,6 +292,8 @@ def main(argv: list[str] | None = None) -> int:
     print("quality: drop share vs utility", flush=True)
     quality(t_end, args.out, ["mostly-low"] if args.quick else
             ["mostly-low", "uniform", "mostly-high"])
+    print("quality: like for like on the reference's own message sequence", flush=True)
+    like_for_like(t_end)
     print("quality: offline optimum", flush=True)
     optimum(6 if args.quick else 20, 20.0)
     print(f"\n{'check':42s} {'measured':34s} {'target':28s} result")

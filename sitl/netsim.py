@@ -70,6 +70,9 @@ class StreamConfig:
         default=lambda k, rng: {}
     )
     versions: tuple[Version, ...] = ()
+    times: tuple[float, ...] = ()
+    """Explicit generation times of messages k = 0, 1, ... (a recorded sequence, e.g. the
+    thesis code's own); when given, period, phase and jitter are not used."""
 
 
 @dataclass(slots=True, kw_only=True)
@@ -152,6 +155,11 @@ def simulate(
     seqs = {a.name: 0 for a in agents}
     for a_index, agent in enumerate(agents):
         for s_index, stream in enumerate(agent.streams):
+            for k, t in enumerate(stream.times):
+                if t < t_end:
+                    push(t, _GEN, (a_index, s_index, k))
+            if stream.times:
+                continue
             if stream.period_s <= 0:
                 raise ValueError(f"{agent.name}/{stream.type}: period must be > 0")
             k = 0

@@ -31,6 +31,9 @@ __all__ = [
     "QUADRATIC",
     "STEP",
     "Family",
+    "envelope_pair_gains",
+    "falsi_point",
+    "falsi_update",
     "max_envelope_integral",
 ]
 
@@ -175,36 +178,60 @@ def _gap(
     return _value(kind, p, g2, a2, b2, t) - mine - 1e-12 * (1.0 + abs(mine))
 
 
+ROOT_BRACKET_S = 1e-6
+"""Width to which a crossing is bracketed. A crossing misplaced by δ moves the integral by
+O(δ²·slope), so a microsecond (1e-12 of utility for slopes up to 1/s) is exact for every
+purpose."""
+
+
+@_jit
+def falsi_point(left: float, right: float, g_left: float, g_right: float) -> float:
+    """The next point to try in the bracket (left, right), or NaN once it is narrow enough.
+
+    The one root finder of the package (regula falsi with the Illinois modification): the
+    compiled kernels here and :meth:`utility_specs.curves.Curve._root` drive it with their own
+    gap function, ``gap(left) <= 0 < gap(right)``. It keeps the bracket and converges
+    superlinearly on the smooth monotone segments between knots and critical points.
+    """
+    width = right - left
+    if width <= max(ROOT_BRACKET_S, 4e-16 * abs(right)):
+        return math.nan
+    t = right - g_right * width / (g_right - g_left)
+    if not left < t < right:
+        t = 0.5 * (left + right)
+    return t
+
+
+@_jit
+def falsi_update(
+    left: float, right: float, g_left: float, g_right: float, side: int, t: float, gap: float
+) -> tuple[float, float, float, float, int]:
+    """The bracket after evaluating ``gap`` at ``t`` (Illinois: halve the stale end's gap)."""
+    if gap > 0:
+        if side == 1:
+            g_left *= 0.5
+        return left, t, g_left, gap, 1
+    if side == -1:
+        g_right *= 0.5
+    return t, right, gap, g_right, -1
+
+
 @_jit
 def _root(
     kind: int, p: NDArray[np.float64], g1: float, a1: float, b1: float,
     g2: float, a2: float, b2: float, left: float, right: float,
 ) -> float:
-    """Smallest t in (left, right] with gap > 0, given gap(left) <= 0 < gap(right).
-
-    Regula falsi with the Illinois modification, to a microsecond bracket (as Curve._root).
-    """
+    """Smallest t in (left, right] with gap > 0, given gap(left) <= 0 < gap(right)."""
     g_left = _gap(kind, p, g1, a1, b1, g2, a2, b2, left)
     g_right = _gap(kind, p, g1, a1, b1, g2, a2, b2, right)
     side = 0
     for _ in range(200):
-        width = right - left
-        if width <= max(1e-6, 4e-16 * abs(right)):
+        t = falsi_point(left, right, g_left, g_right)
+        if t != t:
             break
-        t = right - g_right * width / (g_right - g_left)
-        if not left < t < right:
-            t = 0.5 * (left + right)
-        gap = _gap(kind, p, g1, a1, b1, g2, a2, b2, t)
-        if gap > 0:
-            right, g_right = t, gap
-            if side == 1:
-                g_left *= 0.5
-            side = 1
-        else:
-            left, g_left = t, gap
-            if side == -1:
-                g_right *= 0.5
-            side = -1
+        left, right, g_left, g_right, side = falsi_update(
+            left, right, g_left, g_right, side, t, _gap(kind, p, g1, a1, b1, g2, a2, b2, t)
+        )
     return right
 
 
@@ -370,6 +397,77 @@ def _sweep(
             total += _piece(kind, p, gen, a, b, cand, m, lo, following, scratch)
         now = following
     return total
+
+
+@_jit
+def _pair_gain(
+    kind: int, p: NDArray[np.float64], gp: float, sp: float, rp: float,
+    gj: float, sj: float, rj: float, horizon: float, scratch: NDArray[np.float64],
+) -> tuple[float, bool]:
+    """∫_{min(rp, rj)}^{horizon} max(U_p, U_j) - U_p for two curves ``s·φ(t - g)`` of one
+    family received at r (U_p counts from r_p on), and whether U_j is ever on top."""
+    lo = min(rj, horizon)
+    n = _splits(kind, p, gp, sp, gj, sj, lo, horizon, scratch)
+    if lo < rp < horizon:  # p starts counting at r_p: one more cut, kept sorted
+        j = n - 1
+        while j >= 0 and scratch[j] > rp:
+            scratch[j + 1] = scratch[j]
+            j -= 1
+        scratch[j + 1] = rp
+        n += 1
+    total, above = 0.0, False
+    a = lo
+    for i in range(n + 1):
+        b = scratch[i] if i < n else horizon
+        if b <= a:
+            continue
+        if a < rp:  # p not received yet: j alone
+            total += _integral(kind, p, gj, sj, 0.0, a, b)
+            if _value(kind, p, gj, sj, 0.0, a) > 1e-12:
+                above = True
+        else:
+            d_a = _gap(kind, p, gp, sp, 0.0, gj, sj, 0.0, a)
+            d_b = _gap(kind, p, gp, sp, 0.0, gj, sj, 0.0, b)
+            x1, x2 = a, b
+            if d_a <= 0.0 and d_b > 0.0:  # j rises above p inside the segment
+                x1 = _root(kind, p, gp, sp, 0.0, gj, sj, 0.0, a, b)
+            elif d_a > 0.0 and d_b <= 0.0:  # p rises above j inside the segment
+                x2 = _root(kind, p, gj, sj, 0.0, gp, sp, 0.0, a, b)
+            elif d_a <= 0.0:
+                x2 = x1
+            if x2 > x1:
+                above = True
+                total += _integral(kind, p, gj, sj, 0.0, x1, x2) - _integral(
+                    kind, p, gp, sp, 0.0, x1, x2
+                )
+        a = b
+    return max(total, 0.0), above or rp > rj or rj >= horizon
+
+
+@_jit
+def envelope_pair_gains(
+    kind: int, p: NDArray[np.float64], gp: NDArray[np.float64], sp: NDArray[np.float64],
+    rp: NDArray[np.float64], gj: NDArray[np.float64], sj: NDArray[np.float64],
+    rj: NDArray[np.float64], horizon: float,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """What a message j adds after a message p of its stream, for many (p, j) pairs at once.
+
+    Eq. 4.5 for two messages: ``∫_{r_j}^{H} max(U_p, U_j) - U_p`` with U_p counting from
+    r_p on, exact (crossings by the one root finder), and whether j becomes the stream's
+    state (False when U_j never rises above U_p before H). Times are taken relative to the
+    horizon (exact by Sterbenz) so that brackets can shrink below the resolution of epoch
+    times.
+    """
+    n = gp.shape[0]
+    gains = np.empty(n)
+    moves = np.empty(n, dtype=np.bool_)
+    scratch = np.empty(8)
+    for k in range(n):
+        gains[k], moves[k] = _pair_gain(
+            kind, p, gp[k] - horizon, sp[k], rp[k] - horizon, gj[k] - horizon, sj[k],
+            rj[k] - horizon, 0.0, scratch,
+        )
+    return gains, moves
 
 
 def max_envelope_integral(

@@ -13,6 +13,13 @@ from abc import ABC, abstractmethod
 import numpy as np
 from numpy.typing import NDArray
 
+from utility_specs import _envelope
+
+# The root finder's steps as plain Python (the same source the compiled kernels use): called
+# from Python, numba's dispatch would cost more than the step itself.
+falsi_point = getattr(_envelope.falsi_point, "py_func", _envelope.falsi_point)
+falsi_update = getattr(_envelope.falsi_update, "py_func", _envelope.falsi_update)
+
 FloatArray = NDArray[np.float64]
 
 __all__ = ["Curve", "EndedCurve", "LineCurve", "Shape", "ShapeCurve", "StepCurve"]
@@ -93,33 +100,17 @@ class Curve(ABC):
         return other.value(t) - mine - 1e-12 * (1.0 + abs(mine))
 
     def _root(self, other: Curve, left: float, right: float) -> float:
-        """Smallest t in (left, right] with gap > 0, given gap(left) <= 0 < gap(right).
-
-        Regula falsi with the Illinois modification keeps the bracket and converges
-        superlinearly on these smooth, monotone segments. A crossing misplaced by δ moves
-        the integral by O(δ²·slope), so a microsecond bracket (1e-12 of utility for
-        slopes up to 1/s) is exact for every purpose.
-        """
+        """Smallest t in (left, right] with gap > 0, given gap(left) <= 0 < gap(right):
+        the package's one root finder (:func:`utility_specs._envelope.falsi_point`)."""
         g_left, g_right = self._gap(other, left), self._gap(other, right)
         side = 0
         for _ in range(200):
-            width = right - left
-            if width <= max(1e-6, 4e-16 * abs(right)):
+            t = falsi_point(left, right, g_left, g_right)
+            if t != t:
                 break
-            t = right - g_right * width / (g_right - g_left)
-            if not left < t < right:
-                t = 0.5 * (left + right)
-            g = self._gap(other, t)
-            if g > 0:
-                right, g_right = t, g
-                if side == 1:
-                    g_left *= 0.5
-                side = 1
-            else:
-                left, g_left = t, g
-                if side == -1:
-                    g_right *= 0.5
-                side = -1
+            left, right, g_left, g_right, side = falsi_update(
+                left, right, g_left, g_right, side, t, self._gap(other, t)
+            )
         return right
 
 
@@ -198,6 +189,9 @@ class Shape(ABC):
 
     x_knots: tuple[float, ...] = ()
     x_zero: float = INF
+    kernel: tuple[int, tuple[float, ...]] | None = None
+    """The family kind and shape parameters of :mod:`utility_specs._envelope`'s compiled
+    kernels (None: only the general curve path knows this shape)."""
 
     @abstractmethod
     def phi_integral_array(self, xa: FloatArray, xb: FloatArray) -> FloatArray:
@@ -209,12 +203,6 @@ class Shape(ABC):
 
     def critical(self, s1: float, g1: float, s2: float, g2: float) -> tuple[float, ...]:
         return ()
-
-    def critical_array(
-        self, s1: FloatArray, g1: FloatArray, s2: FloatArray, g2: FloatArray
-    ) -> FloatArray | None:
-        """:meth:`critical` elementwise (NaN where there is none), or None if never any."""
-        return None
 
 
 class ShapeCurve(Curve):

@@ -245,6 +245,7 @@ class _Quadratic(Shape):
         self.c = c
         self.x_zero = 1.0 / math.sqrt(c)
         self.x_knots = (self.x_zero,)
+        self.kernel = (QUADRATIC, (c,))
 
     def phi(self, x: float) -> float:
         v = 1.0 - self.c * x * x
@@ -305,6 +306,7 @@ class Status(UtilityFunction):
 class _Exponential(Shape):
     def __init__(self, rate: float) -> None:
         self.rate = rate
+        self.kernel = (EXPONENTIAL, (rate,))
 
     def phi(self, x: float) -> float:
         return math.exp(-self.rate * x)
@@ -556,6 +558,7 @@ class _CappedLog(Shape):
         self.x_cap = 2.0 ** ((l - 1.0) / k)  # = 1/f_max: younger frames are worth 1
         self.x_zero = 2.0 ** (l / k)  # age at which a frame is worth nothing
         self.x_knots = (self.x_cap, self.x_zero)
+        self.kernel = (CAPPED_LOG, (k, l, self.x_cap, self.x_zero))
 
     def phi(self, x: float) -> float:
         if x <= self.x_cap:
@@ -599,13 +602,6 @@ class _CappedLog(Shape):
         if s1 == s2:
             return ()
         return ((s1 * g2 - s2 * g1) / (s1 - s2),)
-
-    def critical_array(
-        self, s1: FloatArray, g1: FloatArray, s2: FloatArray, g2: FloatArray
-    ) -> FloatArray | None:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            result: FloatArray = np.where(s1 != s2, (s1 * g2 - s2 * g1) / (s1 - s2), np.nan)
-        return result
 
 
 class Video(UtilityFunction):

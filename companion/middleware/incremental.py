@@ -34,6 +34,7 @@ from typing import cast
 import numpy as np
 import numpy.typing as npt
 
+from utility_specs._envelope import envelope_pair_gains
 from utility_specs.curves import Curve, Shape, ShapeCurve
 from utility_specs.evaluate import evaluate_stream, occurrences
 from utility_specs.message import Message
@@ -324,10 +325,9 @@ def _crossing_gains(
 
     Between the knots of φ, the critical point of the two curves and ``r_p`` (before which
     ``p`` counts as 0), ``U_j - U_p`` is monotone, so each segment has at most one sign
-    change; it is located by vectorised bisection (to 1e-13 s, far below any effect on the
-    integral, which moves by O(δ²·slope)) and the positive parts are integrated in closed
-    form. This replaces hundreds of scalar root searches per decision (the crossing pairs
-    of an image stream offered in three versions) by a few dozen numpy calls.
+    change; it is located by the package's one root finder and the positive parts are
+    integrated in closed form, all pairs in one compiled loop (the crossing pairs of an image
+    stream offered in three versions are hundreds per decision).
     """
     cps = [cast(ShapeCurve, p.curve) for p in ps]
     cjs = [cast(ShapeCurve, j.curve) for j in js]
@@ -351,73 +351,13 @@ def _envelope_gains(
     rj: npt.NDArray[np.float64],
     horizon: float,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
-    """:func:`_crossing_gains` on arrays: curves ``s·φ(t - g)`` received at ``r``."""
-    # Times relative to the horizon (exact: Sterbenz), so that root brackets can shrink far
-    # below the 2e-7 s resolution of absolute epoch times.
-    gp, rp, gj, rj = gp - horizon, rp - horizon, gj - horizon, rj - horizon
-    horizon = 0.0
-    n = len(gp)
-    lo = np.minimum(rj, horizon)
-    points = [lo, np.full(n, horizon), rp]
-    points += [gp + x for x in shape.x_knots] + [gj + x for x in shape.x_knots]
-    critical = shape.critical_array(sp, gp, sj, gj)
-    if critical is not None:
-        points.append(np.where(np.isfinite(critical), critical, horizon))
-    cuts = np.sort(np.clip(np.stack(points, axis=1), lo[:, None], horizon), axis=1)
-    a, b = cuts[:, :-1], cuts[:, 1:]
-    gp2, sp2, gj2, sj2 = gp[:, None], sp[:, None], gj[:, None], sj[:, None]
-    p_on = a >= rp[:, None]  # segments start at cuts, so p counts on the whole segment or not
-    phi = shape.phi_array
-
-    def diff(t: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-        up = np.where(p_on, sp2 * phi(np.maximum(t - gp2, 0.0)), 0.0)
-        return np.asarray(sj2 * phi(t - gj2) - up - 1e-12 * (1.0 + up))
-
-    d_a, d_b = diff(a), diff(b)
-    width = b > a
-    # the positive part of each segment: [x1, x2]
-    x1, x2 = a.copy(), b.copy()
-    change = width & ((d_a > 0) != (d_b > 0))
-    if change.any():
-        left, right = a[change], b[change]
-        f_left, f_right = d_a[change], d_b[change]
-        rising = f_right > 0
-        p_c = p_on[change]
-        g_p, s_p = np.broadcast_to(gp2, a.shape)[change], np.broadcast_to(sp2, a.shape)[change]
-        g_j, s_j = np.broadcast_to(gj2, a.shape)[change], np.broadcast_to(sj2, a.shape)[change]
-        side = np.zeros(len(left), dtype=np.int8)
-        # Regula falsi with the Illinois modification (as Curve._root): superlinear on these
-        # smooth monotone segments; a bracket of 1e-9 s moves the integral by ~1e-18.
-        for _ in range(100):
-            if float(np.max(right - left)) <= 1e-9:
-                break
-            with np.errstate(all="ignore"):
-                t = right - f_right * (right - left) / (f_right - f_left)
-            t = np.where((left < t) & (t < right), t, 0.5 * (left + right))
-            up = np.where(p_c, s_p * phi(np.maximum(t - g_p, 0.0)), 0.0)
-            f_t = s_j * phi(t - g_j) - up - 1e-12 * (1.0 + up)
-            to_right = (f_t > 0) == rising  # t replaces the right end
-            f_left = np.where(to_right & (side == 1), 0.5 * f_left, f_left)
-            f_right = np.where(~to_right & (side == -1), 0.5 * f_right, f_right)
-            right = np.where(to_right, t, right)
-            f_right = np.where(to_right, f_t, f_right)
-            left = np.where(to_right, left, t)
-            f_left = np.where(to_right, f_left, f_t)
-            side = np.where(to_right, 1, -1).astype(np.int8)
-        root = np.where(rising, right, left)  # the end where j is above p
-        x1[change] = np.where(rising, root, a[change])
-        x2[change] = np.where(rising, b[change], root)
-    keep = width & ((d_a > 0) | (d_b > 0))
-    x2 = np.where(keep, x2, x1)
-    with np.errstate(all="ignore"):
-        u_j = sj2 * shape.phi_integral_array(x1 - gj2, np.maximum(x2, x1) - gj2)
-        u_p = sp2 * shape.phi_integral_array(
-            np.maximum(x1 - gp2, 0.0), np.maximum(np.maximum(x2, x1) - gp2, 0.0)
-        )
-    seg = np.where(keep, u_j - np.where(p_on, u_p, 0.0), 0.0)
-    gains = np.maximum(seg.sum(axis=1), 0.0)
-    moves = (rp > rj) | (rj >= horizon) | (keep.any(axis=1))
-    return gains, np.asarray(moves, dtype=np.bool_)
+    """:func:`_crossing_gains` on arrays: curves ``s·φ(t - g)`` received at ``r``, by the
+    compiled two-message envelope of ``utility_specs`` (one root finder for the package)."""
+    assert shape.kernel is not None  # _shape_family admits only shapes with a kernel
+    kind, params = shape.kernel
+    return envelope_pair_gains(
+        kind, np.asarray(params, dtype=np.float64), gp, sp, rp, gj, sj, rj, float(horizon)
+    )
 
 
 _Pred = tuple[int, int, int, "_Variant | None"]
@@ -432,7 +372,7 @@ def _shape_family(preds: list[_Pred], items: list[_Item]) -> Shape | None:
     if not curves or not all(isinstance(c, ShapeCurve) for c in curves):
         return None
     shape = cast(ShapeCurve, curves[0]).shape
-    if any(cast(ShapeCurve, c).shape is not shape for c in curves):
+    if shape.kernel is None or any(cast(ShapeCurve, c).shape is not shape for c in curves):
         return None
     return shape
 
