@@ -89,7 +89,7 @@ CREATE TABLE IF NOT EXISTS alerts (
 );
 """
 
-FILE_WRITERS = 4
+FILE_WRITERS = 8
 """Threads writing image files of one batch in parallel."""
 
 _SAFE = re.compile(r"[^A-Za-z0-9_.-]")
