@@ -139,7 +139,7 @@ def test_drop_alerts_are_rate_limited_to_powers_of_ten() -> None:
 # -- image utility (thesis eq. 7.1 / 7.2) --------------------------------------------------
 def image(type_: str, data: dict[str, object], *, quality: float = 1.0) -> Message:
     """An image message of ``type_`` carrying a version of ``quality``."""
-    versions = (Version(name="full", size=40, quality=1.0),)
+    versions: tuple[Version, ...] = (Version(name="full", size=40, quality=1.0),)
     if quality != 1.0:
         versions += (Version(name="part", size=10, quality=quality),)
     return Message(sender="d", seq=1, type=type_, t_gen=T0, size=10, data=data,
