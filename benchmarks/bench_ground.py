@@ -130,6 +130,13 @@ def udp_rcvbuf_errors() -> int:
     return int(values[header.index("RcvbufErrors")])
 
 
+def host_cpu_s() -> float:
+    """Busy CPU seconds of the whole host (every core, every process) from /proc/stat."""
+    fields = Path("/proc/stat").read_text().splitlines()[0].split()[1:]
+    user, nice, system, _idle, _iowait, irq, softirq, steal = (int(v) for v in fields[:8])
+    return (user + nice + system + irq + softirq + steal) / os.sysconf("SC_CLK_TCK")
+
+
 def percentile(values: list[float], q: float) -> float:
     if not values:
         return float("nan")
@@ -250,6 +257,7 @@ async def bench_row(
         await asyncio.sleep(0.5)
         rcvbuf0 = udp_rcvbuf_errors()
         cpu0, t0 = proc_cpu_s(station.pid), time.time()
+        host0 = host_cpu_s()
         loop_cpu0 = proc_cpu_s(station.pid, tid=station.pid)  # the event loop's thread
         sender = await asyncio.create_subprocess_exec(
             sys.executable,
@@ -283,18 +291,21 @@ async def bench_row(
         assert sender.stdout is not None
         sent = json.loads((await sender.stdout.read()).decode().strip().splitlines()[-1])
         cpu_station = proc_cpu_s(station.pid) - cpu0
+        cpu_host = host_cpu_s() - host0
         cpu_loop = proc_cpu_s(station.pid, tid=station.pid) - loop_cpu0
         wall = time.time() - t0
-        # let the station finish writing what it received
-        async with asyncio.timeout(60):
-            while True:
-                s = await get_stats(http, token)
-                if (
-                    s["storage"]["backlog"] == 0
-                    and s["storage"]["written"] == s["storage"]["submitted"]
-                ):
-                    break
-                await asyncio.sleep(0.2)
+        # let the station finish writing what it received (a station that cannot within
+        # a minute is measured as it is: what is not stored by then counts as lost)
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(60):
+                while True:
+                    s = await get_stats(http, token)
+                    if (
+                        s["storage"]["backlog"] == 0
+                        and s["storage"]["written"] == s["storage"]["submitted"]
+                    ):
+                        break
+                    await asyncio.sleep(0.2)
         await asyncio.sleep(0.5)
         stats = await get_stats(http, token)
         stop.set()
@@ -311,6 +322,11 @@ async def bench_row(
     received = int(stats["link"].get("images", 0))
     stored = int(stats["storage"]["images_stored"])
     lost = sent["images"] - stored
+    # CPU the rest of the host used meanwhile (other engineers' tests, the OS): on a shared
+    # machine the station gets what is left, and the verdict says so instead of hiding it
+    cores = os.cpu_count() or 1
+    need = cpu_station / max(received, 1) * args.drones * args.rate
+    others = max(0.0, cpu_host - cpu_station - sent["cpu_s"]) / wall
     lag_values = [lag for _, lag in lags]
     p50, p95 = percentile(lag_values, 0.5), percentile(lag_values, 0.95)
     rows = [
@@ -346,13 +362,44 @@ async def bench_row(
          f"{cpu_station / max(received, 1) * args.drones * args.rate:.2f} cores", ""),
         ("UDP receive buffer granted", f"{stats.get('udp_rcvbuf_bytes', 0) >> 20} MiB", ""),
         ("senders CPU", f"{100 * sent['cpu_s'] / sent['wall_s']:.0f} % of one core", ""),
+        ("other processes' CPU during the row", f"{others:.2f} of {cores} cores", ""),
         ("machine", f"{os.cpu_count()} cores, fsync={'on' if args.fsync else 'off'}", ""),
         ("load average before / after", f"{load:.1f} / {os.getloadavg()[0]:.1f}", ""),
     ]
     plot(lags, t0, out_dir / f"bench_ground_lag_{args.drones}.png")
     ok = lost == 0 and p95 < LAG_TARGET_S and p50 < LAG_TARGET_S and len(lags) > 0
     print(f"  {args.drones} drones: {'PASS' if ok else 'FAIL'}", flush=True)
+    if not ok:
+        for reason in why_failed(lost=lost, sent=sent["images"], received=received,
+                                 stats=stats, p95=p95, need=need,
+                                 got=cpu_station / wall, others=others, cores=cores):
+            print(f"    - {reason}", flush=True)
     return rows, ok
+
+
+def why_failed(
+    *, lost: int, sent: int, received: int, stats: dict[str, Any], p95: float, need: float,
+    got: float, others: float, cores: int,
+) -> list[str]:
+    """Where the row's images went, and whether the station or the host was short of CPU:
+    the verdict stays FAIL either way, but says which it was."""
+    reasons = []
+    if lost:
+        refused = int(stats["storage"].get("refused", 0))
+        not_stored = int(stats["storage"].get("not_stored", 0)) - refused
+        reasons.append(
+            f"{lost} images not stored: {sent - received} never read off the socket (kernel "
+            f"buffer full or fragments lost), {refused} refused by storage back-pressure, "
+            f"{max(0, not_stored)} failed to store")
+    if p95 >= LAG_TARGET_S:
+        reasons.append(f"dashboard lag p95 {p95 * 1000:.0f} ms >= {LAG_TARGET_S * 1000:.0f} ms")
+    if need > got * 1.05:
+        reasons.append(
+            f"the station needs {need:.2f} cores at its measured cost per image and got "
+            f"{got:.2f}; other processes used {others:.2f} of the {cores} cores meanwhile"
+            + (" (the host was saturated: rerun on a quiet machine)"
+               if others + got + 0.25 >= cores else ""))
+    return reasons
 
 
 def plot(lags: list[tuple[float, float]], t0: float, path: Path) -> None:

@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from companion.protocol import Address
 from utility_specs.message import Message
 
 __all__ = ["Alert", "DroneState", "FleetView", "LatestImage"]
@@ -72,7 +73,7 @@ class DroneState:
     drone: str
     first_heard: float
     last_heard: float
-    addr: tuple[str, int] | None = None
+    addr: Address | None = None
     messages: int = 0
     images: int = 0
     bytes_total: int = 0
@@ -172,7 +173,7 @@ class FleetView:
         return self.high_utility is not None and utility >= self.high_utility
 
     # -- inputs -------------------------------------------------------------------------
-    def heard(self, drone: str, *, now: float, addr: tuple[str, int] | None = None) -> DroneState:
+    def heard(self, drone: str, *, now: float, addr: Address | None = None) -> DroneState:
         state = self.drones.get(drone)
         if state is None:
             if len(self.drones) >= self.max_drones:
@@ -192,7 +193,7 @@ class FleetView:
         message: Message,
         *,
         now: float,
-        addr: tuple[str, int] | None = None,
+        addr: Address | None = None,
         utility: float | None = None,
         image_id: int | None = None,
     ) -> DroneState:

@@ -1,4 +1,8 @@
-"""The UDP side of the ground station, on aiohttp's event loop (aioquic-style shell).
+"""The fleet side of the ground station, on aiohttp's event loop (aioquic-style shell).
+
+The link is protocol logic over a transport (:mod:`ground_station.transport`, UDP by
+default): datagrams arrive through :meth:`GroundLink.datagrams_received` and leave through
+``transport.send``; addresses are the transport's own, opaque here.
 
 Every entry point does the same three steps: call the sans-I/O cores with ``now=clock()``
 (decoder, report scheduler, mission manager), process their events, transmit what they
@@ -10,14 +14,13 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import socket
-import sys
 from collections import Counter
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from companion.protocol import (
     EPOCH_STATUS,
+    Address,
     Command,
     Decoder,
     DecoderLimits,
@@ -36,16 +39,12 @@ from ground_station.replay_state import load_replay_state, save_replay_state
 from ground_station.reports import ReportScheduler
 from ground_station.storage import BatchResult, StoreItem
 from ground_station.store_service import StorageService
+from ground_station.transport import GroundTransport, udp_transport
 from ground_station.utility import ImageUtility
 
 __all__ = ["GroundLink"]
 
 log = logging.getLogger(__name__)
-
-MAX_READS_PER_WAKEUP = 512
-"""Datagrams read per wake-up before the loop serves others (timers, HTTP, WebSocket)."""
-RECV_BYTES = 2048
-"""Larger than any valid datagram (1200 bytes), so oversize ones are seen and counted."""
 
 MAX_EPOCHS = 1024
 """Drones whose boot epoch is kept; a forgotten one is sent epoch 0 and announces again."""
@@ -58,6 +57,16 @@ TILE_INTERVAL_S = 0.25
 at once; later ones within the interval show as one push of the latest tile at its end.
 A browser cannot draw 500 tiles a second, and building and sending one (JSON, a WebSocket
 frame, a syscall per watcher) costs the UDP path as much as decoding half the image."""
+
+MAX_TILE_PUSHES_PER_S = 50.0
+"""Fleet-wide bound on tile pushes: past 12 drones each drone's interval grows with the fleet
+(50 drones: one push a second each). A push costs ~0.4 ms on the loop (the tile, its JSON);
+at 50 drones x 10 images/s the 0.25 s interval alone spent ~0.2 ms of every image on it."""
+
+
+def tile_interval(drones: int) -> float:
+    """Least time between two tile pushes of one drone in a fleet of ``drones``."""
+    return max(TILE_INTERVAL_S, drones / MAX_TILE_PUSHES_PER_S)
 
 
 def is_image(message_type: str, payload: bytes) -> bool:
@@ -79,7 +88,10 @@ class GroundLink:
         broadcaster: Broadcaster,
         image_utility: ImageUtility,
         latest_jpeg: dict[str, bytes],
+        transport: GroundTransport[Address] | None = None,
     ) -> None:
+        """``transport``: where datagrams come from and go to (default: UDP on the
+        config's ``udp_host``/``udp_port``)."""
         self.config = config
         self.clock = clock
         self.fleet = fleet
@@ -108,8 +120,10 @@ class GroundLink:
         self.replay_path = config.data_dir / "replay_state.json"
         self._replay_saving = False
         self.reports = ReportScheduler(interval_s=config.report_interval_s, now=now)
-        self.sock: socket.socket | None = None
-        self.rcvbuf_bytes = 0
+        self.transport: GroundTransport[Address] = (
+            transport if transport is not None else udp_transport(config)
+        )
+        self._open = False
         self.counters: Counter[str] = Counter()
         self._timer: asyncio.TimerHandle | None = None
         self._timer_at: float | None = None
@@ -121,35 +135,24 @@ class GroundLink:
         """Drones whose tile changed since its last push -> when the next push is due."""
 
     # -- lifecycle ------------------------------------------------------------------------
-    async def open(self) -> tuple[str, int]:
-        """Bind the UDP socket and start reading it from the event loop.
+    async def open(self) -> Address:
+        """Open the transport and start receiving from it.
 
         First the previous run's replay state is restored: whatever a sender sent before this
         start is refused, so datagrams captured earlier cannot be replayed into this run.
         """
-        loop = asyncio.get_running_loop()
         saved = await asyncio.to_thread(load_replay_state, self.replay_path)
         restored = self.decoder.restore_replay_state(saved, self.clock())
         if restored:
             log.info("replay protection restored for %d sender(s)", restored)
-        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self.rcvbuf_bytes = set_receive_buffer(sock, self.config.udp_rcvbuf_bytes)
-        sock.bind((self.config.udp_host, self.config.udp_port))
-        sock.setblocking(False)
-        self.sock = sock
-        # A reader callback that drains every queued datagram per wake-up: one loop
-        # iteration per burst instead of one per datagram (asyncio's datagram transport
-        # reads one), which keeps the kernel buffer empty at thousands of datagrams/s.
-        loop.add_reader(sock.fileno(), self._read_ready)
+        addr = await self.transport.open(self)
+        self._open = True
         self._arm()
-        return self.local_addr
+        return addr
 
     @property
-    def local_addr(self) -> tuple[str, int]:
-        assert self.sock is not None
-        host, port = self.sock.getsockname()[:2]
-        return str(host), int(port)
+    def local_addr(self) -> Address:
+        return self.transport.local_addr
 
     def save_replay_state(self) -> None:
         """Write the replay state now (blocking: at shutdown)."""
@@ -179,43 +182,27 @@ class GroundLink:
         future.add_done_callback(done)
 
     def close(self) -> None:
-        if self.sock is not None:
+        if self._open:
             self.save_replay_state()
+            self._open = False
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
-        if self.sock is not None:
-            asyncio.get_running_loop().remove_reader(self.sock.fileno())
-            self.sock.close()
-            self.sock = None
+        self.transport.close()
 
-    def _read_ready(self) -> None:
-        sock = self.sock
-        if sock is None:
-            return
+    # -- input --------------------------------------------------------------------------
+    def datagrams_received(self, datagrams: Sequence[tuple[bytes, Address]]) -> None:
+        """A burst from the transport: decoded together, then events handled once."""
         now = self.clock()
         receive = self.decoder.receive_datagram
-        for _ in range(MAX_READS_PER_WAKEUP):
-            try:
-                data, addr = sock.recvfrom(RECV_BYTES)
-            except (BlockingIOError, InterruptedError):
-                break
-            except OSError as exc:
-                # ICMP port unreachable from a drone that went away: count, keep reading.
-                self.counters["socket_errors"] += 1
-                log.debug("UDP socket error: %s", exc)
-                continue
+        for data, addr in datagrams:
             receive(data, addr, now)
         self._process_events(now)
         self._arm()
 
-    # -- input --------------------------------------------------------------------------
-    def datagram_received(self, data: bytes, addr: tuple[str | Any, int]) -> None:
-        """One datagram (tests and other transports feed the link through this)."""
-        now = self.clock()
-        self.decoder.receive_datagram(data, addr, now)
-        self._process_events(now)
-        self._arm()
+    def datagram_received(self, data: bytes, addr: Address) -> None:
+        """One datagram (tests feed the link through this, bypassing the transport)."""
+        self.datagrams_received(((data, addr),))
 
     def _process_events(self, now: float) -> None:
         while (event := self.decoder.next_event()) is not None:
@@ -236,10 +223,10 @@ class GroundLink:
 
     def _on_message(self, event: MessageReassembled, now: float) -> None:
         message = event.message
-        addr = (str(event.addr[0]), int(event.addr[1]))
+        addr = event.addr
         image = is_image(message.type, event.payload)
         utility = (
-            self.image_utility.weight(message.type, message.data, quality=message.quality)
+            self.image_utility.weight(message)
             if image
             else None
         )
@@ -271,7 +258,8 @@ class GroundLink:
             self.counters["images"] += 1
             self.latest_jpeg[message.sender] = event.payload
         if self.broadcaster.clients:  # the tile costs ~20 us; build it only for a watcher
-            due = self._tile_pushed.get(message.sender, -TILE_INTERVAL_S) + TILE_INTERVAL_S
+            interval = tile_interval(len(self.fleet.drones))
+            due = self._tile_pushed.get(message.sender, -interval) + interval
             if now >= due:
                 self._push_tile(message.sender, now)
             else:
@@ -292,7 +280,7 @@ class GroundLink:
 
     def _on_status(self, event: StatusReceived, now: float) -> None:
         status = event.status
-        addr = (str(event.addr[0]), int(event.addr[1]))
+        addr = event.addr
         if status.state == EPOCH_STATUS:
             self._on_epoch(event, addr, now)
             return
@@ -329,7 +317,7 @@ class GroundLink:
             },
         )
 
-    def _on_epoch(self, event: StatusReceived, addr: tuple[str, int], now: float) -> None:
+    def _on_epoch(self, event: StatusReceived, addr: Address, now: float) -> None:
         """A drone (re)started: remember its epoch, resend its unacknowledged commands."""
         epoch = event.status.info.get("epoch")
         if isinstance(epoch, bool) or not isinstance(epoch, int) or not 0 < epoch < 2**64:
@@ -373,22 +361,11 @@ class GroundLink:
             self._flush_alerts()
 
     # -- output -------------------------------------------------------------------------
-    def _send(self, datagram: bytes, addr: tuple[str, int]) -> None:
-        if self.sock is None:
-            return
-        try:
-            self.sock.sendto(datagram, addr)
-        except (BlockingIOError, InterruptedError):
-            # Best effort (ARCHITECTURE.md): a full send buffer drops, never blocks the loop.
-            self.counters["send_dropped"] += 1
-            return
-        except OSError as exc:
-            self.counters["send_errors"] += 1
-            log.debug("UDP send to %s failed: %s", addr, exc)
-            return
-        self.counters["datagrams_sent"] += 1
+    def _send(self, datagram: bytes, addr: Address) -> None:
+        """Through the transport, best effort: what it cannot send it counts and drops."""
+        self.transport.send(datagram, addr)
 
-    def _drone_addrs(self) -> list[tuple[str, tuple[str, int]]]:
+    def _drone_addrs(self) -> list[tuple[str, Address]]:
         return [(d, s.addr) for d, s in self.fleet.drones.items() if s.addr is not None]
 
     def send_commands(self, now: float) -> None:
@@ -503,11 +480,11 @@ class GroundLink:
         return {
             "t": now,
             "decoder": dict(self.decoder.counters),
-            "udp_rcvbuf_bytes": self.rcvbuf_bytes,
+            **self.transport.stats(),
             "decoder_partials": self.decoder.partial_count,
             "decoder_buffered_bytes": self.decoder.buffered_bytes,
             "drops": dict(self.fleet.drops),
-            "link": dict(self.counters),
+            "link": dict(self.counters + self.transport.counters),
             "storage": self.storage.stats(),
             "websocket": {
                 "clients": len(self.broadcaster.clients),
@@ -515,23 +492,3 @@ class GroundLink:
                 "dropped": self.broadcaster.dropped,
             },
         }
-
-
-def set_receive_buffer(sock: socket.socket, size: int) -> int:
-    """Ask for a large kernel receive buffer so bursts of fragments are not lost in the
-    kernel while the loop is busy. SO_RCVBUFFORCE (Linux, with CAP_NET_ADMIN) may exceed
-    net.core.rmem_max; otherwise SO_RCVBUF is capped by it. Returns what the kernel granted.
-    """
-    force = getattr(socket, "SO_RCVBUFFORCE", 33 if sys.platform.startswith("linux") else None)
-    granted_before = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
-    if force is not None:
-        try:
-            sock.setsockopt(socket.SOL_SOCKET, force, size)
-        except OSError:
-            force = None
-    if force is None:
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
-    granted = int(sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
-    if granted < min(size, 2 * granted_before):  # pragma: no cover - depends on the host
-        log.warning("UDP receive buffer is %d bytes (asked %d)", granted, size)
-    return granted

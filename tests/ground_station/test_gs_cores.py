@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -136,26 +137,36 @@ def test_drop_alerts_are_rate_limited_to_powers_of_ten() -> None:
 
 
 # -- image utility (thesis eq. 7.1 / 7.2) --------------------------------------------------
+def image(type_: str, data: dict[str, object], *, quality: float = 1.0) -> Message:
+    """An image message of ``type_`` carrying a version of ``quality``."""
+    versions: tuple[Version, ...] = (Version(name="full", size=40, quality=1.0),)
+    if quality != 1.0:
+        versions += (Version(name="part", size=10, quality=quality),)
+    return Message(sender="d", seq=1, type=type_, t_gen=T0, size=10, data=data,
+                   versions=versions, version=len(versions) - 1)
+
+
 def test_image_utility_equations() -> None:
     u = ImageUtility(alpha=10.0)
-    assert u.weight("image", {"red": 0.25}) == pytest.approx(3.5)  # 1 + 10·0.25
-    assert u.weight("image", {"object": True}) == 11.0  # 1 + α
-    assert u.weight("image", {"object": False, "red": 0.0}) == 1.0
-    assert u.weight("image", {"red": 0.5}, quality=0.25) == pytest.approx(1.5)
-    assert u.weight("image", {}) == 1.0
+    assert u.weight(image("image", {"red": 0.25})) == pytest.approx(3.5)  # 1 + 10·0.25
+    assert u.weight(image("image", {"object": True})) == 11.0  # 1 + α
+    assert u.weight(image("image", {"object": False, "red": 0.0})) == 1.0
+    assert u.weight(image("image", {"red": 0.5}, quality=0.25)) == pytest.approx(1.5)
+    assert u.weight(image("image", {})) == 1.0
 
 
 def test_image_utility_from_mission_spec() -> None:
     u = image_utility_from_spec(SPECS / "all_types.toml", alpha=1.0)
-    assert u.by_type["image"] == ("red", 10.0)
-    assert u.by_type["target"] == ("object", 10.0)
+    assert u.by_type["image"].name == "red_image" and u.by_type["image"].params()["alpha"] == 10
+    assert u.by_type["target"].name == "object_image"
+    assert u.by_type["target"].params()["alpha"] == 10.0
     # an object flag on a red_image type does not count; red on object_image neither
-    assert u.weight("image", {"red": 0.1, "object": True}) == pytest.approx(2.0)
-    assert u.weight("target", {"red": 0.9}) == 1.0
-    assert u.weight("other", {"red": 0.5}) == pytest.approx(1.5)  # config α = 1
+    assert u.weight(image("image", {"red": 0.1, "object": True})) == pytest.approx(2.0)
+    assert u.weight(image("target", {"red": 0.9})) == 1.0
+    assert u.weight(image("other", {"red": 0.5})) == pytest.approx(1.5)  # config α = 1
     # plain video types of the spec: red and objects do not make them worth more
-    assert u.weight("video", {"red": 0.3, "object": True}, quality=0.5) == 0.5
-    assert u.weight("thumbnail", {"red": 0.3}) == 1.0
+    assert u.weight(image("video", {"red": 0.3, "object": True}, quality=0.5)) == 0.5
+    assert u.weight(image("thumbnail", {"red": 0.3})) == 1.0
 
 
 # -- broadcaster ---------------------------------------------------------------------------
@@ -234,7 +245,35 @@ def test_versions_quality_in_message() -> None:
         ),
         version=1,
     )
-    assert ImageUtility(alpha=10).weight("image", {"red": 1.0}, quality=m.quality) == 5.5
+    assert ImageUtility(alpha=10).weight(replace(m, data={"red": 1.0})) == 5.5
+
+
+def write_spec(path: Path, utility: str, params: str) -> Path:
+    path.write_text(f'[mission]\nname = "m"\n\n[types.image]\nutility = "{utility}"\n'
+                    f'aggregation = "max"\nper_sender = true\nparams = {{ {params} }}\n')
+    return path
+
+
+@pytest.mark.parametrize(
+    ("utility", "params", "expected"),
+    [
+        ("red_image", "alpha = 10.0", 0.5 * (1 + 10 * 0.2)),  # eq. 7.1 x quality
+        ("red_image", "alpha = 2.0", 0.5 * (1 + 2 * 0.2)),  # the spec's α, not the config's 7
+        ("object_image", "alpha = 4.0", 0.5 * (1 + 4.0)),  # eq. 7.2: the object flag counts
+        ("video", "S = 0.1", 0.5),  # eq. 4.28: only the carried version's quality
+        ("video_versions", "S = 0.1", 300 / 1200),  # eq. 4.33: diagonal / full diagonal
+    ],
+)
+def test_image_weight_follows_the_specs_function(
+    tmp_path: Path, utility: str, params: str, expected: float
+) -> None:
+    """One image, one type name, different spec functions: the weight is that function's
+    scale (``Video.scale``), the same number the evaluator multiplies U_vid with."""
+    u = image_utility_from_spec(write_spec(tmp_path / "s.toml", utility, params), alpha=7.0)
+    m = image("image", {"red": 0.2, "object": True, "diagonal": 300.0, "full_diagonal": 1200.0},
+              quality=0.5)
+    assert u.weight(m) == pytest.approx(expected)
+    assert u.weight(m) == pytest.approx(u.by_type["image"].scale(m))
 
 
 @given(

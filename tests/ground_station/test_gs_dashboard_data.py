@@ -21,6 +21,8 @@ from ground_station.scene_map import load_scene_map
 from ground_station.utility import ImageUtility, image_utility_from_spec
 from tests.ground_station.conftest import KEY, TOKEN, auth
 from tests.ground_station.test_gs_app import feed
+from tests.ground_station.test_gs_cores import image
+from utility_specs.functions import RedImage, Video
 
 SPECS = Path(__file__).resolve().parents[2] / "utility_specs" / "missions"
 
@@ -31,7 +33,7 @@ def test_threshold_is_a_fraction_of_the_specs_gain() -> None:
     assert streaming.high_threshold(0.1) == pytest.approx(2.0)
     assert ImageUtility(alpha=40.0).high_threshold(0.25) == pytest.approx(11.0)
     # only plain video: no image can gain, so none is ever high
-    plain = ImageUtility(alpha=10.0, by_type={"video": ("plain", 0.0)})
+    plain = ImageUtility(alpha=10.0, by_type={"video": Video()})
     assert plain.max_gain() == 0.0 and plain.high_threshold(0.1) is None
 
 
@@ -39,10 +41,10 @@ def test_threshold_is_a_fraction_of_the_specs_gain() -> None:
 def test_high_exactly_from_the_fraction_of_red_share(alpha: float, fraction: float,
                                                      red: float) -> None:
     """Under eq. 7.1 an image is high iff its red share reaches the fraction."""
-    u = ImageUtility(alpha=alpha, by_type={"image": ("red", alpha)})
+    u = ImageUtility(alpha=alpha, by_type={"image": RedImage(alpha=alpha)})
     threshold = u.high_threshold(fraction)
     assert threshold is not None
-    weight = u.weight("image", {"red": red})
+    weight = u.weight(image("image", {"red": red}))
     if red >= fraction * (1 + 1e-9):
         assert weight >= threshold
     elif red <= fraction * (1 - 1e-9):
