@@ -189,6 +189,7 @@ class CompanionApp:
         drone = self.config.drone_id
         log.info("companion %s starting", drone, extra={"event": "start", "drone": drone})
         self.mission_log.write({"mission": {"t_start": self.clock()}})
+        self.dispatcher.bind(self._stopping)
         try:
             async with asyncio.TaskGroup() as group:
                 group.create_task(self.transport.run(), name="transport")
@@ -197,7 +198,7 @@ class CompanionApp:
                     async with asyncio.timeout(10.0):
                         await wait_started()
                 group.create_task(self.mavlink.run(), name="mavlink")
-                await self.dispatcher.start(self._stopping)  # warm-up before any decision
+                await self.dispatcher.warm_up()  # before anything asks the optimiser
                 group.create_task(self.publisher.run(), name="telemetry-publisher")
                 if self.camera is not None:
                     group.create_task(self.camera.run(), name="camera")

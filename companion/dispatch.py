@@ -61,11 +61,11 @@ class Dispatcher:
 
     # -- life cycle -------------------------------------------------------------------------
 
-    async def start(self, stopping: asyncio.Event) -> None:
-        """Bind to the running loop and warm the decider up; ``stopping`` cuts the warm-up."""
+    def bind(self, stopping: asyncio.Event) -> None:
+        """From now on decider calls go to the executor of the running loop, until
+        ``stopping`` is set."""
         self._loop = asyncio.get_running_loop()
         self._stopping = stopping
-        await self._warm_up(stopping)
 
     def close(self) -> None:
         if self._stopping is not None:
@@ -84,10 +84,11 @@ class Dispatcher:
         """Started and not stopping: decider calls may be scheduled."""
         return self._stopping is not None and not self._stopping.is_set()
 
-    async def _warm_up(self, stopping: asyncio.Event) -> None:
+    async def warm_up(self) -> None:
         """Run the decider's optional ``warm_up`` in its executor; a stop request wins."""
         warm_up = getattr(self.decider, "warm_up", None)
-        if warm_up is None:
+        stopping = self._stopping
+        if warm_up is None or stopping is None:
             return
         loop = asyncio.get_running_loop()
         t0 = loop.time()
