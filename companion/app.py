@@ -28,7 +28,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
-from companion.camera import CameraService, FrameSource, open_source
+from companion.camera import CameraError, CameraService, FrameSource, open_source
 from companion.commands import CommandExecutor
 from companion.config import CompanionConfig, missing_keys
 from companion.dispatch import COUNTERS, Dispatcher
@@ -127,6 +127,11 @@ class CompanionApp:
         self.clock = clock
         self.decider = decider
         self.telemetry = TelemetryState()
+        cam = config.camera
+        if cam.enabled and frame_source is None:  # first: a camera that cannot open stops here
+            frame_source = open_source(cam.source, width=cam.width, height=cam.height,
+                                       rate_hz=cam.rate_hz, pose=self.telemetry.snapshot,
+                                       options=dict(cam.options))
         self.mission = MissionWindow("idle" if config.mission.wait_for_start else "running")
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.mission_log = MissionLogWriter(mission_log if mission_log is not None
@@ -150,15 +155,11 @@ class CompanionApp:
             on_done=lambda now: self.publisher.on_sample(Sample(t=now)))
         self.pipeline: CameraPipeline | None = None
         self.camera: CameraService | None = None
-        if config.camera.enabled:
-            cam = config.camera
+        if frame_source is not None and cam.enabled:
             self.pipeline = CameraPipeline(
                 cam, drone_id=config.drone_id, dispatcher=self.dispatcher, mission=self.mission,
                 scorer=scorer or make_scorer(config.scoring.scorers, config.scoring.settings))
-            source = frame_source or open_source(
-                cam.source, width=cam.width, height=cam.height, rate_hz=cam.rate_hz,
-                pose=self.telemetry.snapshot, options=dict(cam.options))
-            self.camera = CameraService(source, self.pipeline.on_frame, clock=clock,
+            self.camera = CameraService(frame_source, self.pipeline.on_frame, clock=clock,
                                         rate_hz=cam.rate_hz, width=cam.width,
                                         height=cam.height, pose=self.telemetry.snapshot)
 
@@ -311,8 +312,11 @@ def create_app(config: CompanionConfig, *, clock: Clock,
     check_setup(config)
     decider: Decider = build_decider(config)
     factory = build_transport_factory(config, clock=clock)
-    return CompanionApp(config, decider=decider, transport_factory=factory, clock=clock,
-                        frame_source=frame_source, mavlink_connect=mavlink_connect)
+    try:
+        return CompanionApp(config, decider=decider, transport_factory=factory, clock=clock,
+                            frame_source=frame_source, mavlink_connect=mavlink_connect)
+    except CameraError as exc:  # a bad camera.source is a setup error, not a traceback
+        raise AppSetupError(f"{config.source}: camera.source: {exc}") from None
 
 
 MIDDLEWARE_KEYS = (

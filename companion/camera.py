@@ -224,7 +224,11 @@ class SourceKind:
 def _device(request: SourceRequest) -> FrameSource:
     target: str | int = request.source
     if request.source.startswith("device:"):
-        target = int(request.source.removeprefix("device:"))
+        number = request.source.removeprefix("device:")
+        if not number.isdigit():
+            raise CameraError(f"camera source {request.source!r}: expected device:N, "
+                              "N the V4L2 device number")
+        target = int(number)
     return LiveCaptureSource(target, api=cv2.CAP_V4L2, width=request.width,
                              height=request.height, fps=request.rate_hz)
 
