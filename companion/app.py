@@ -125,7 +125,6 @@ class CompanionApp:
         mission_log: str | Path | None = None,
     ) -> None:
         self.clock = clock
-        self.decider = decider
         self.telemetry = TelemetryState()
         cam = config.camera
         if cam.enabled and frame_source is None:  # first: a camera that cannot open stops here
