@@ -271,9 +271,9 @@ def find_source_kind(source: str) -> SourceKind | None:
         if point.name == source:
             try:
                 kind = point.load()
-            except ImportError as exc:
+            except Exception as exc:  # a broken plug-in is a camera error, not a crash
                 raise CameraError(f"camera source {source!r} ({point.value}) cannot be "
-                                  f"loaded: {exc}") from exc
+                                  f"loaded: {exc!r}") from exc
             if not isinstance(kind, SourceKind):
                 raise CameraError(f"camera source {source!r}: {point.value} is not a "
                                   "companion.camera.SourceKind")

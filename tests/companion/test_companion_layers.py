@@ -49,7 +49,8 @@ def test_no_module_under_companion_imports_sitl() -> None:
 
 
 def test_the_companion_runs_its_setup_without_loading_sitl(tmp_path: Path) -> None:
-    """Importing the app and the CLI and opening a non-synthetic camera load no sitl module."""
+    """Importing the app and the CLI and opening a non-synthetic camera load no sitl module;
+    ``synthetic`` comes from sitl's entry point, loaded when a config names it."""
     (tmp_path / "a.png").write_bytes(b"")
     code = (
         "import sys\n"
@@ -57,10 +58,15 @@ def test_the_companion_runs_its_setup_without_loading_sitl(tmp_path: Path) -> No
         "from companion.camera import CameraError, open_source\n"
         f"try:\n    open_source({str(tmp_path)!r}, width=64, height=48, rate_hz=1)\n"
         "except CameraError:\n    pass\n"
-        "loaded = sorted(m for m in sys.modules if m == 'sitl' or m.startswith('sitl.'))\n"
-        "print(loaded)\n"
+        "def loaded():\n"
+        "    return sorted(m for m in sys.modules if m == 'sitl' or m.startswith('sitl.'))\n"
+        "print(loaded())\n"
+        "from companion.telemetry import TelemetrySnapshot\n"
+        "source = open_source('synthetic', width=64, height=48, rate_hz=1,\n"
+        "                     pose=TelemetrySnapshot)\n"
+        "print(type(source).__module__, 'sitl.camera_source' in loaded())\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=60, check=False, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.strip() == "[]"
+    assert done.stdout.splitlines() == ["[]", "sitl.camera_source True"]
