@@ -24,7 +24,7 @@ import dataclasses
 import logging
 import math
 import secrets
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -177,10 +177,6 @@ class CompanionApp:
 
     def fallback_share(self) -> float | None:
         return self.dispatcher.fallback_share()
-
-    async def submit(self, message: Message, payloads: Sequence[bytes]) -> bool:
-        """Ask the decider about ``message``; send the chosen version. True if sent."""
-        return await self.dispatcher.submit(message, payloads)
 
     # -- life cycle -----------------------------------------------------------------------
 
