@@ -76,6 +76,8 @@ def test_live_capture_returns_the_freshest_frame(tmp_path: Path) -> None:
 def test_open_source_names_the_problem(tmp_path: Path) -> None:
     with pytest.raises(CameraError, match="nope"):
         open_source(str(tmp_path / "nope"), width=64, height=48, rate_hz=1)
+    with pytest.raises(CameraError, match="'device:front': expected device:N"):
+        open_source("device:front", width=64, height=48, rate_hz=1)
     cv2.imwrite(str(tmp_path / "a.jpg"), _numbered(1))
     assert isinstance(open_source(str(tmp_path), width=64, height=48, rate_hz=1), FolderSource)
 
