@@ -8,8 +8,12 @@ Sources (all blocking, used from worker threads only):
   stale frames and ``read`` always returns the freshest one.
 * :class:`VideoFileSource`: a video file, paced to the wanted rate by skipping frames.
 * :class:`FolderSource`: a folder of images, cycled in name order.
-* :class:`SyntheticSource`: renders what the drone sees from the telemetry pose
-  (``sitl.camera.SyntheticCamera``), for SITL runs.
+
+Each kind of source is a :class:`SourceKind` (which ``camera.source`` strings it takes, how to
+open one): the built-in ones above, those added with :func:`register_frame_source`, and those
+installed packages declare as entry points (group ``uav_infodist.frame_sources``): ``sitl``
+adds ``synthetic`` that way, the SITL camera rendered from the telemetry pose, so the companion
+never imports the simulator.
 
 :class:`CameraService` grabs at ``rate_hz`` in a worker thread, resizes to the configured size
 and hands each :class:`Frame` to an async sink; a slow sink makes it skip frames, never queue.
@@ -21,8 +25,9 @@ import asyncio
 import contextlib
 import logging
 import threading
-from collections.abc import Awaitable, Callable
-from dataclasses import dataclass
+from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass, field
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -38,9 +43,12 @@ __all__ = [
     "Frame",
     "FrameSource",
     "LiveCaptureSource",
-    "SyntheticSource",
+    "SourceKind",
+    "SourceRequest",
     "VideoFileSource",
+    "find_source_kind",
     "open_source",
+    "register_frame_source",
 ]
 
 log = logging.getLogger(__name__)
@@ -188,85 +196,108 @@ class FolderSource:
         pass
 
 
-class SyntheticSource:
-    """Frames rendered from the current telemetry pose (``render(snapshot) -> BGR image``)."""
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SourceRequest:
+    """What the configuration asks of a frame source (``[camera]``)."""
 
-    def __init__(self, render: Callable[[TelemetrySnapshot], Image | None],
-                 pose: Callable[[], TelemetrySnapshot], *, description: str = "synthetic"
-                 ) -> None:
-        self.description = description
-        self._render = render
-        self._pose = pose
-
-    def read(self, *, timeout_s: float) -> Image | None:
-        return self._render(self._pose())
-
-    def close(self) -> None:
-        pass
+    source: str
+    width: int
+    height: int
+    rate_hz: float
+    pose: Callable[[], TelemetrySnapshot] | None = None
+    """The vehicle's current state, for sources that render what it sees."""
+    options: Mapping[str, Any] = field(default_factory=dict)
+    """``camera.options``: the source's own keywords."""
 
 
-def _sitl_renderer(width: int, height: int, options: dict[str, Any]
-                   ) -> Callable[[TelemetrySnapshot], Image | None]:
-    """Adapter to ``sitl.camera.SyntheticCamera`` (imported lazily: sitl depends on us).
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SourceKind:
+    """One kind of frame source: which ``camera.source`` strings it takes and how to open one."""
 
-    ``options``: ``scene`` (bundled name or TOML path, default ``demo``) and the camera's own
-    keywords (``hfov_deg``, ``mount_pitch_deg``, ``gimbal_stabilised``, ``noise_std``,
-    ``lighting``, ``seed``).
-    """
-    import time
+    name: str
+    describe: str
+    """How error messages list it ("a folder")."""
+    claims: Callable[[str], bool]
+    open: Callable[[SourceRequest], FrameSource]
 
-    try:
-        from sitl.camera import SyntheticCamera, pose_from_geo
-        from sitl.scenes import SceneError, load_scene
-    except ImportError as exc:
-        raise CameraError(f"synthetic camera unavailable: {exc}") from exc
-    options = dict(options)
-    scene_name = str(options.pop("scene", "demo"))
-    try:
-        scene = load_scene(scene_name)
-        camera = SyntheticCamera(scene, width_px=width, height_px=height, **options)
-    except (SceneError, TypeError, ValueError) as exc:
-        raise CameraError(f"synthetic camera (scene {scene_name!r}): {exc}") from exc
-    t_start = time.monotonic()
 
-    def render(snap: TelemetrySnapshot) -> Image | None:
-        if snap.lat_deg is None or snap.lon_deg is None:
-            return None  # no position yet: nothing to look at
-        pose = pose_from_geo(scene.home, lat_deg=snap.lat_deg, lon_deg=snap.lon_deg,
-                             alt_rel_m=snap.alt_rel_m if snap.alt_rel_m is not None else 0.0,
-                             roll_rad=snap.roll_rad or 0.0, pitch_rad=snap.pitch_rad or 0.0,
-                             yaw_rad=snap.yaw_rad or 0.0)
-        image: Image = camera.render(pose, t_s=time.monotonic() - t_start)
-        return image
+def _device(request: SourceRequest) -> FrameSource:
+    target: str | int = request.source
+    if request.source.startswith("device:"):
+        number = request.source.removeprefix("device:")
+        if not number.isdigit():
+            raise CameraError(f"camera source {request.source!r}: expected device:N, "
+                              "N the V4L2 device number")
+        target = int(number)
+    return LiveCaptureSource(target, api=cv2.CAP_V4L2, width=request.width,
+                             height=request.height, fps=request.rate_hz)
 
-    return render
+
+BUILTIN_SOURCES: tuple[SourceKind, ...] = (
+    SourceKind(name="device", describe="a device",
+               claims=lambda s: s.startswith(("device:", "/dev/video")), open=_device),
+    SourceKind(name="gstreamer", describe="a GStreamer pipeline", claims=lambda s: "!" in s,
+               open=lambda r: LiveCaptureSource(r.source, api=cv2.CAP_GSTREAMER)),
+    SourceKind(name="url", describe="a URL", claims=lambda s: "://" in s,
+               open=lambda r: LiveCaptureSource(r.source, api=cv2.CAP_FFMPEG)),
+    SourceKind(name="folder", describe="a folder", claims=lambda s: Path(s).is_dir(),
+               open=lambda r: FolderSource(r.source)),
+    SourceKind(name="file", describe="an existing video file",
+               claims=lambda s: Path(s).is_file(),
+               open=lambda r: VideoFileSource(r.source, rate_hz=r.rate_hz)),
+)
+"""Tried in this order after the registered and entry-point kinds."""
+
+ENTRY_POINT_GROUP = "uav_infodist.frame_sources"
+"""Installed packages add named kinds here: ``NAME = "module:SOURCE_KIND"`` (sitl adds
+``synthetic``); a kind is loaded only when ``camera.source`` is its name."""
+
+_REGISTERED: list[SourceKind] = []
+
+
+def register_frame_source(kind: SourceKind) -> None:
+    """Add a kind of frame source; it is asked before the entry points and built-ins."""
+    if any(k.name == kind.name for k in _REGISTERED):
+        raise ValueError(f"a frame source named {kind.name!r} is registered already")
+    _REGISTERED.append(kind)
+
+
+def find_source_kind(source: str) -> SourceKind | None:
+    """The kind that takes ``source``: registered, then entry points (by name), then built-in."""
+    for kind in _REGISTERED:
+        if kind.claims(source):
+            return kind
+    for point in entry_points(group=ENTRY_POINT_GROUP):
+        if point.name == source:
+            try:
+                kind = point.load()
+            except Exception as exc:  # a broken plug-in is a camera error, not a crash
+                raise CameraError(f"camera source {source!r} ({point.value}) cannot be "
+                                  f"loaded: {exc!r}") from exc
+            if not isinstance(kind, SourceKind):
+                raise CameraError(f"camera source {source!r}: {point.value} is not a "
+                                  "companion.camera.SourceKind")
+            return kind
+    return next((kind for kind in BUILTIN_SOURCES if kind.claims(source)), None)
+
+
+def source_kinds_text() -> str:
+    """Every kind, as error messages list them: "'synthetic', a device, ... or a folder"."""
+    names = [*(repr(k.name) for k in _REGISTERED),
+             *(repr(p.name) for p in entry_points(group=ENTRY_POINT_GROUP)),
+             *(k.describe for k in BUILTIN_SOURCES)]
+    return ", ".join(names[:-1]) + " or " + names[-1]
 
 
 def open_source(source: str, *, width: int, height: int, rate_hz: float,
                 pose: Callable[[], TelemetrySnapshot] | None = None,
-                options: dict[str, Any] | None = None) -> FrameSource:
-    """Open the source a configuration string names (see the module docstring)."""
-    if source == "synthetic":
-        if pose is None:
-            raise CameraError("the synthetic camera needs the telemetry pose")
-        return SyntheticSource(_sitl_renderer(width, height, dict(options or {})), pose)
-    if source.startswith("device:"):
-        return LiveCaptureSource(int(source.removeprefix("device:")), api=cv2.CAP_V4L2,
-                                 width=width, height=height, fps=rate_hz)
-    if source.startswith("/dev/video"):
-        return LiveCaptureSource(source, api=cv2.CAP_V4L2, width=width, height=height,
-                                 fps=rate_hz)
-    if "!" in source:
-        return LiveCaptureSource(source, api=cv2.CAP_GSTREAMER)
-    if "://" in source:
-        return LiveCaptureSource(source, api=cv2.CAP_FFMPEG)
-    path = Path(source)
-    if path.is_dir():
-        return FolderSource(path)
-    if path.is_file():
-        return VideoFileSource(path, rate_hz=rate_hz)
-    raise CameraError(f"camera source {source!r}: not 'synthetic', a device, a URL, a "
-                      "GStreamer pipeline, a folder or an existing video file")
+                options: Mapping[str, Any] | None = None) -> FrameSource:
+    """Open the source a configuration string names (the first kind that claims it)."""
+    kind = find_source_kind(source)
+    if kind is None:
+        raise CameraError(f"camera source {source!r}: not {source_kinds_text()}")
+    return kind.open(SourceRequest(source=source, width=width, height=height, rate_hz=rate_hz,
+                                   pose=pose, options=dict(options or {})))
 
 
 FrameSink = Callable[[Frame], Awaitable[None]]

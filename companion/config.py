@@ -20,7 +20,7 @@ from companion.mavlink import DEFAULT_STREAM_RATES_HZ, MavlinkSettings
 from companion.protocol.errors import LocalProtocolError
 from companion.protocol.signing import decode_key_text
 from companion.protocol.wire import MAX_ID_BYTES, MIN_KEY_BYTES
-from companion.scoring import ArucoSettings, HogSettings, RedShareSettings
+from companion.scoring import SCORERS
 
 __all__ = [
     "DEFAULT_CONFIG_PATH",
@@ -61,9 +61,9 @@ class CameraConfig:
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ScoringConfig:
     scorers: tuple[str, ...] = ("red_share",)
-    red_share: RedShareSettings = field(default_factory=RedShareSettings)
-    aruco: ArucoSettings = field(default_factory=ArucoSettings)
-    hog_people: HogSettings = field(default_factory=HogSettings)
+    settings: Mapping[str, Any] = field(default_factory=dict)
+    """Scorer name -> its settings from ``[scoring.NAME]`` (every registered scorer's table is
+    read, so a typo is an error even for a scorer not listed); absent: its defaults."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -218,14 +218,6 @@ def _is_mavlink_url(value: Any) -> bool:
     return False
 
 
-def _hsv(t: _Table, name: str, default: tuple[int, int, int]) -> tuple[int, int, int]:
-    value = t.get(name, default, "[H 0..179, S 0..255, V 0..255]",
-                  lambda v: isinstance(v, list | tuple) and len(v) == 3
-                  and all(isinstance(x, int) and not isinstance(x, bool) for x in v)
-                  and 0 <= v[0] <= 179 and all(0 <= x <= 255 for x in v[1:]))
-    return (int(value[0]), int(value[1]), int(value[2]))
-
-
 def _resolve(path: str, base: Path) -> Path:
     """A path from the file, relative to the file's folder."""
     p = Path(path).expanduser()
@@ -334,44 +326,21 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
     cam.done()
 
     sc = root.table("scoring")
-    names = sc.get("scorers", ["red_share"], "a list of red_share | aruco | hog_people",
-                   lambda v: isinstance(v, list) and all(
-                       x in ("red_share", "aruco", "hog_people") for x in v))
-    red = sc.table("red_share")
-    red_settings = RedShareSettings(
-        lower1=_hsv(red, "lower1", (0, 100, 70)), upper1=_hsv(red, "upper1", (10, 255, 255)),
-        lower2=_hsv(red, "lower2", (170, 100, 70)), upper2=_hsv(red, "upper2", (179, 255, 255)),
-        kernel_px=red.integer("kernel_px", 3, low=0, high=51),
-        scale=red.get("scale", 0.5, "a number in (0, 1]",
-                      lambda v: _is_number(v) and 0 < v <= 1),
-    )
-    red.done()
-    ar = sc.table("aruco")
-    aruco_settings = ArucoSettings(
-        dictionary=ar.get("dictionary", "DICT_4X4_50", "an OpenCV ArUco dictionary name "
-                          "like DICT_4X4_50", lambda v: isinstance(v, str) and v.startswith(
-                              "DICT_")),
-        target_ids=tuple(ar.get("target_ids", [], "a list of marker ids >= 0",
-                                lambda v: isinstance(v, list) and all(
-                                    isinstance(x, int) and x >= 0 for x in v))),
-        scale=ar.get("scale", 0.5, "a number in (0, 1]", lambda v: _is_number(v) and 0 < v <= 1),
-    )
-    ar.done()
-    hog = sc.table("hog_people")
-    hog_settings = HogSettings(
-        scale=hog.get("scale", 0.5, "a number in (0, 1]", lambda v: _is_number(v) and 0 < v <= 1),
-        win_stride_px=hog.get("win_stride_px", 8, "a positive multiple of 8",
-                              lambda v: isinstance(v, int) and not isinstance(v, bool)
-                              and v > 0 and v % 8 == 0),
-        pyramid_scale=hog.get("pyramid_scale", 1.05, "a number > 1",
-                              lambda v: _is_number(v) and v > 1),
-        min_weight=hog.get("min_weight", 0.5, "a number >= 0",
-                           lambda v: _is_number(v) and v >= 0),
-    )
-    hog.done()
+    known = list(SCORERS)
+    names = sc.get("scorers", ["red_share"], f"a list of {' | '.join(known)}",
+                   lambda v: isinstance(v, list) and all(x in known for x in v))
+    settings: dict[str, Any] = {}
+    for name in known:
+        table = sc.table(name)
+        try:
+            settings[name] = SCORERS[name].read_settings(table)
+        except (ValueError, TypeError) as exc:
+            if isinstance(exc, ConfigError):
+                raise
+            raise ConfigError(f"{source}: scoring.{name}: {exc}") from None
+        table.done()
     sc.done()
-    scoring = ScoringConfig(scorers=tuple(names), red_share=red_settings, aruco=aruco_settings,
-                            hog_people=hog_settings)
+    scoring = ScoringConfig(scorers=tuple(names), settings=settings)
 
     mi = root.table("mission")
     spec = mi.string("spec", "builtin:image_streaming")

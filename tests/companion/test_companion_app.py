@@ -282,7 +282,7 @@ async def test_reports_go_to_the_decider(vehicle: FakeVehicle, tmp_path: Path) -
 
 
 def test_mission_log_skips_records_json_cannot_carry(tmp_path: Path) -> None:
-    from companion.app import MissionLogWriter
+    from companion.mission_log import MissionLogWriter
 
     writer = MissionLogWriter(tmp_path / "m.jsonl")
     assert writer.write({"state": {"agent": "d1", "t": 1.0}}) is True
@@ -304,7 +304,7 @@ class _FullDisk(io.StringIO):
 
 
 def test_mission_log_write_errors_are_counted_not_raised(tmp_path: Path) -> None:
-    from companion.app import MissionLogWriter
+    from companion.mission_log import MissionLogWriter
 
     writer = MissionLogWriter(tmp_path / "m.jsonl")
     writer._stream.close()  # type: ignore[union-attr]
@@ -345,7 +345,7 @@ async def test_a_full_sd_card_does_not_stop_streaming(
     app, transports = _make(_config(vehicle, tmp_path), decider, mission_log=log_path)
     task = asyncio.create_task(app.run())
     try:
-        await _until(lambda: app._log.errors > 0, timeout_s=10.0)
+        await _until(lambda: app.mission_log.errors > 0, timeout_s=10.0)
         sent = len(transports[0].sent)
         await _until(lambda: len(transports[0].sent) > sent + 5, timeout_s=10.0)
         assert not task.done()

@@ -76,6 +76,8 @@ def test_live_capture_returns_the_freshest_frame(tmp_path: Path) -> None:
 def test_open_source_names_the_problem(tmp_path: Path) -> None:
     with pytest.raises(CameraError, match="nope"):
         open_source(str(tmp_path / "nope"), width=64, height=48, rate_hz=1)
+    with pytest.raises(CameraError, match="'device:front': expected device:N"):
+        open_source("device:front", width=64, height=48, rate_hz=1)
     cv2.imwrite(str(tmp_path / "a.jpg"), _numbered(1))
     assert isinstance(open_source(str(tmp_path), width=64, height=48, rate_hz=1), FolderSource)
 
@@ -155,3 +157,37 @@ def test_synthetic_source_renders_from_the_telemetry_pose() -> None:
     with pytest.raises(CameraError, match="nowhere"):
         open_source("synthetic", width=64, height=48, rate_hz=5, pose=TelemetrySnapshot,
                     options={"scene": "nowhere"})
+
+
+def test_a_registered_frame_source_is_opened_by_its_name(monkeypatch: pytest.MonkeyPatch
+                                                         ) -> None:
+    """A new kind of camera is one SourceKind and one register line; errors list it."""
+    import companion.camera as camera
+
+    monkeypatch.setattr(camera, "_REGISTERED", [])
+
+    class Grey:
+        description = "grey"
+
+        def __init__(self, request: camera.SourceRequest) -> None:
+            self.image = np.full((request.height, request.width, 3), request.options["level"],
+                                 np.uint8)
+
+        def read(self, *, timeout_s: float) -> np.ndarray:
+            return self.image
+
+        def close(self) -> None:
+            pass
+
+    kind = camera.SourceKind(name="grey", describe="'grey'", claims=lambda s: s == "grey",
+                             open=Grey)
+    camera.register_frame_source(kind)
+    source = open_source("grey", width=32, height=24, rate_hz=1, options={"level": 7})
+    image = source.read(timeout_s=1)
+    assert image is not None and image.shape == (24, 32, 3) and int(image.max()) == 7
+    with pytest.raises(CameraError, match=r"'/no/such': not 'grey', 'synthetic', a device, "
+                                          r"a GStreamer pipeline, a URL, a folder or an "
+                                          r"existing video file"):
+        open_source("/no/such", width=32, height=24, rate_hz=1)
+    with pytest.raises(ValueError, match="registered already"):
+        camera.register_frame_source(kind)

@@ -95,6 +95,19 @@ def test_bad_config_exits_2_naming_file_and_key(tmp_path: Path) -> None:
     assert f"{path}: camera.rate_hz: expected a number > 0, got 0" in result.stderr
 
 
+def test_run_with_a_camera_that_cannot_open_exits_2_in_one_line(tmp_path: Path) -> None:
+    """A bad camera.source is a setup error like any other, not a traceback."""
+    camera = "/no/such/video.mp4"
+    why = ("not 'synthetic', a device, a GStreamer pipeline, a URL, a folder or an existing "
+           "video file")
+    config = _config(tmp_path, "udpin:127.0.0.1:14599", camera)
+    result = _cli("run", "--config", str(config), timeout=120)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    assert f"cannot start: {config}: camera.source: camera source {camera!r}: {why}" \
+        in result.stderr.splitlines()
+
+
 def test_bad_constraint_is_caught_by_check(tmp_path: Path) -> None:
     path = tmp_path / "c.toml"
     path.write_text('[drone]\nid = "d1"\n[constraint]\nname = "magic"\n')

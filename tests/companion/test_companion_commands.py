@@ -20,7 +20,7 @@ import pytest
 from companion_fake_vehicle import FakeVehicle
 from test_companion_app import FakeDecider, _config, _make, _until
 
-import companion.app as app_module
+import companion.commands as commands_module
 from companion.app import build_decider
 from companion.config import parse_config
 from companion.protocol import Command, CommandReceived
@@ -74,7 +74,7 @@ async def test_a_failing_log_call_does_not_stop_a_command(
     def broken(*args: Any, **kwargs: Any) -> None:
         raise KeyError("Attempt to overwrite 'name' in LogRecord")
 
-    monkeypatch.setattr(app_module.log, "log", broken)  # every log line of the command path
+    monkeypatch.setattr(commands_module.log, "log", broken)  # every log line of the command path
     app, transports = _make(_config(vehicle, tmp_path, enabled=False), FakeDecider())
     task = asyncio.create_task(app.run())
     try:

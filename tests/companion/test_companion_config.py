@@ -26,7 +26,7 @@ def test_example_config_is_valid_and_complete() -> None:
     assert config.camera.width == 640 and config.camera.rate_hz == 5.0
     assert config.camera.versions == ("full", "half", "quarter")
     assert config.scoring.scorers == ("red_share",)
-    assert config.scoring.red_share.upper2 == (179, 255, 255)
+    assert config.scoring.settings["red_share"].upper2 == (179, 255, 255)
     assert config.budgets.mcts_iterations == 300
     assert config.constraint.name == "adaptive"
     # no insecure default: the example names the key files but ships no key
@@ -127,7 +127,7 @@ def test_unreadable_key_file(tmp_path: Path) -> None:
 def test_hog_people_settings_are_read_and_checked(tmp_path: Path) -> None:
     good = tmp_path / "good.toml"
     good.write_text('[drone]\nid = "d1"\n[scoring.hog_people]\nscale = 1.0\nwin_stride_px = 16\n')
-    hog = load_config(good).scoring.hog_people
+    hog = load_config(good).scoring.settings["hog_people"]
     assert (hog.scale, hog.win_stride_px, hog.pyramid_scale) == (1.0, 16, 1.05)
     bad = tmp_path / "bad.toml"
     bad.write_text('[drone]\nid = "d1"\n[scoring.hog_people]\nwin_stride_px = 12\n')

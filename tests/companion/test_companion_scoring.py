@@ -223,8 +223,8 @@ def test_hog_plumbing_scales_filters_and_reports(monkeypatch: pytest.MonkeyPatch
         "people": 0, "people_score": 0.0, "object": False}
     assert HogPeopleScorer(scale=1.0, min_weight=0.0).score(_frame())["people"] == 1
     assert _FakeHog.calls[-1][0] == (480, 640, 3)
-    merged = make_scorer(["red_share", "hog_people"], options={"min_weight": 0.4}).score(
-        _frame())
+    merged = make_scorer(["red_share", "hog_people"],
+                         {"hog_people": HogSettings(min_weight=0.4)}).score(_frame())
     assert merged == {"red": 0.0, "people": 1, "people_score": 0.49, "object": True}
 
 

@@ -1,0 +1,275 @@
+"""The decision path of one drone: ask the decider about a message, log why, send the choice.
+
+The :class:`Dispatcher` owns the optimiser's one-thread executor and makes every call into the
+decider there (``decide``, reports, timers, live parameters, warm-up), so the decider needs no
+locks. A message goes one way through :meth:`Dispatcher.submit`: decide (within the time
+budget) -> mission log -> transport; nothing calls back up into the app.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import json
+import logging
+import math
+from collections.abc import Callable, Mapping, MutableMapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING, Any
+
+from companion.config import CompanionConfig
+from companion.mission import MissionWindow
+from companion.mission_log import MissionLogWriter
+from utility_specs.message import Message
+
+if TYPE_CHECKING:  # the decider seam (companion.middleware's Decider protocol)
+    from companion.app import Decider, DecisionLike
+
+__all__ = ["COUNTERS", "Dispatcher"]
+
+log = logging.getLogger(__name__)
+
+Clock = Callable[[], float]
+SendMessage = Callable[[Message, bytes, float], int]
+
+COUNTERS = ("generated", "sent", "dropped", "decide_timeouts", "decide_errors", "send_errors",
+            "reports", "commands", "frames_skipped", "frame_errors", "not_running", "decided",
+            "fallback")
+"""The app's counters (shared by its services; ``request_report`` returns them)."""
+
+
+class Dispatcher:
+    """Decides and sends messages; runs the decider's reports, timers and parameter changes."""
+
+    def __init__(self, config: CompanionConfig, *, decider: Decider, clock: Clock,
+                 send_message: SendMessage, mission_log: MissionLogWriter,
+                 mission: MissionWindow, counters: MutableMapping[str, int]) -> None:
+        self.config = config
+        """The configuration in force: live parameters (``time_budget_s``) replace it."""
+        self.decider = decider
+        self.clock = clock
+        self.counters = counters
+        self.sent_by_type: dict[str, int] = {}
+        self._send_message = send_message
+        self._log = mission_log
+        self._mission = mission
+        self._seq = 0
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="decide")
+        self._timer: asyncio.TimerHandle | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stopping: asyncio.Event | None = None
+
+    # -- life cycle -------------------------------------------------------------------------
+
+    def bind(self, stopping: asyncio.Event) -> None:
+        """From now on decider calls go to the executor of the running loop, until
+        ``stopping`` is set."""
+        self._loop = asyncio.get_running_loop()
+        self._stopping = stopping
+
+    def close(self) -> None:
+        if self._stopping is not None:
+            self._stopping.set()
+        if self._timer is not None:
+            self._timer.cancel()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+    @property
+    def started(self) -> bool:
+        """Bound to the event loop: decider calls go to its executor from now on."""
+        return self._loop is not None
+
+    @property
+    def running(self) -> bool:
+        """Started and not stopping: decider calls may be scheduled."""
+        return self._stopping is not None and not self._stopping.is_set()
+
+    async def warm_up(self) -> None:
+        """Run the decider's optional ``warm_up`` in its executor; a stop request wins."""
+        warm_up = getattr(self.decider, "warm_up", None)
+        stopping = self._stopping
+        if warm_up is None or stopping is None:
+            return
+        loop = asyncio.get_running_loop()
+        t0 = loop.time()
+        work = loop.run_in_executor(self._pool, warm_up)
+        stop_wait = asyncio.ensure_future(stopping.wait())
+        try:
+            await asyncio.wait([work, stop_wait], timeout=120.0,
+                               return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            stop_wait.cancel()
+        if not work.done():
+            log.warning("optimiser warm-up unfinished after %.1f s", loop.time() - t0)
+            return
+        exc = work.exception()
+        if exc is not None:  # logged, not fatal: the real decisions will show the problem
+            log.warning("optimiser warm-up failed: %r", exc)
+        else:
+            log.info("optimiser warmed up in %.2f s", loop.time() - t0,
+                     extra={"event": "warm_up"})
+
+    # -- messages ---------------------------------------------------------------------------
+
+    def next_seq(self) -> int:
+        seq = self._seq
+        self._seq += 1
+        return seq
+
+    async def submit_telemetry(self, type_name: str, data: Mapping[str, Any]) -> bool:
+        """Telemetry travels in the first fragment's metadata alone: no payload to carry.
+
+        Its size for the constraint and the model is that metadata's encoded size.
+        """
+        now = self.clock()
+        message = Message(sender=self.config.drone_id, seq=self.next_seq(), type=type_name,
+                          t_gen=now, size=len(_json_payload(data)), data=dict(data))
+        return await self.submit(message, (b"",))
+
+    async def submit(self, message: Message, payloads: Sequence[bytes]) -> bool:
+        """Ask the decider about ``message``; send the chosen version. True if sent."""
+        self.counters["generated"] += 1
+        if not self._mission.running and message.type != "status":
+            self.counters["not_running"] += 1
+            return False
+        loop = asyncio.get_running_loop()
+        now = self.clock()
+        budget = self.config.budgets.time_budget_s
+        try:
+            async with asyncio.timeout(budget + max(0.25, budget)):  # + queueing slack
+                decision = await loop.run_in_executor(self._pool, self.decider.decide,
+                                                      message, now)
+        except TimeoutError:
+            self.counters["decide_timeouts"] += 1
+            self._log.write_message(message, sent=False, decision={
+                "send": False, "reason": "decision timeout"})
+            return False
+        self._arm_timer()
+        self.counters["decided"] += 1
+        if decision.reason.startswith("fallback"):
+            self.counters["fallback"] += 1
+        info = decision_record(decision)
+        if not self._mission.running and message.type != "status":
+            # ended (or not started) while the optimiser decided: nothing goes out after end
+            self.counters["not_running"] += 1
+            self._log.write_message(message, sent=False, decision={
+                **info, "send": False, "reason": f"mission {self._mission.state}"})
+            return False
+        if not decision.send:
+            self.counters["dropped"] += 1
+            self._log.write_message(message, sent=False, decision=info)
+            return False
+        chosen = message
+        version = decision.version
+        if message.versions and version is not None:
+            chosen = message.with_version(version)
+        t_sent = self.clock()
+        chosen = dataclasses.replace(chosen, t_sent=t_sent)
+        payload = payloads[version if version is not None and version < len(payloads) else 0]
+        try:
+            self._send_message(chosen, payload, t_sent)
+        except (OSError, ValueError) as exc:
+            self.counters["send_errors"] += 1
+            log.warning("send %s/%d failed: %s", chosen.type, chosen.seq, exc)
+            self._log.write_message(chosen, sent=False, decision={**info, "error": str(exc)})
+            return False
+        self.counters["sent"] += 1
+        self.sent_by_type[chosen.type] = self.sent_by_type.get(chosen.type, 0) + 1
+        self._log.write_message(chosen, sent=True, decision=info)
+        return True
+
+    # -- reports, timers, live parameters ----------------------------------------------------
+
+    def on_report(self, event: Any) -> None:
+        """A receiver report for the decider, handled in its executor."""
+        self.counters["reports"] += 1
+        loop = asyncio.get_running_loop()
+        future = loop.run_in_executor(self._pool, self.decider.on_report, event, self.clock())
+        future.add_done_callback(self._after_call)
+
+    async def set_params(self, params: Mapping[str, Any]) -> None:
+        """Apply live parameters in the decider's executor; raises what rejected them."""
+        loop = asyncio.get_running_loop()
+        try:
+            await loop.run_in_executor(self._pool, self.set_params_now, params, self.clock())
+        finally:
+            self._arm_timer()
+
+    def set_params_now(self, params: Mapping[str, Any], now: float) -> None:
+        """Live parameter change (alpha, mcts_iterations, time_budget_s...) without restart.
+
+        Runs in the decision executor (the optimiser's one thread). The decider validates
+        every key before it changes anything; the app's own copy follows only when it did.
+        """
+        budget = params.get("time_budget_s")
+        if "time_budget_s" in params and (isinstance(budget, bool)
+                                          or not isinstance(budget, int | float)
+                                          or not budget > 0):
+            raise ValueError(f"time_budget_s must be a number > 0, got {budget!r}")
+        self.decider.set_params(params, now)
+        if budget is not None:
+            self.config = dataclasses.replace(
+                self.config, budgets=dataclasses.replace(self.config.budgets,
+                                                         time_budget_s=float(budget)))
+
+    def _after_call(self, future: asyncio.Future[Any]) -> None:
+        if future.cancelled():
+            return
+        exc = future.exception()
+        if exc is not None:
+            self.counters["decide_errors"] += 1
+            log.error("middleware call failed: %r", exc, exc_info=exc)
+        self._arm_timer()
+
+    def _arm_timer(self) -> None:
+        """One ``call_later`` for the decider's next deadline (aioquic's transmit())."""
+        loop = self._loop
+        if loop is None or not self.running:
+            return
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        deadline = self.decider.get_timer()
+        if deadline is None:
+            return
+        self._timer = loop.call_later(max(0.0, deadline - self.clock()), self._fire_timer)
+
+    def _fire_timer(self) -> None:
+        self._timer = None
+        if self._loop is None or not self.running:
+            return
+        future = self._loop.run_in_executor(self._pool, self.decider.handle_timer,
+                                            self.clock())
+        future.add_done_callback(self._after_call)
+
+    # -- figures for status messages ---------------------------------------------------------
+
+    def constraint_limit(self) -> float | None:
+        """ξ now (bytes/s) when the decider exposes its constraint, for status messages."""
+        constraint = getattr(self.decider, "constraint", None)
+        if constraint is None:
+            return None
+        value = float(constraint.limit_bytes_per_s(now=self.clock()))
+        return value if math.isfinite(value) else None
+
+    def fallback_share(self) -> float | None:
+        """Share of decisions the optimiser did not make itself (greedy fallback or timeout);
+        None before the first decision."""
+        c = self.counters
+        asked = c["decided"] + c["decide_timeouts"]
+        return (c["fallback"] + c["decide_timeouts"]) / asked if asked else None
+
+
+def decision_record(decision: DecisionLike) -> dict[str, Any]:
+    """The ``decision`` field of a mission log record: what was chosen, why, at what cost."""
+    record: dict[str, Any] = {"send": bool(decision.send), "version": decision.version,
+                              "reason": decision.reason}
+    for name in ("score", "iterations", "elapsed_s", "budget_bytes"):
+        value = getattr(decision, name, None)
+        if isinstance(value, int | float) and math.isfinite(value):
+            record[name] = value
+    return record
+
+
+def _json_payload(data: Mapping[str, Any]) -> bytes:
+    return json.dumps(dict(data), separators=(",", ":"), sort_keys=True).encode()

@@ -1,0 +1,160 @@
+"""Telemetry as messages: ``position``, ``battery`` and ``status`` from the telemetry state.
+
+Every message goes through the dispatcher (the optimiser decides about it like about an image).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+from collections.abc import Callable
+from typing import Any
+
+from companion.config import TelemetryConfig
+from companion.dispatch import Dispatcher
+from companion.mission import MissionWindow
+from companion.telemetry import Sample, StatusTextSample, TelemetrySnapshot, TelemetryState
+
+__all__ = ["FAILSAFE_STATES", "IDLE_STATUS_PERIOD_S", "TelemetryPublisher"]
+
+Clock = Callable[[], float]
+
+IDLE_STATUS_PERIOD_S = 1.0
+"""Status period outside the mission window, when status is all a drone sends: often enough
+that the ground station (``link_lost_s`` 3 s) does not take an ended mission for a lost link."""
+
+FAILSAFE_STATES = (5, 6)
+"""MAV_STATE_CRITICAL and MAV_STATE_EMERGENCY: the autopilot is in a failsafe."""
+
+
+class TelemetryPublisher:
+    """Turns the telemetry state into ``position``, ``battery`` and ``status`` messages.
+
+    Position at ``position_rate_hz`` (1 Hz: eq. 4.11's position utility), battery every
+    ``battery_period_s`` (data ``level`` in 0..1 for eq. 4.9), mission status every
+    ``status_period_s`` and at once when mode, armed state, failsafe, link or mission state
+    change. Each status carries ``since``, when its state began (the ``status_change``
+    utility: a new state is worth sending at once); while no status of the current state
+    has gone out (the constraint's window was full), it is offered again every
+    ``STATE_RETRY_S``, not only every period; after ``STATE_RETRIES`` such retries the
+    interval doubles up to the period (a dead link does not cost two decisions a second).
+    """
+
+    STATE_RETRY_S = 0.5
+    STATE_RETRIES = 4
+
+    def __init__(self, settings: TelemetryConfig, *, telemetry: TelemetryState,
+                 dispatcher: Dispatcher, mission: MissionWindow, clock: Clock) -> None:
+        self._settings = settings
+        self._telemetry = telemetry
+        self._dispatcher = dispatcher
+        self._mission = mission
+        self._clock = clock
+        self._stopping = asyncio.Event()
+        self._status_key: tuple[Any, ...] | None = None
+        self._wake = asyncio.Event()
+        self._statustexts: list[StatusTextSample] = []
+        self._since: float | None = None
+        """When the current status key began (fleet clock)."""
+        self._announced: float | None = None
+        """``since`` of the newest state a sent status reported."""
+        self._last_position: float | None = None
+        self._retries = 0
+
+    def on_sample(self, sample: Sample) -> None:
+        if isinstance(sample, StatusTextSample):  # autopilot messages ride on the status
+            self._statustexts.append(sample)
+            self._wake.set()
+            return
+        snap = self._telemetry.snapshot()
+        if self._status_key is not None and self._status_key != self._key(snap):
+            self._wake.set()
+
+    def _key(self, snap: TelemetrySnapshot) -> tuple[Any, ...]:
+        failsafe = snap.system_status in FAILSAFE_STATES
+        return (snap.mode, snap.armed, failsafe, snap.connected, self._mission.state)
+
+    async def run(self) -> None:
+        cfg = self._settings
+        loop = asyncio.get_running_loop()
+        period_pos = 1.0 / cfg.position_rate_hz if cfg.position_rate_hz > 0 else math.inf
+        t_pos = t_bat = t_status = loop.time()
+        try:
+            while not self._stopping.is_set():
+                now_mono = loop.time()
+                snap = self._telemetry.snapshot()
+                if now_mono >= t_pos:
+                    t_pos = now_mono + period_pos
+                    if snap.position_problem is None and snap.t_position != self._last_position:
+                        self._last_position = snap.t_position  # never the same fix twice
+                        await self._dispatcher.submit_telemetry("position", self._position(snap))
+                if now_mono >= t_bat:
+                    t_bat = now_mono + cfg.battery_period_s
+                    if snap.battery_remaining is not None and snap.battery_remaining > 0:
+                        await self._dispatcher.submit_telemetry("battery", self._battery(snap))
+                if now_mono >= t_status or self._wake.is_set():
+                    self._wake.clear()
+                    t_status = now_mono + (cfg.status_period_s
+                                           if self._mission.running
+                                           else min(cfg.status_period_s, IDLE_STATUS_PERIOD_S))
+                    key = self._key(snap)
+                    if key != self._status_key or self._since is None:
+                        self._since = self._clock()
+                        self._retries = 0
+                    self._status_key = key
+                    if await self._dispatcher.submit_telemetry("status", self._status(snap)):
+                        self._announced = self._since
+                    elif self._announced != self._since:  # a new state not told yet
+                        backoff = 2.0 ** max(0, self._retries - self.STATE_RETRIES + 1)
+                        self._retries += 1
+                        t_status = min(t_status, now_mono + self.STATE_RETRY_S * backoff)
+                wait = max(0.0, min(t_pos, t_bat, t_status) - loop.time())
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(wait):
+                        await self._either(self._stopping, self._wake)
+        finally:
+            self._stopping.set()
+
+    @staticmethod
+    async def _either(a: asyncio.Event, b: asyncio.Event) -> None:
+        waits = [asyncio.ensure_future(a.wait()), asyncio.ensure_future(b.wait())]
+        try:
+            await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for w in waits:
+                w.cancel()
+
+    def stop(self) -> None:
+        self._stopping.set()
+
+    def _position(self, snap: TelemetrySnapshot) -> dict[str, Any]:
+        return snap.geotag(at=self._clock())
+
+    @staticmethod
+    def _battery(snap: TelemetrySnapshot) -> dict[str, Any]:
+        data: dict[str, Any] = {"level": snap.battery_remaining}
+        if snap.battery_v is not None and math.isfinite(snap.battery_v):
+            data["battery_v"] = snap.battery_v
+        return data
+
+    def _status(self, snap: TelemetrySnapshot) -> dict[str, Any]:
+        """Mission status; field names are the ones the ground station's fleet view reads."""
+        data: dict[str, Any] = {"mode": snap.mode, "armed": snap.armed,
+                                "connected": snap.connected, "since": self._since,
+                                "failsafe": snap.system_status in FAILSAFE_STATES,
+                                "mission": self._mission.state, "autopilot": snap.autopilot}
+        if snap.gps_fix_type is not None:
+            data["fix_type"] = snap.gps_fix_type
+        xi = self._dispatcher.constraint_limit()
+        if xi is not None:
+            data["xi_bytes_per_s"] = xi
+        fallback = self._dispatcher.fallback_share()
+        if fallback is not None:
+            data["fallback_share"] = fallback
+        if self._statustexts:
+            worst = min(self._statustexts, key=lambda s: s.severity)
+            data["statustext"] = " | ".join(s.text for s in self._statustexts)[:200]
+            data["severity"] = worst.severity
+            self._statustexts.clear()
+        return data

@@ -1,0 +1,1 @@
+"""The built-in frame scorers, one module each; ``companion.scoring`` is their registry."""
