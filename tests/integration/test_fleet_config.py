@@ -185,8 +185,8 @@ def test_random_baseline_drops_at_its_rate_and_picks_any_version(tmp_path: Path)
 
     from companion.app import build_decider
     from companion.middleware import ConstantConstraint, DeciderSetup, RandomDrop, make_decider
-    from utility_specs.message import Message, Version
     from utility_specs.files import builtin_spec
+    from utility_specs.message import Message, Version
 
     plan = _plan(tmp_path, "--policy", "random", "--drop-probability", "0.75", "--seed", "7")
     write_run_configs(plan)
