@@ -3,7 +3,7 @@
 Data flow (ARCHITECTURE.md, "Data flow on a drone")::
 
     MavlinkService -> TelemetryState --+--> TelemetryPublisher (position 1 Hz, battery, status)
-    CameraService  -> score + encode --+--> CompanionApp.submit(message, payloads)
+    CameraService  -> score + encode --+--> CompanionApp.submit(message)  (versions carry bytes)
                                                 |  decider.decide(message, now) in the
                                                 |  decision executor, within the time budget
                                                 v
@@ -27,7 +27,7 @@ import json
 import logging
 import math
 import secrets
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Protocol
@@ -88,12 +88,6 @@ class Transport(Protocol):
 
 TransportFactory = Callable[[Callable[[Any], None]], Transport]
 """Builds the transport given the callback that receives its decoder events."""
-
-
-@dataclasses.dataclass(frozen=True, slots=True, kw_only=True)
-class Submission:
-    message: Message
-    payloads: tuple[bytes, ...]
 
 
 class MissionLogWriter:
@@ -459,10 +453,11 @@ class CompanionApp:
         now = self.clock()
         message = Message(sender=self.config.drone_id, seq=self.next_seq(), type=type_name,
                           t_gen=now, size=len(_json_payload(data)), data=dict(data))
-        return await self.submit(message, (b"",))
+        return await self.submit(message)
 
-    async def submit(self, message: Message, payloads: Sequence[bytes]) -> bool:
-        """Ask the decider about ``message``; send the chosen version. True if sent."""
+    async def submit(self, message: Message) -> bool:
+        """Ask the decider about ``message``; send the chosen version (its bytes travel in
+        the message's versions). True if sent."""
         self.counters["generated"] += 1
         if self.mission_state != "running" and message.type != "status":
             self.counters["not_running"] += 1
@@ -500,9 +495,8 @@ class CompanionApp:
             chosen = message.with_version(version)
         t_sent = self.clock()
         chosen = dataclasses.replace(chosen, t_sent=t_sent)
-        payload = payloads[version if version is not None and version < len(payloads) else 0]
         try:
-            self.transport.send_message(chosen, payload, t_sent)
+            self.transport.send_message(chosen, chosen.payload, t_sent)
         except (OSError, ValueError) as exc:
             self.counters["send_errors"] += 1
             log.warning("send %s/%d failed: %s", chosen.type, chosen.seq, exc)
@@ -540,7 +534,7 @@ class CompanionApp:
             return
         finally:
             self._frame_busy = False
-        await self.submit(encoded.message, encoded.payloads)
+        await self.submit(encoded.message)
 
     def _encode(self, frame: Frame, seq: int) -> EncodedImage:
         features = self._scorer.score(frame.image)
