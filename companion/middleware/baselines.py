@@ -20,9 +20,7 @@ from companion.middleware.decider import Decider, DeciderSetup, Decision, Params
 from companion.middleware.errors import MiddlewareError, ParamError
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge
-from companion.middleware.reports import ReceiverReport, ReportLearned, feed_link
-from companion.protocol.records import report_messages
-from utility_specs.errors import UtilitySpecsError
+from companion.middleware.reports import ReceiverReport, ReportLearned, deliveries, feed_link
 from utility_specs.message import Message
 from utility_specs.spec import MissionSpec
 
@@ -74,13 +72,7 @@ class Baseline:
 
     def on_report(self, report: ReceiverReport, now: float) -> ReportLearned:
         """Deliveries to :meth:`on_delivered`, own link samples to the constraint if any."""
-        messages: list[Message] = []
-        bad = 0
-        for entry in report.entries:
-            try:
-                messages += report_messages([entry], receiver=report.receiver)
-            except UtilitySpecsError:
-                bad += 1
+        messages, bad = deliveries(report)
         self.on_delivered(messages, now)
         if self.constraint is None:
             return ReportLearned(bad_entries=bad)

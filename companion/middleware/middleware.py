@@ -31,8 +31,7 @@ from companion.middleware.incremental import Problem, build_problem, option_mess
 from companion.middleware.knowledge import FleetKnowledge, settle_inflight, usable
 from companion.middleware.mcts import MCTS, greedy_option
 from companion.middleware.params import LIVE_KEYS, check_params, with_alpha
-from companion.middleware.reports import ReceiverReport, ReportLearned, feed_link
-from companion.protocol.records import report_messages
+from companion.middleware.reports import ReceiverReport, ReportLearned, deliveries, feed_link
 from utility_specs.errors import UtilitySpecsError
 from utility_specs.message import Message, Version
 from utility_specs.spec import MissionSpec
@@ -297,13 +296,7 @@ class Middleware:
     def on_report(self, report: ReceiverReport, now: float) -> ReportLearned:
         """A receiver report: every entry for the delivered-set knowledge, this agent's own
         entries and clock echo for the constraint's link statistics (ch. 6.1)."""
-        messages: list[Message] = []
-        bad = 0
-        for entry in report.entries:
-            try:  # one by one: a bad entry is counted, the others still count
-                messages += report_messages([entry], receiver=report.receiver)
-            except UtilitySpecsError:
-                bad += 1
+        messages, bad = deliveries(report)
         self.counters["bad_report_entry"] += bad
         before = self.counters["delivered"]
         self.on_delivered(messages, now)

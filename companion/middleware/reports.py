@@ -17,9 +17,12 @@ from companion.middleware.constraints.base import GoodputConstraint
 from companion.middleware.constraints.linkstats import LinkSample, RoundTrip
 from companion.middleware.errors import LinkStatsError
 from companion.protocol.events import ReportReceived
-from companion.protocol.records import ClockEcho, ReportEntry
+from companion.protocol.records import ClockEcho, ReportEntry, report_messages
+from utility_specs.errors import UtilitySpecsError
+from utility_specs.message import Message
 
-__all__ = ["LinkFeed", "ReceiverReport", "ReportLearned", "feed_link", "link_observations"]
+__all__ = ["LinkFeed", "ReceiverReport", "ReportLearned", "deliveries", "feed_link",
+           "link_observations"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -63,6 +66,19 @@ class ReportLearned:
     bad_entries: int = 0
     """Entries whose utility cannot be read: skipped, the others still count."""
     link: LinkFeed = LinkFeed()
+
+
+def deliveries(report: ReceiverReport) -> tuple[list[Message], int]:
+    """The report's entries as delivered messages, and how many could not be (one by one:
+    a bad entry is counted, the others still count)."""
+    messages: list[Message] = []
+    bad = 0
+    for entry in report.entries:
+        try:
+            messages += report_messages([entry], receiver=report.receiver)
+        except UtilitySpecsError:
+            bad += 1
+    return messages, bad
 
 
 def link_observations(report: ReceiverReport, *, agent: str
