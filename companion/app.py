@@ -7,7 +7,7 @@ Data flow (ARCHITECTURE.md, "Data flow on a drone"; docs/architecture.md)::
                                                                              v
         Dispatcher.submit (dispatch.py): decide in the decider's executor within the time
         budget -> MissionLogWriter (mission_log.py) -> transport.send_message -> ground station
-    transport events: ReportReceived -> Dispatcher.on_report;
+    transport events: ReportReceived -> Dispatcher.on_report (a ReceiverReport);
                       CommandReceived -> CommandExecutor (commands.py), run at t_exec
 
 Every service has ``async run()`` with its cleanup in ``finally`` and ``stop()`` (or
@@ -20,13 +20,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
 import logging
-import math
 import secrets
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from companion.camera import CameraError, CameraService, FrameSource, open_source
 from companion.commands import CommandExecutor
@@ -46,12 +44,14 @@ from companion.protocol import (
 from companion.publisher import TelemetryPublisher
 from companion.scoring import Scorer, make_scorer
 from companion.telemetry import LinkStateSample, Sample, TelemetryState
-from utility_specs.message import Message, Version
+from utility_specs.message import Message
+
+if TYPE_CHECKING:  # the middleware (numba, numpy) is imported when a decider is built
+    from companion.middleware.constraints.base import GoodputConstraint
+    from companion.middleware.decider import Decider
 
 __all__ = [
     "CompanionApp",
-    "Decider",
-    "DecisionLike",
     "Transport",
     "TransportFactory",
 ]
@@ -59,33 +59,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 Clock = Callable[[], float]
-
-
-class DecisionLike(Protocol):
-    """What the app reads from a decision (``companion.middleware`` ``Decision``)."""
-
-    @property
-    def send(self) -> bool: ...
-
-    @property
-    def version(self) -> int | None: ...
-
-    @property
-    def reason(self) -> str: ...
-
-
-class Decider(Protocol):
-    """The information distribution layer as the app uses it (sans-I/O, ``now`` given)."""
-
-    def decide(self, message: Message, now: float) -> DecisionLike: ...
-
-    def on_report(self, event: Any, now: float) -> None: ...
-
-    def set_params(self, params: Mapping[str, Any], now: float) -> None: ...
-
-    def get_timer(self) -> float | None: ...
-
-    def handle_timer(self, now: float) -> None: ...
 
 
 class Transport(Protocol):
@@ -266,12 +239,13 @@ def load_mission_spec(config: CompanionConfig) -> Any:
         raise AppSetupError(f"{config.source}: mission.spec: {exc}") from None
 
 
-def build_constraint(config: CompanionConfig) -> Any:
+def build_constraint(config: CompanionConfig) -> GoodputConstraint:
     from companion.middleware.constraints import make_constraint
+    from companion.middleware.errors import MiddlewareError
 
     try:
         return make_constraint(config.constraint.name, **dict(config.constraint.params))
-    except (ValueError, TypeError) as exc:
+    except MiddlewareError as exc:
         raise AppSetupError(f"{config.source}: constraint: {exc}") from None
 
 
@@ -314,247 +288,32 @@ def create_app(config: CompanionConfig, *, clock: Clock,
         raise AppSetupError(f"{config.source}: camera.source: {exc}") from None
 
 
-MIDDLEWARE_KEYS = (
-    "c", "horizon_s", "tail_s", "default_latency_s", "max_items", "chunk_iterations",
-    "search_inflight",
-)
-"""``[middleware]`` keys passed to ``MiddlewareConfig``; ``alpha`` and ``seed`` are ours."""
-
-
-class MiddlewareDecider:
-    """``companion.middleware.Middleware`` as the app's :class:`Decider`.
-
-    Adds what belongs to the shell: the wall-time budget (``deadline`` on ``budget_clock``,
-    a monotonic clock) besides the iteration budget, receiver reports turned into link samples
-    and round trips for the (adaptive) constraint, and live parameter changes.
-    """
-
-    def __init__(self, middleware: Any, *, agent: str, time_budget_s: float,
-                 budget_clock: Clock) -> None:
-        self.middleware = middleware
-        self.constraint = middleware.constraint
-        self.agent = agent
-        self.time_budget_s = time_budget_s
-        self._budget_clock = budget_clock
-        self.counters: dict[str, int] = {"link_samples": 0, "round_trips": 0,
-                                         "bad_round_trips": 0}
-
-    def warm_up(self) -> None:
-        """One decision on a throwaway optimiser, so JIT compilation (numba) happens before
-        the first real message instead of costing it a decision timeout."""
-        from companion.middleware.constraint import ConstantConstraint
-
-        scratch = type(self.middleware)(self.middleware.config,
-                                         constraint=ConstantConstraint(limit_bytes_per_s=1e5))
-        spec_types = self.middleware.config.spec.types
-        type_name = "image" if "image" in spec_types else next(iter(spec_types))
-        versions = (Version(name="full", size=20_000, quality=1.0),
-                    Version(name="half", size=5_000, quality=0.5))
-        for seq in range(3):
-            scratch.decide(Message(sender=self.agent, seq=seq, type=type_name, t_gen=seq * 0.2,
-                                   size=20_000, data={"red": 0.1, "object": False,
-                                                      "level": 0.9},
-                                   versions=versions, version=0), seq * 0.2)
-
-    def decide(self, message: Message, now: float) -> DecisionLike:
-        deadline = self._budget_clock() + self.time_budget_s
-        decision: DecisionLike = self.middleware.decide(message, now, deadline=deadline)
-        return decision
-
-    def on_report(self, event: Any, now: float) -> None:
-        """Deliveries for the optimiser; our own ones as link samples for the constraint."""
-        from companion.middleware.constraint import LinkSample
-        from companion.middleware.linkstats import RoundTrip
-
-        report = event.report
-        self.middleware.on_report(report, now)
-        for echo in report.echoes:
-            if echo.sender != self.agent:
-                continue
-            try:
-                trip = RoundTrip(t_sent=echo.t_sent, t_remote_rcv=echo.t_rcv,
-                                 t_remote_sent=event.t_sent, t_rcv=event.t_rcv)
-            except ValueError:
-                self.counters["bad_round_trips"] += 1
-                continue
-            self.constraint.on_round_trip(trip, now=now)
-            self.counters["round_trips"] += 1
-        samples = [LinkSample(t_sent=e.t_sent, t_rcv=e.t_rcv, size=e.size, sender=e.sender,
-                              seq=e.seq)
-                   for e in report.entries if e.sender == self.agent and e.t_sent is not None]
-        if not samples:
-            return
-        self.constraint.on_samples(samples, now=now)
-        self.counters["link_samples"] += len(samples)
-
-    def set_params(self, params: Mapping[str, Any], now: float) -> None:
-        """``mcts_iterations``, ``time_budget_s``, ``alpha`` (eq. 7.1/7.2), the optimiser's
-        own keys and ``constraint.NAME`` (a number of the goodput constraint, e.g.
-        ``constraint.limit_bytes_per_s`` or ``constraint.alpha_bytes_per_s``), effective from
-        the next decision. All or nothing: every key is checked before any is applied, and a
-        rejected key raises ValueError naming it and why."""
-        from companion.middleware.middleware import MiddlewareError
-
-        changes: dict[str, Any] = {}
-        constraint_changes: dict[str, float] = {}
-        time_budget: float | None = None
-        for key, value in params.items():
-            if key in ("mcts_iterations", *MIDDLEWARE_KEYS) and (
-                    isinstance(value, bool) or not isinstance(value, int | float)
-                    or not math.isfinite(value)):
-                raise ValueError(f"{key} must be a number, got {value!r}")
-            if key in ("mcts_iterations", "max_items", "chunk_iterations") and (
-                    not isinstance(value, int) or value < 0):
-                raise ValueError(f"{key} must be a whole number >= 0, got {value!r}")
-            if key == "mcts_iterations":
-                changes["max_iterations"] = value
-            elif key == "time_budget_s":
-                if isinstance(value, bool) or not isinstance(value, int | float) or value <= 0:
-                    raise ValueError(f"time_budget_s must be a number > 0, got {value!r}")
-                time_budget = float(value)
-            elif key == "alpha":
-                self._check_alpha(value)
-            elif key in MIDDLEWARE_KEYS:
-                changes[key] = value
-            elif key.startswith("constraint."):
-                name = key.removeprefix("constraint.")
-                constraint_changes[self._constraint_attr(name)] = self._constraint_value(
-                    key, value)
-            else:
-                raise ValueError(f"unknown parameter {key!r} (known: mcts_iterations, "
-                                 f"time_budget_s, alpha, {', '.join(MIDDLEWARE_KEYS)}, "
-                                 f"constraint.{', constraint.'.join(self.constraint_keys())})")
-        if changes:
-            try:
-                dataclasses.replace(self.middleware.config, **changes)
-            except (MiddlewareError, TypeError) as exc:
-                raise ValueError(str(exc)) from None
-        if constraint_changes:
-            self._check_constraint(constraint_changes)
-        # everything checked: apply (alpha first, the only step that builds something)
-        if "alpha" in params:
-            self._set_alpha(params["alpha"])
-        if changes:
-            self.middleware.config = dataclasses.replace(self.middleware.config, **changes)
-        if time_budget is not None:
-            self.time_budget_s = time_budget
-        for attr, number in constraint_changes.items():
-            setattr(self.constraint, attr, number)
-
-    def constraint_keys(self) -> list[str]:
-        """The constraint's numbers ``set_params`` may change (``constraint.NAME``)."""
-        names = [k for k, v in vars(self.constraint).items()
-                 if not k.startswith("_") and k not in ("window_s", "n_updates")
-                 and isinstance(v, int | float) and not isinstance(v, bool)]
-        if hasattr(self.constraint, "_limit"):  # ConstantConstraint's ξ
-            names.append("limit_bytes_per_s")
-        return sorted(names)
-
-    def _constraint_attr(self, name: str) -> str:
-        if name not in self.constraint_keys():
-            raise ValueError(f"unknown parameter 'constraint.{name}' for the "
-                             f"{type(self.constraint).__name__} (known: "
-                             f"{', '.join(self.constraint_keys()) or 'none'})")
-        return "_limit" if name == "limit_bytes_per_s" else name
-
-    def _check_constraint(self, changes: Mapping[str, float]) -> None:
-        """Build a throwaway constraint of the same kind with the new numbers: its own
-        checks (e.g. ranges) reject what the running one must not get."""
-        import inspect
-
-        kind = type(self.constraint)
-        current = {name: getattr(self.constraint, "_limit" if name == "limit_bytes_per_s"
-                                 else name, None)
-                   for name in inspect.signature(kind).parameters}
-        kwargs = {k: v for k, v in current.items()
-                  if isinstance(v, int | float) and not isinstance(v, bool)}
-        kwargs.update({"limit_bytes_per_s" if k == "_limit" else k: v
-                       for k, v in changes.items()})
-        try:
-            kind(**kwargs)
-        except (ValueError, TypeError) as exc:
-            raise ValueError(f"constraint: {exc}") from None
-
-    @staticmethod
-    def _constraint_value(key: str, value: Any) -> float:
-        if (isinstance(value, bool) or not isinstance(value, int | float)
-                or not math.isfinite(value) or value < 0):
-            raise ValueError(f"{key} must be a number >= 0, got {value!r}")
-        return float(value)
-
-    def _check_alpha(self, alpha: Any) -> None:
-        if isinstance(alpha, bool) or not isinstance(alpha, int | float) or alpha < 0:
-            raise ValueError(f"alpha must be a number >= 0, got {alpha!r}")
-        if not any("alpha" in info.utility.params()
-                   for info in self.middleware.config.spec.types.values()):
-            raise ValueError("alpha: no information type of the mission uses alpha")
-
-    def _set_alpha(self, alpha: Any) -> None:
-        from utility_specs.errors import SpecError
-        from utility_specs.functions import make_function
-
-        if isinstance(alpha, bool) or not isinstance(alpha, int | float) or alpha < 0:
-            raise ValueError(f"alpha must be a number >= 0, got {alpha!r}")
-        spec = self.middleware.config.spec
-        types = dict(spec.types)
-        changed = False
-        for name, info in spec.types.items():
-            utility = info.utility
-            if "alpha" in utility.params():
-                try:
-                    fn = make_function(utility.name, {**utility.params(), "alpha": float(alpha)})
-                except SpecError as exc:
-                    raise ValueError(str(exc)) from None
-                types[name] = dataclasses.replace(info, utility=fn)
-                changed = True
-        if not changed:
-            raise ValueError("alpha: no information type of the mission uses alpha")
-        new_spec = dataclasses.replace(spec, types=types)
-        self.middleware.config = dataclasses.replace(self.middleware.config, spec=new_spec)
-        self.middleware.knowledge.spec = new_spec
-
-    def get_timer(self) -> float | None:
-        timer: float | None = self.middleware.get_timer()
-        return timer
-
-    def handle_timer(self, now: float) -> None:
-        self.middleware.handle_timer(now)
-
-
-def build_decider(config: CompanionConfig, *, budget_clock: Clock | None = None
-                  ) -> MiddlewareDecider:
-    """The information distribution layer (``companion.middleware``) for this drone."""
+def build_decider(config: CompanionConfig, *, budget_clock: Clock | None = None) -> Decider:
+    """The decision policy ``[middleware] policy`` (default ``mcts``) for this drone."""
     import time
 
     import numpy as np
 
-    from companion.middleware.middleware import Middleware, MiddlewareConfig, MiddlewareError
+    from companion.middleware.decider import DeciderSetup
+    from companion.middleware.errors import MiddlewareError, UnknownParamError
+    from companion.middleware.policies import make_decider
 
-    spec = load_mission_spec(config)
-    constraint = build_constraint(config)
-    extra = dict(config.middleware)
-    alpha = extra.pop("alpha", None)
-    seed = extra.pop("seed", None)
-    unknown = sorted(set(extra) - set(MIDDLEWARE_KEYS))
-    if unknown:
-        raise AppSetupError(f"{config.source}: middleware.{unknown[0]}: expected one of "
-                            f"alpha, seed, {', '.join(MIDDLEWARE_KEYS)}")
+    params = dict(config.middleware)
+    policy = params.pop("policy", "mcts")
+    seed = params.pop("seed", None)
+    setup = DeciderSetup(spec=load_mission_spec(config), agent=config.drone_id,
+                         constraint=build_constraint(config),
+                         rng=np.random.default_rng(seed if isinstance(seed, int) else None),
+                         max_iterations=config.budgets.mcts_iterations,
+                         time_budget_s=config.budgets.time_budget_s,
+                         budget_clock=budget_clock or time.perf_counter)
     try:
-        mw_config = MiddlewareConfig(spec=spec, agent=config.drone_id,
-                                     max_iterations=config.budgets.mcts_iterations, **extra)
-    except (MiddlewareError, TypeError) as exc:
+        return make_decider(policy, setup, **params)
+    except UnknownParamError as exc:
+        raise AppSetupError(f"{config.source}: middleware.{exc.key}: expected one of "
+                            f"policy, seed, {', '.join(exc.known)}") from None
+    except MiddlewareError as exc:
         raise AppSetupError(f"{config.source}: middleware: {exc}") from None
-    rng = np.random.default_rng(seed if isinstance(seed, int) else None)
-    clock = budget_clock or time.perf_counter
-    middleware = Middleware(mw_config, rng=rng, constraint=constraint, budget_clock=clock)
-    decider = MiddlewareDecider(middleware, agent=config.drone_id,
-                                time_budget_s=config.budgets.time_budget_s, budget_clock=clock)
-    if alpha is not None:
-        try:
-            decider.set_params({"alpha": alpha}, 0.0)
-        except ValueError as exc:
-            raise AppSetupError(f"{config.source}: middleware.alpha: {exc}") from None
-    return decider
 
 
 def build_transport_factory(config: CompanionConfig, *, clock: Clock) -> TransportFactory:

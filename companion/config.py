@@ -123,7 +123,9 @@ class CompanionConfig:
     constraint: ConstraintConfig = field(default_factory=ConstraintConfig)
     telemetry: TelemetryConfig = field(default_factory=TelemetryConfig)
     middleware: Mapping[str, Any] = field(default_factory=dict)
-    """Extra middleware parameters (``alpha``...), passed through to the optimiser."""
+    """``policy`` (a name of ``companion.middleware.policies.DECIDERS``, default ``mcts``),
+    ``seed``, and the policy's own keys (``alpha``, ``drop_probability``...), checked when
+    the policy is built."""
     source: str = "<memory>"
 
 
@@ -184,6 +186,15 @@ class _Table:
         unknown = sorted(set(self.raw) - self.used)
         if unknown:
             self.fail(unknown[0], f"one of {sorted(self.used)}", self.raw[unknown[0]])
+
+
+def _check_policy(name: Any, source: str) -> None:
+    """``[middleware] policy`` must name a registered decision policy."""
+    from companion.middleware.policies import DECIDERS
+
+    if not isinstance(name, str) or name not in DECIDERS:
+        raise ConfigError(f"{source}: middleware.policy: expected one of "
+                          f"{', '.join(sorted(DECIDERS))}, got {name!r}")
 
 
 def _is_number(value: Any) -> bool:
@@ -384,6 +395,7 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
     te.done()
 
     middleware = root.mapping("middleware")
+    _check_policy(middleware.get("policy", "mcts"), source)
     root.done()
     return CompanionConfig(
         drone_id=drone_id, mavlink=mavlink, camera=camera, scoring=scoring, mission=mission,

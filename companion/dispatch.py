@@ -13,7 +13,7 @@ import dataclasses
 import json
 import logging
 import math
-from collections.abc import Callable, Mapping, MutableMapping, Sequence
+from collections.abc import Callable, Mapping, MutableMapping
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
@@ -23,7 +23,7 @@ from companion.mission_log import MissionLogWriter
 from utility_specs.message import Message
 
 if TYPE_CHECKING:  # the decider seam (companion.middleware's Decider protocol)
-    from companion.app import Decider, DecisionLike
+    from companion.middleware.decider import Decider, Decision
 
 __all__ = ["COUNTERS", "Dispatcher"]
 
@@ -124,10 +124,11 @@ class Dispatcher:
         now = self.clock()
         message = Message(sender=self.config.drone_id, seq=self.next_seq(), type=type_name,
                           t_gen=now, size=len(_json_payload(data)), data=dict(data))
-        return await self.submit(message, (b"",))
+        return await self.submit(message)
 
-    async def submit(self, message: Message, payloads: Sequence[bytes]) -> bool:
-        """Ask the decider about ``message``; send the chosen version. True if sent."""
+    async def submit(self, message: Message) -> bool:
+        """Ask the decider about ``message``; send the chosen version (its bytes travel in
+        the message's versions). True if sent."""
         self.counters["generated"] += 1
         if not self._mission.running and message.type != "status":
             self.counters["not_running"] += 1
@@ -165,9 +166,8 @@ class Dispatcher:
             chosen = message.with_version(version)
         t_sent = self.clock()
         chosen = dataclasses.replace(chosen, t_sent=t_sent)
-        payload = payloads[version if version is not None and version < len(payloads) else 0]
         try:
-            self._send_message(chosen, payload, t_sent)
+            self._send_message(chosen, chosen.payload, t_sent)
         except (OSError, ValueError) as exc:
             self.counters["send_errors"] += 1
             log.warning("send %s/%d failed: %s", chosen.type, chosen.seq, exc)
@@ -184,7 +184,10 @@ class Dispatcher:
         """A receiver report for the decider, handled in its executor."""
         self.counters["reports"] += 1
         loop = asyncio.get_running_loop()
-        future = loop.run_in_executor(self._pool, self.decider.on_report, event, self.clock())
+        from companion.middleware.reports import ReceiverReport
+
+        future = loop.run_in_executor(self._pool, self.decider.on_report,
+                                      ReceiverReport.from_event(event), self.clock())
         future.add_done_callback(self._after_call)
 
     async def set_params(self, params: Mapping[str, Any]) -> None:
@@ -206,7 +209,9 @@ class Dispatcher:
                                           or not isinstance(budget, int | float)
                                           or not budget > 0):
             raise ValueError(f"time_budget_s must be a number > 0, got {budget!r}")
-        self.decider.set_params(params, now)
+        result = self.decider.set_params(params, now)
+        if result.error is not None:
+            raise ValueError(result.error)
         if budget is not None:
             self.config = dataclasses.replace(
                 self.config, budgets=dataclasses.replace(self.config.budgets,
@@ -260,7 +265,7 @@ class Dispatcher:
         return (c["fallback"] + c["decide_timeouts"]) / asked if asked else None
 
 
-def decision_record(decision: DecisionLike) -> dict[str, Any]:
+def decision_record(decision: Decision) -> dict[str, Any]:
     """The ``decision`` field of a mission log record: what was chosen, why, at what cost."""
     record: dict[str, Any] = {"send": bool(decision.send), "version": decision.version,
                               "reason": decision.reason}

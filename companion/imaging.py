@@ -35,13 +35,18 @@ class EncodedVersion:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class EncodedImage:
-    """The message the optimiser sees and the bytes of each of its versions (same order)."""
+    """The message the optimiser sees; each of its versions carries its JPEG bytes."""
 
     message: Message
-    payloads: tuple[bytes, ...]
+
+    @property
+    def payloads(self) -> tuple[bytes, ...]:
+        """The versions' bytes, best first (``message.with_version(i).payload``)."""
+        return tuple(self.message.with_version(i).payload
+                     for i in range(len(self.message.versions)))
 
     def payload(self, version: int | None) -> bytes:
-        return self.payloads[0 if version is None else version]
+        return self.message.with_version(0 if version is None else version).payload
 
 
 def encode_versions(image: npt.NDArray[Any], *, jpeg_quality: int = 80,
@@ -93,9 +98,10 @@ def image_message(image: npt.NDArray[Any], *, sender: str, seq: int, t_gen: floa
         data=data,
         versions=tuple(
             Version(name=v.name, size=len(v.jpeg),
-                    quality=min(1.0, math.hypot(v.width_px, v.height_px) / diagonal))
+                    quality=min(1.0, math.hypot(v.width_px, v.height_px) / diagonal),
+                    payload=v.jpeg)
             for v in versions
         ),
         version=0,
     )
-    return EncodedImage(message=message, payloads=tuple(v.jpeg for v in versions))
+    return EncodedImage(message=message)

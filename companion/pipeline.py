@@ -61,7 +61,7 @@ class CameraPipeline:
             return
         finally:
             self._busy = False
-        await self._dispatcher.submit(encoded.message, encoded.payloads)
+        await self._dispatcher.submit(encoded.message)
 
     def encode(self, frame: Frame, seq: int) -> EncodedImage:
         """The frame as an ``image`` message: the scorer's features, geotag, JPEG versions."""

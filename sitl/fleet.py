@@ -57,12 +57,10 @@ from sitl.fleet_config import (
 
 __all__ = [
     "Background",
-    "BaselineDecider",
     "FleetError",
     "FleetNetns",
     "LogTail",
     "Processes",
-    "RandomDropAnyVersion",
     "StationTail",
     "evaluate_utility",
     "format_summary",
@@ -76,6 +74,8 @@ __all__ = [
 ]
 
 POLICIES = ("mcts", "random", "send_all")
+COMPANION_POLICY = {"mcts": "mcts", "random": "random_drop", "send_all": "send_all"}
+"""``--policy`` -> the companion's ``[middleware] policy``."""
 """``mcts``: the companion's middleware (ch. 5); ``random``: drop each message with
 ``--drop-probability`` (the baseline of thesis fig. 5.7); ``send_all``: no optimisation."""
 WIFI_G_RATE_BIT_S = 6_000_000.0
@@ -814,7 +814,8 @@ def make_plan(args: argparse.Namespace, run_dir: Path, *, netns: bool = False) -
         drone_listen_host="0.0.0.0" if netns else "127.0.0.1",
         camera_rate_hz=args.rate, camera_width=args.width, camera_height=args.height,
         mcts_iterations=args.mcts_iterations, time_budget_s=args.time_budget,
-        constraint=args.constraint, constraint_params=params, alpha=args.alpha, seed=args.seed)
+        constraint=args.constraint, constraint_params=params, alpha=args.alpha, seed=args.seed,
+        policy=COMPANION_POLICY[args.policy], drop_probability=args.drop_probability)
 
 
 def _wait(stop: _Stop, what: str, timeout_s: float, ready: Callable[[], bool],
@@ -897,7 +898,7 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
               lambda: _try(lambda: api.get("/api/stats")) is not None, station)
         for slot in plan.drones:
             companions.append(procs.start(slot.drone_id, where.wrap_drone(
-                slot.index, _companion_argv(slot, args.policy, args.drop_probability))))
+                slot.index, _companion_argv(slot))))
         print(f"waiting for {args.drones} drone(s) to be heard...", file=out)
         out.flush()
 
@@ -1003,117 +1004,14 @@ def _finite(value: Any) -> Any:
     return value
 
 
-def _companion_argv(slot: DroneSlot, policy: str, drop_probability: float) -> list[str]:
-    if policy == "mcts":
-        return [*_tool("uav-companion", "companion.cli"), "--log-format", "text", "run",
-                "--config", str(slot.config_path)]
-    return [*_tool("uav-sitl", "sitl.cli"), "fleet", BASELINE_COMMAND,
-            "--config", str(slot.config_path), "--policy", policy,
-            "--drop-probability", repr(drop_probability)]
-
-
-# -- baseline companions (until uav-companion has a policy key) --------------------------------
-
-BASELINE_COMMAND = "baseline-companion"
-
-
-class RandomDropAnyVersion:
-    """Drop each message with probability ``p``, else send one of its versions picked
-    uniformly (the random baseline of thesis fig. 5.7, given the same versions to choose
-    from as the optimiser, which also keeps the delivered volume less lumpy)."""
-
-    def __init__(self, p: float, *, rng: Any) -> None:
-        if not 0.0 <= p <= 1.0:
-            raise ValueError(f"drop probability must be in [0, 1], got {p}")
-        self.p = p
-        self.rng = rng
-
-    def decide(self, message: Any, now: float) -> Any:
-        from companion.middleware.middleware import Decision
-
-        if self.rng.random() < self.p:
-            return Decision(send=False, reason="random-drop")
-        version = int(self.rng.integers(len(message.versions))) if message.versions else None
-        return Decision(send=True, version=version, reason="random-send")
-
-
-class BaselineDecider:
-    """A baseline policy (``companion.middleware.baselines``) as the companion app's decider.
-
-    ``status`` messages (a few hundred bytes every few seconds) always go, so the station
-    hears every drone however much the policy drops; this favours the baseline slightly in
-    the utility comparison, never the optimiser.
-    """
-
-    def __init__(self, policy: Any) -> None:
-        self.policy = policy
-
-    def decide(self, message: Any, now: float) -> Any:
-        if message.type == "status":
-            from companion.middleware.middleware import Decision
-
-            return Decision(send=True, version=None, reason="baseline-status")
-        return self.policy.decide(message, now)
-
-    def on_report(self, event: Any, now: float) -> None:
-        return None
-
-    def set_params(self, params: Any, now: float) -> None:
-        raise ValueError("a baseline policy has no live parameters")
-
-    def get_timer(self) -> float | None:
-        return None
-
-    def handle_timer(self, now: float) -> None:
-        return None
-
-
-def _baseline_companion(argv: Sequence[str]) -> int:
-    """``uav-companion run`` with a baseline policy instead of the middleware (same app,
-    transport, camera and mission log), so runs differ only in the decisions."""
-    import asyncio
-
-    import numpy as np
-
-    from companion.app import AppSetupError, CompanionApp, build_transport_factory, check_setup
-    from companion.cli import configure_logging
-    from companion.config import ConfigError, load_config
-    from companion.middleware.baselines import SendAll
-
-    p = argparse.ArgumentParser(prog=f"uav-sitl fleet {BASELINE_COMMAND}")
-    p.add_argument("--config", required=True)
-    p.add_argument("--policy", choices=("random", "send_all"), required=True)
-    p.add_argument("--drop-probability", type=float, default=0.5)
-    args = p.parse_args(list(argv))
-    os.environ.setdefault("MAVLINK20", "1")
-    configure_logging("info", "text")
-    try:
-        config = load_config(args.config)
-        check_setup(config)
-    except (ConfigError, AppSetupError) as exc:
-        print(f"configuration error: {exc}", file=sys.stderr)
-        return 2
-    seed = config.middleware.get("seed")
-    rng = np.random.default_rng(seed if isinstance(seed, int) else None)
-    policy = (RandomDropAnyVersion(args.drop_probability, rng=rng) if args.policy == "random"
-              else SendAll())
-
-    async def main_async() -> int:
-        app = CompanionApp(config, decider=BaselineDecider(policy),
-                           transport_factory=build_transport_factory(config, clock=time.time),
-                           clock=time.time)
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            loop.add_signal_handler(sig, app.stop)
-        await app.run()
-        return 0
-
-    return asyncio.run(main_async())
+def _companion_argv(slot: DroneSlot) -> list[str]:
+    """``uav-companion run``: its ``[middleware] policy`` (written into the drone's config
+    from ``--policy``) decides what goes out, so every policy runs the same app."""
+    return [*_tool("uav-companion", "companion.cli"), "--log-format", "text", "run",
+            "--config", str(slot.config_path)]
 
 
 def main(argv: list[str]) -> int:
-    if argv and argv[0] == BASELINE_COMMAND:
-        return _baseline_companion(argv[1:])
     args = parse_args(argv)
     if args.netns:
         from sitl.linkemu import missing_requirements

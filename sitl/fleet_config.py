@@ -159,6 +159,9 @@ class FleetPlan:
     constraint_params: Mapping[str, Any] = field(default_factory=dict)
     alpha: float | None = None
     seed: int = 0
+    policy: str = "mcts"
+    """The companions' ``[middleware] policy`` (``random_drop``: any version, status kept)."""
+    drop_probability: float = 0.5
 
     @property
     def key_path(self) -> Path:
@@ -230,7 +233,10 @@ def companion_toml(plan: FleetPlan, drone: DroneSlot) -> str:
                     "time_budget_s": plan.time_budget_s},
         "constraint": {"name": plan.constraint, "params": dict(plan.constraint_params)},
         "middleware": {"seed": plan.seed + drone.index}
-        | ({"alpha": plan.alpha} if plan.alpha is not None else {}),
+        | ({"alpha": plan.alpha} if plan.alpha is not None else {})
+        | ({"policy": plan.policy} if plan.policy != "mcts" else {})
+        | ({"drop_probability": plan.drop_probability, "any_version": True}
+           if plan.policy == "random_drop" else {}),
     }
     return _toml(tables, f"uav-companion config of {drone.drone_id}, written by uav-sitl fleet")
 

@@ -26,10 +26,17 @@ class Version:
     """Payload size of this version in bytes."""
     quality: float
     """Information content relative to the best version, in (0, 1]; for images m.d / d."""
+    payload: bytes | None = field(default=None, repr=False, compare=False)
+    """The encoded bytes of this version, where the sender has them (the companion's JPEG),
+    so a message carries what the transport sends; None elsewhere (reports, logs, models).
+    Not compared, not logged."""
 
     def __post_init__(self) -> None:
         if not self.name:
             raise MessageError("version name must not be empty")
+        if self.payload is not None and len(self.payload) != self.size:
+            raise MessageError(f"version {self.name!r}: size {self.size} is not the "
+                               f"{len(self.payload)} bytes of its payload")
         if self.size < 0:
             raise MessageError(f"version {self.name!r}: size must be >= 0 bytes, got {self.size}")
         if not (0.0 < self.quality <= 1.0):
@@ -101,6 +108,19 @@ class Message:
         if self.version is None or not self.versions:
             return 1.0
         return self.versions[self.version].quality
+
+    @property
+    def payload(self) -> bytes:
+        """The encoded bytes of the version this copy carries; ``b""`` for a message without
+        versions (telemetry: its ``data`` travels in the metadata). Raises MessageError when
+        a version's bytes are not here (a message learned from a report or a log)."""
+        if not self.versions:
+            return b""
+        version = self.versions[self.version or 0]
+        if version.payload is None:
+            raise MessageError(f"{self.sender}/{self.seq}: version {version.name!r} has no "
+                               "payload here")
+        return version.payload
 
     def with_version(self, version: int) -> Message:
         """This message carrying another of its versions (size follows the version)."""

@@ -1,9 +1,12 @@
 """The information distribution layer (thesis ch. 5 and 6): sans-I/O optimiser and constraints.
 
-``Middleware(config, *, rng, constraint).decide(message, now) -> Decision`` decides send /
-drop / version by MCTS over the utility model under a goodput window constraint. Baselines
-share the interface. The constraint strategies (constant, adaptive SGD, AIMD) are imported
-lazily so that this package imports even while one of their modules is missing.
+One seam for the shells: a :class:`Decider` (``decide``, ``on_delivered``, ``on_report``,
+``set_params``, timers) built by name with :func:`make_decider` (``mcts`` is
+``Middleware(config, *, rng, constraint)``; ``send_all``, ``random_drop``, ``greedy`` and
+``knapsack_greedy`` are the baselines). Goodput constraints live in :mod:`.constraints`
+(:func:`make_constraint`); the layer's errors are :class:`MiddlewareError` subclasses. The
+constraint strategies and the registry are imported lazily, so importing this package does
+not import scikit-learn.
 """
 
 from __future__ import annotations
@@ -20,33 +23,38 @@ from companion.middleware.baselines import (
     SendAll,
     offline_optimum,
 )
-from companion.middleware.constraint import ConstantConstraint, GoodputConstraint, LinkSample
+from companion.middleware.constraints.base import ConstantConstraint, GoodputConstraint
+from companion.middleware.constraints.linkstats import LinkSample
+from companion.middleware.decider import Decider, DeciderSetup, Decision, ParamsResult
+from companion.middleware.errors import MiddlewareError
 from companion.middleware.forecast import LatencyEstimator, StreamForecaster
 from companion.middleware.incremental import FixedItem, PlanItem, Problem, build_problem
 from companion.middleware.knowledge import FleetKnowledge
 from companion.middleware.mcts import MCTS, SearchResult, greedy_option
-from companion.middleware.middleware import (
-    Decision,
-    Middleware,
-    MiddlewareConfig,
-    MiddlewareError,
-)
+from companion.middleware.middleware import Middleware, MiddlewareConfig
+from companion.middleware.reports import ReceiverReport, ReportLearned
 
 _LAZY = {
-    "AdaptiveConstraint": "companion.middleware.adaptive",
-    "LinkStatsConstraint": "companion.middleware.adaptive",
-    "AimdConstraint": "companion.middleware.aimd",
-    "CONSTRAINTS": "companion.middleware.constraints",
-    "make_constraint": "companion.middleware.constraints",
-    "LinkStats": "companion.middleware.linkstats",
+    "AdaptiveConstraint": "companion.middleware.constraints.adaptive",
+    "LinkStatsConstraint": "companion.middleware.constraints.adaptive",
+    "AimdConstraint": "companion.middleware.constraints.aimd",
+    "CONSTRAINTS": "companion.middleware.constraints.registry",
+    "make_constraint": "companion.middleware.constraints.registry",
+    "LinkStats": "companion.middleware.constraints.linkstats",
+    "DECIDERS": "companion.middleware.policies",
+    "make_decider": "companion.middleware.policies",
+    "register_decider": "companion.middleware.policies",
 }
 
 __all__ = [
     "CONSTRAINTS",
+    "DECIDERS",
     "MCTS",
     "AdaptiveConstraint",
     "AimdConstraint",
     "ConstantConstraint",
+    "Decider",
+    "DeciderSetup",
     "Decision",
     "FixedItem",
     "FleetKnowledge",
@@ -61,17 +69,22 @@ __all__ = [
     "MiddlewareConfig",
     "MiddlewareError",
     "OptimumResult",
+    "ParamsResult",
     "PlanItem",
     "Policy",
     "Problem",
     "RandomDrop",
+    "ReceiverReport",
+    "ReportLearned",
     "SearchResult",
     "SendAll",
     "StreamForecaster",
     "build_problem",
     "greedy_option",
     "make_constraint",
+    "make_decider",
     "offline_optimum",
+    "register_decider",
 ]
 
 

@@ -9,20 +9,23 @@ instances. It is the ceiling every policy is measured against.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Self
 
 import numpy as np
 
-from companion.middleware.constraint import GoodputConstraint
+from companion.middleware.constraints.base import GoodputConstraint
+from companion.middleware.decider import Decider, DeciderSetup, Decision, ParamsResult, ParamValue
+from companion.middleware.errors import MiddlewareError, ParamError
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge
-from companion.middleware.middleware import Decision
+from companion.middleware.reports import ReceiverReport, ReportLearned, deliveries, feed_link
 from utility_specs.message import Message
 from utility_specs.spec import MissionSpec
 
 __all__ = [
+    "Baseline",
     "Greedy",
     "KnapsackGreedy",
     "OptimumResult",
@@ -33,54 +36,123 @@ __all__ = [
     "offline_optimum",
 ]
 
+Policy = Decider
+"""The old name of :class:`~companion.middleware.decider.Decider` (kept for importers)."""
 
-class Policy(Protocol):
-    """What the simulator and the companion app need from a policy."""
-
-    def decide(self, message: Message, now: float) -> Decision: ...
-
-    def on_delivered(self, messages: Iterable[Message], now: float) -> None: ...
+COMPANION_ALWAYS_SEND = ("status",)
+"""What a baseline built for a companion sends whatever it decides otherwise: the status
+(a few hundred bytes every few seconds) lets the station hear every drone however much the
+policy drops. This favours a baseline slightly in a utility comparison, never the optimiser."""
 
 
 def _send(message: Message, reason: str, version: int = 0) -> Decision:
     return Decision(send=True, version=version if message.versions else None, reason=reason)
 
 
-class SendAll:
+class Baseline:
+    """What every baseline shares: types it always sends, reports, no live parameters
+    but the constraint's, no timers. Subclasses implement :meth:`_decide`."""
+
+    constraint: GoodputConstraint | None = None
+    agent: str = ""
+
+    def __init__(self, *, always_send: Collection[str] = ()) -> None:
+        self.always_send = frozenset(always_send)
+
+    def decide(self, message: Message, now: float) -> Decision:
+        if message.type in self.always_send:
+            return Decision(send=True, version=None, reason="baseline-status")
+        return self._decide(message, now)
+
+    def _decide(self, message: Message, now: float) -> Decision:
+        raise NotImplementedError
+
+    def on_delivered(self, messages: Iterable[Message], now: float) -> None:
+        return None
+
+    def on_report(self, report: ReceiverReport, now: float) -> ReportLearned:
+        """Deliveries to :meth:`on_delivered`, own link samples to the constraint if any."""
+        messages, bad = deliveries(report)
+        self.on_delivered(messages, now)
+        if self.constraint is None:
+            return ReportLearned(bad_entries=bad)
+        return ReportLearned(bad_entries=bad,
+                             link=feed_link(self.constraint, report, agent=self.agent, now=now))
+
+    def set_params(self, params: Mapping[str, ParamValue], now: float) -> ParamsResult:
+        """Only ``constraint.NAME`` keys, when the policy has a constraint."""
+        del now
+        name = type(self).__name__
+        if self.constraint is None or any(not k.startswith("constraint.") for k in params):
+            return ParamsResult.rejected(f"the {name} baseline has no live parameters"
+                                         + (" but constraint.NAME" if self.constraint else ""))
+        try:
+            checked = self.constraint.check_params(
+                {k.removeprefix("constraint."): v for k, v in params.items()})
+        except ParamError as exc:
+            return ParamsResult.rejected(str(exc))
+        self.constraint.apply_params(checked)
+        return ParamsResult(applied={f"constraint.{k}": v for k, v in checked.items()})
+
+    def get_timer(self) -> float | None:
+        return None
+
+    def handle_timer(self, now: float) -> None:
+        return None
+
+
+class SendAll(Baseline):
     """Send every message in its best version."""
 
-    def decide(self, message: Message, now: float) -> Decision:
+    @classmethod
+    def from_setup(cls, setup: DeciderSetup, *,
+                   always_send: Collection[str] = COMPANION_ALWAYS_SEND) -> Self:
+        return cls(always_send=always_send)
+
+    def _decide(self, message: Message, now: float) -> Decision:
         return _send(message, "send-all")
 
-    def on_delivered(self, messages: Iterable[Message], now: float) -> None:
-        return None
 
+class RandomDrop(Baseline):
+    """Drop each message with probability ``p`` (the thesis' random baseline); send the best
+    version, or with ``any_version`` one of its versions picked uniformly (the same versions
+    to choose from as the optimiser, which also keeps the delivered volume less lumpy)."""
 
-class RandomDrop:
-    """Drop each message with probability ``p`` (the thesis' random baseline)."""
-
-    def __init__(self, p: float, *, rng: np.random.Generator) -> None:
-        if not 0.0 <= p <= 1.0:
-            raise ValueError(f"drop probability must be in [0, 1], got {p}")
+    def __init__(self, p: float, *, rng: np.random.Generator, any_version: bool = False,
+                 always_send: Collection[str] = ()) -> None:
+        super().__init__(always_send=always_send)
+        if isinstance(p, bool) or not isinstance(p, int | float) or not 0.0 <= p <= 1.0:
+            raise ParamError(f"drop probability must be in [0, 1], got {p!r}")
         self.p = p
         self.rng = rng
+        self.any_version = bool(any_version)
 
-    def decide(self, message: Message, now: float) -> Decision:
+    @classmethod
+    def from_setup(cls, setup: DeciderSetup, *, drop_probability: float = 0.5,
+                   any_version: bool = False,
+                   always_send: Collection[str] = COMPANION_ALWAYS_SEND) -> Self:
+        return cls(drop_probability, rng=setup.rng, any_version=any_version,
+                   always_send=always_send)
+
+    def _decide(self, message: Message, now: float) -> Decision:
         if self.rng.random() < self.p:
             return Decision(send=False, reason="random-drop")
+        if self.any_version and message.versions:
+            version = int(self.rng.integers(len(message.versions)))
+            return Decision(send=True, version=version, reason="random-send")
         return _send(message, "random-send")
 
-    def on_delivered(self, messages: Iterable[Message], now: float) -> None:
-        return None
 
-
-class _Knowing:
+class _Knowing(Baseline):
     """A policy that tracks the fleet's sends like the middleware does."""
+
+    constraint: GoodputConstraint
 
     def __init__(
         self, spec: MissionSpec, *, agent: str, constraint: GoodputConstraint,
-        default_latency_s: float = 0.05,
+        default_latency_s: float = 0.05, always_send: Collection[str] = (),
     ) -> None:
+        super().__init__(always_send=always_send)
         self.spec = spec
         self.agent = agent
         self.constraint = constraint
@@ -101,7 +173,13 @@ class _Knowing:
 class Greedy(_Knowing):
     """Send the best version that fits the fleet's window budget, else drop."""
 
-    def decide(self, message: Message, now: float) -> Decision:
+    @classmethod
+    def from_setup(cls, setup: DeciderSetup, *, default_latency_s: float = 0.05,
+                   always_send: Collection[str] = COMPANION_ALWAYS_SEND) -> Self:
+        return cls(setup.spec, agent=setup.agent, constraint=setup.constraint,
+                   default_latency_s=default_latency_s, always_send=always_send)
+
+    def _decide(self, message: Message, now: float) -> Decision:
         self.knowledge.on_generated(message)
         used = self.knowledge.sent_in_window(now=now, window_s=self.constraint.window_s)
         budget = self.constraint.budget_bytes(now=now)
@@ -123,12 +201,21 @@ class KnapsackGreedy(_Knowing):
     def __init__(
         self, spec: MissionSpec, *, agent: str, constraint: GoodputConstraint,
         horizon_s: float = 3.0, default_latency_s: float = 0.05,
+        always_send: Collection[str] = (),
     ) -> None:
         super().__init__(spec, agent=agent, constraint=constraint,
-                         default_latency_s=default_latency_s)
+                         default_latency_s=default_latency_s, always_send=always_send)
         self.horizon_s = horizon_s
 
-    def decide(self, message: Message, now: float) -> Decision:
+    @classmethod
+    def from_setup(cls, setup: DeciderSetup, *, horizon_s: float = 3.0,
+                   default_latency_s: float = 0.05,
+                   always_send: Collection[str] = COMPANION_ALWAYS_SEND) -> Self:
+        return cls(setup.spec, agent=setup.agent, constraint=setup.constraint,
+                   horizon_s=horizon_s, default_latency_s=default_latency_s,
+                   always_send=always_send)
+
+    def _decide(self, message: Message, now: float) -> Decision:
         self.knowledge.on_generated(message)
         window_s = self.constraint.window_s
         view = self.knowledge.view(message, now=now, horizon_s=self.horizon_s, max_items=64,
@@ -218,7 +305,7 @@ def offline_optimum(problem: Problem, *, max_states: int = 500_000) -> OptimumRe
 
     Dynamic programming over levels: a state is each stream's last sent message plus the
     sends still inside a window reaching the next level (tantamount nodes, eq. 5.8 and
-    footnote 5), keeping the best utility per state. Raises ``ValueError`` if a level holds
+    footnote 5), keeping the best utility per state. Raises ``MiddlewareError`` if a level holds
     more than ``max_states`` states (the instance is not small).
     """
     n = problem.n
@@ -267,7 +354,7 @@ def offline_optimum(problem: Problem, *, max_states: int = 500_000) -> OptimumRe
                     nxt[key] = value
                     came[key] = (state, o)
         if len(nxt) > max_states:
-            raise ValueError(
+            raise MiddlewareError(
                 f"offline_optimum: {len(nxt)} states at level {i} exceed max_states={max_states}"
             )
         widest = max(widest, len(nxt))

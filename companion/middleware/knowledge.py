@@ -76,6 +76,10 @@ class FleetKnowledge:
         """Per stream, the newest message generated here: what the sender knows has changed."""
 
     # --- updates -------------------------------------------------------------------------
+    def use_spec(self, spec: MissionSpec) -> None:
+        """Value messages with ``spec`` from now on (a live parameter changed it)."""
+        self.spec = spec
+
     def on_generated(self, message: Message) -> None:
         self.forecaster.observe(message)
         stream = stream_of(self.spec, message)

@@ -2,10 +2,12 @@
 
 Sans-I/O, aioquic-shaped: the shell hands in each generated message with ``now`` (fleet
 clock) and gets a :class:`Decision`; deliveries learned from receptions or receiver reports
-come in through :meth:`Middleware.on_delivered` / :meth:`Middleware.on_report`. Nothing here
-reads a clock, except the optional injected ``budget_clock`` when a decision is bounded by
-wall time (``deadline``); by default the budget is an iteration count, which keeps decisions
-deterministic.
+come in through :meth:`Middleware.on_delivered` / :meth:`Middleware.on_report` (which also
+feeds the constraint's link statistics), live parameters through
+:meth:`Middleware.set_params`. It is the ``mcts`` :class:`~companion.middleware.decider.Decider`.
+Nothing here reads a clock, except the optional injected ``budget_clock`` when a decision is
+bounded by wall time (``time_budget_s`` or ``deadline``); by default the budget is an
+iteration count, which keeps decisions deterministic.
 
 The goodput budget ξ·T of :class:`GoodputConstraint` is the *fleet's* (one shared medium,
 each agent plans for the whole fleet, ch. 5.3): windows count every send the agent knows of.
@@ -16,26 +18,25 @@ the shell must not record it a second time.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Self
 
 import numpy as np
 
-from companion.middleware.constraint import GoodputConstraint
+from companion.middleware.constraints.base import ConstantConstraint, GoodputConstraint
+from companion.middleware.decider import DeciderSetup, Decision, ParamsResult, ParamValue
+from companion.middleware.errors import MiddlewareError, ParamError, UnknownParamError
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge, settle_inflight, usable
 from companion.middleware.mcts import MCTS, greedy_option
-from companion.protocol.records import report_messages
+from companion.middleware.params import LIVE_KEYS, check_params, with_alpha
+from companion.middleware.reports import ReceiverReport, ReportLearned, deliveries, feed_link
 from utility_specs.errors import UtilitySpecsError
-from utility_specs.message import Message
+from utility_specs.message import Message, Version
 from utility_specs.spec import MissionSpec
 
 __all__ = ["Decision", "Middleware", "MiddlewareConfig", "MiddlewareError"]
-
-
-class MiddlewareError(ValueError):
-    """The caller misused the middleware (bad configuration or argument)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -46,6 +47,8 @@ class MiddlewareConfig:
     agent: str
     """This agent's sender name (its own messages are decided, others' only planned for)."""
     max_iterations: int = 1500
+    time_budget_s: float | None = None
+    """Wall time per decision on the middleware's ``budget_clock``; None: iterations only."""
     c: float = 0.35
     """Discovery factor of UCT (eq. 5.3)."""
     horizon_s: float = 3.0
@@ -97,31 +100,8 @@ class MiddlewareConfig:
             raise MiddlewareError("need horizon_s > 0, c >= 0, default_latency_s >= 0, tail_s >= 0")
         if self.announce_after_s is not None and not self.announce_after_s > 0:
             raise MiddlewareError("announce_after_s must be > 0 or None")
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Decision:
-    """Send or drop one message, which version, and why."""
-
-    send: bool
-    version: int | None = None
-    """Index of the version to send (0 = best) for messages with versions, else None."""
-    score: float = float("nan")
-    """Mean normalised node score (eq. 5.2) of the chosen option; NaN when no tree ran."""
-    reason: str = ""
-    """``mcts``, ``mcts-exact`` (tree exhausted), ``fallback-greedy``, ``unknown-type``..."""
-    iterations: int = 0
-    nodes: int = 0
-    pruned: int = 0
-    merged: int = 0
-    levels: int = 0
-    """Messages in the tree (levels)."""
-    level: int = -1
-    """Level of the decided message in the tree."""
-
-    def __post_init__(self) -> None:
-        if not self.send and self.version is not None:
-            raise MiddlewareError("a dropped message has no version")
+        if self.time_budget_s is not None and not self.time_budget_s > 0:
+            raise MiddlewareError("time_budget_s must be > 0 or None")
 
 
 def _dense_enough(problem: Problem, level: int, lam: float) -> bool:
@@ -161,6 +141,25 @@ class Middleware:
         self._last_sent: dict[str, float] = {}
         """Per own message type: when it last sent one (what the fleet has heard of)."""
 
+    @classmethod
+    def from_setup(cls, setup: DeciderSetup, *, alpha: ParamValue = None,
+                   **params: ParamValue) -> Self:
+        """The ``mcts`` policy of the registry: ``params`` are :data:`LIVE_KEYS`, ``alpha``
+        sets α of the mission's utility functions (eq. 7.1/7.2)."""
+        for key in params:
+            if key not in LIVE_KEYS:
+                raise UnknownParamError(key, ("alpha", *LIVE_KEYS), owner="the mcts policy")
+        spec = setup.spec if alpha is None else with_alpha(setup.spec, alpha)
+        try:
+            config = MiddlewareConfig(spec=spec, agent=setup.agent,
+                                      max_iterations=setup.max_iterations,
+                                      time_budget_s=setup.time_budget_s,
+                                      **params)  # type: ignore[arg-type]
+        except TypeError as exc:  # a value of the wrong type
+            raise ParamError(str(exc)) from None
+        return cls(config, rng=setup.rng, constraint=setup.constraint,
+                   budget_clock=setup.budget_clock)
+
     @property
     def spec(self) -> MissionSpec:
         return self.config.spec
@@ -168,9 +167,13 @@ class Middleware:
     def decide(self, message: Message, now: float, *, deadline: float | None = None) -> Decision:
         """Send or drop ``message`` generated by this agent (alg. 3, lines 5-14).
 
-        ``deadline`` (on ``budget_clock``'s clock) bounds the search by wall time; the
-        iteration budget ``max_iterations`` always applies.
+        ``deadline`` (on ``budget_clock``'s clock) bounds the search by wall time, by
+        default ``time_budget_s`` from now; the iteration budget ``max_iterations`` always
+        applies.
         """
+        if deadline is None and self.config.time_budget_s is not None \
+                and self.budget_clock is not None:
+            deadline = self.budget_clock() + self.config.time_budget_s
         if message.sender != self.config.agent:
             raise MiddlewareError(
                 f"decide() is for this agent's ({self.config.agent}) messages, got "
@@ -290,15 +293,47 @@ class Middleware:
         """Messages (any agent's) known to have arrived, with ``t_rcv`` (and ``t_sent``)."""
         self.counters["delivered"] += self.knowledge.on_delivered(messages, now=now)
 
-    def on_report(self, report: Any, now: float) -> None:
-        """A receiver report (``companion.protocol.records.Report``): learn its entries."""
-        messages = []
-        for entry in getattr(report, "entries", ()):
-            try:  # one by one: a bad entry is counted, the others still count
-                messages += report_messages([entry], receiver="ground")
-            except (UtilitySpecsError, AttributeError, TypeError):
-                self.counters["bad_report_entry"] += 1
+    def on_report(self, report: ReceiverReport, now: float) -> ReportLearned:
+        """A receiver report: every entry for the delivered-set knowledge, this agent's own
+        entries and clock echo for the constraint's link statistics (ch. 6.1)."""
+        messages, bad = deliveries(report)
+        self.counters["bad_report_entry"] += bad
+        before = self.counters["delivered"]
         self.on_delivered(messages, now)
+        link = feed_link(self.constraint, report, agent=self.config.agent, now=now)
+        self.counters["link_samples"] += link.link_samples
+        self.counters["round_trips"] += link.round_trips
+        self.counters["bad_round_trips"] += link.bad_round_trips
+        return ReportLearned(delivered=self.counters["delivered"] - before, bad_entries=bad,
+                             link=link)
+
+    def set_params(self, params: Mapping[str, ParamValue], now: float) -> ParamsResult:
+        """Live parameters (:mod:`companion.middleware.params`), effective from the next
+        decision. All or nothing: a rejected key changes nothing and the result says why."""
+        del now
+        try:
+            checked = check_params(self.config, self.constraint, params)
+        except ParamError as exc:
+            return ParamsResult.rejected(str(exc))
+        if checked.config.spec is not self.config.spec:
+            self.knowledge.use_spec(checked.config.spec)
+        self.config = checked.config
+        self.constraint.apply_params(checked.constraint)
+        return ParamsResult(applied=checked.applied)
+
+    def warm_up(self) -> None:
+        """One decision on a throwaway optimiser, so JIT compilation (numba) happens before
+        the first real message instead of costing it a decision timeout."""
+        scratch = type(self)(self.config, constraint=ConstantConstraint(limit_bytes_per_s=1e5))
+        spec_types = self.config.spec.types
+        type_name = "image" if "image" in spec_types else next(iter(spec_types))
+        versions = (Version(name="full", size=20_000, quality=1.0),
+                    Version(name="half", size=5_000, quality=0.5))
+        for seq in range(3):
+            scratch.decide(Message(sender=self.config.agent, seq=seq, type=type_name,
+                                   t_gen=seq * 0.2, size=20_000,
+                                   data={"red": 0.1, "object": False, "level": 0.9},
+                                   versions=versions, version=0), seq * 0.2)
 
     def get_timer(self) -> float | None:
         """No timers: everything happens in ``decide`` and ``on_delivered``."""

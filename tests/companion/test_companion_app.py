@@ -23,6 +23,7 @@ from companion_fake_vehicle import FakeVehicle
 
 from companion.app import CompanionApp
 from companion.config import BudgetConfig, parse_config
+from companion.middleware import ParamsResult, ReceiverReport
 from companion.protocol import Command, CommandReceived, Status
 from utility_specs.files import read_log
 from utility_specs.message import Message
@@ -55,13 +56,14 @@ class FakeDecider:
             return FakeDecision(True, 1, "red enough", 2.0)
         return FakeDecision(False, None, "not red", 0.0)
 
-    def on_report(self, event: Any, now: float) -> None:
-        self.reports.append(event)
+    def on_report(self, report: ReceiverReport, now: float) -> None:
+        self.reports.append(report)
 
-    def set_params(self, params: Mapping[str, Any], now: float) -> None:
+    def set_params(self, params: Mapping[str, Any], now: float) -> ParamsResult:
         self.params.append(dict(params))
         if "threshold" in params:
             self.threshold = float(params["threshold"])
+        return ParamsResult(applied=dict(params))
 
     def get_timer(self) -> float | None:
         return None
@@ -275,7 +277,10 @@ async def test_reports_go_to_the_decider(vehicle: FakeVehicle, tmp_path: Path) -
                                part_count=1, t_sent=time.time(), t_rcv=time.time(),
                                addr=("127.0.0.1", 1))
         transports[0].on_event(event)
-        await _until(lambda: decider.reports == [event])
+        # the decider gets the report with the times of its own trip (for round trips)
+        await _until(lambda: decider.reports == [ReceiverReport.from_event(event)])
+        assert (decider.reports[0].t_sent, decider.reports[0].t_rcv) == (event.t_sent,
+                                                                         event.t_rcv)
     finally:
         app.stop()
         await asyncio.wait_for(task, 10)

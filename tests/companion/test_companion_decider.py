@@ -1,11 +1,12 @@
-"""The app's adapter to the real middleware: budgets, reports, live parameters."""
+"""The decider the app builds from its config: budgets, reports, live parameters, policies."""
 
 from __future__ import annotations
 
 import pytest
 
 from companion.app import AppSetupError, build_decider
-from companion.config import parse_config
+from companion.config import ConfigError, parse_config
+from companion.middleware import Middleware, RandomDrop, ReceiverReport, SendAll
 from companion.protocol import ClockEcho, Report, ReportEntry, ReportReceived
 from utility_specs.message import Message, Version
 
@@ -35,24 +36,49 @@ def test_decides_with_the_iteration_budget() -> None:
 
 
 def test_live_parameters_change_the_optimiser() -> None:
-    decider = build_decider(_config())
-    decider.set_params({"mcts_iterations": 20, "alpha": 3.0, "time_budget_s": 0.2}, T0)
-    mw = decider.middleware
-    assert mw.config.max_iterations == 20 and decider.time_budget_s == 0.2
+    mw = build_decider(_config())
+    assert isinstance(mw, Middleware)
+    result = mw.set_params({"mcts_iterations": 20, "alpha": 3.0, "time_budget_s": 0.2}, T0)
+    assert result.ok and dict(result.applied) == {"mcts_iterations": 20, "alpha": 3.0,
+                                                  "time_budget_s": 0.2}
+    assert mw.config.max_iterations == 20 and mw.config.time_budget_s == 0.2
     assert mw.config.spec["image"].utility.params()["alpha"] == 3.0
     assert mw.knowledge.spec is mw.config.spec
-    with pytest.raises(ValueError, match="unknown parameter 'warp'"):
-        decider.set_params({"warp": 9}, T0)
-    with pytest.raises(ValueError, match="alpha must be a number >= 0"):
-        decider.set_params({"alpha": -1}, T0)
+    before = mw.config
+    rejected = mw.set_params({"warp": 9}, T0)
+    assert not rejected.ok and "unknown parameter 'warp'" in str(rejected.error)
+    assert dict(rejected.applied) == {} and mw.config is before
+    rejected = mw.set_params({"alpha": -1}, T0)
+    assert "alpha must be a number >= 0" in str(rejected.error) and mw.config is before
 
 
 def test_alpha_and_unknown_keys_from_the_config() -> None:
-    decider = build_decider(_config(middleware={"alpha": 4.0, "seed": 3, "c": 0.5}))
-    assert decider.middleware.config.spec["image"].utility.params()["alpha"] == 4.0
-    assert decider.middleware.config.c == 0.5
-    with pytest.raises(AppSetupError, match=r"middleware.gamma: expected one of alpha, seed"):
+    mw = build_decider(_config(middleware={"alpha": 4.0, "seed": 3, "c": 0.5}))
+    assert isinstance(mw, Middleware)
+    assert mw.config.spec["image"].utility.params()["alpha"] == 4.0
+    assert mw.config.c == 0.5
+    with pytest.raises(AppSetupError, match=r"middleware.gamma: expected one of policy, seed, "
+                                            r"alpha, c, horizon_s, tail_s, default_latency_s"):
         build_decider(_config(middleware={"gamma": 1}))
+    with pytest.raises(AppSetupError, match=r"middleware: alpha must be a number >= 0"):
+        build_decider(_config(middleware={"alpha": -4.0}))
+
+
+def test_the_policy_is_a_config_value() -> None:
+    """``[middleware] policy`` picks any registered policy, with its own keys."""
+    assert isinstance(build_decider(_config(middleware={"policy": "send_all"})), SendAll)
+    drop = build_decider(_config(middleware={"policy": "random_drop", "seed": 4,
+                                             "drop_probability": 0.25, "any_version": True}))
+    assert isinstance(drop, RandomDrop) and (drop.p, drop.any_version) == (0.25, True)
+    with pytest.raises(ConfigError, match=r"middleware.policy: expected one of greedy, "
+                                          r"knapsack_greedy, mcts, random_drop, send_all, "
+                                          r"got 'best'"):
+        _config(middleware={"policy": "best"})
+    with pytest.raises(AppSetupError, match=r"middleware.c: expected one of policy, seed, "
+                                            r"drop_probability, any_version, always_send$"):
+        build_decider(_config(middleware={"policy": "random_drop", "c": 0.5}))
+    with pytest.raises(AppSetupError, match=r"drop probability must be in \[0, 1\], got 2"):
+        build_decider(_config(middleware={"policy": "random_drop", "drop_probability": 2}))
 
 
 def test_reports_feed_deliveries_link_samples_and_round_trips() -> None:
@@ -70,14 +96,21 @@ def test_reports_feed_deliveries_link_samples_and_round_trips() -> None:
     event = ReportReceived(report=report, reporter="gs", report_number=1, part_index=0,
                            part_count=1, t_sent=T0 + 0.1, t_rcv=T0 + 0.15,
                            addr=("127.0.0.1", 1))
-    decider.on_report(event, T0 + 0.15)
-    assert decider.counters == {"link_samples": 1, "round_trips": 1, "bad_round_trips": 0}
-    assert decider.middleware.counters["delivered"] == 2
-    stats = decider.constraint.stats
+    learned = decider.on_report(ReceiverReport.from_event(event), T0 + 0.15)
+    assert (learned.delivered, learned.bad_entries) == (2, 0)
+    assert (learned.link.link_samples, learned.link.round_trips,
+            learned.link.bad_round_trips) == (1, 1, 0)
+    assert isinstance(decider, Middleware)
+    assert {k: decider.counters[k] for k in ("link_samples", "round_trips", "bad_round_trips",
+                                              "delivered")} == {
+        "link_samples": 1, "round_trips": 1, "bad_round_trips": 0, "delivered": 2}
+    stats = decider.constraint.stats  # type: ignore[attr-defined]
     assert stats.counters["samples"] == 1
+    assert stats.clock.get().n_samples == 1  # the round trip reached the clock estimator
 
 
 def test_warm_up_leaves_the_real_optimiser_untouched() -> None:
     decider = build_decider(_config())
+    assert isinstance(decider, Middleware)
     decider.warm_up()
-    assert decider.middleware.counters["decisions"] == 0
+    assert decider.counters["decisions"] == 0

@@ -17,9 +17,7 @@ from companion.config import load_config as load_companion_config
 from ground_station.config import load_config as load_gs_config
 from sitl.fleet import (
     Background,
-    BaselineDecider,
     LogTail,
-    RandomDropAnyVersion,
     StationTail,
     format_summary,
     make_plan,
@@ -180,10 +178,27 @@ def test_progress_line_shows_each_drone(tmp_path: Path) -> None:
     assert "drone2 g10 s1 r10 1.0/s 42ms" in line and "drone3 g20 s2 r0" in line
 
 
-def test_random_baseline_drops_at_its_rate_and_picks_any_version() -> None:
+def test_random_baseline_drops_at_its_rate_and_picks_any_version(tmp_path: Path) -> None:
+    """``--policy random`` is the companion's ``random_drop`` policy, read from the config
+    the fleet writes: it drops at its rate, keeps any version, and always sends status."""
     import numpy as np
 
+    from companion.app import build_decider
+    from companion.middleware import ConstantConstraint, DeciderSetup, RandomDrop, make_decider
+    from utility_specs.files import builtin_spec
     from utility_specs.message import Message, Version
+
+    plan = _plan(tmp_path, "--policy", "random", "--drop-probability", "0.75", "--seed", "7")
+    write_run_configs(plan)
+    config = load_companion_config(plan.drones[1].config_path)
+    assert dict(config.middleware) == {"seed": 8, "policy": "random_drop",
+                                       "drop_probability": 0.75, "any_version": True}
+    built = build_decider(config)
+    assert isinstance(built, RandomDrop) and (built.p, built.any_version) == (0.75, True)
+    assert built.always_send == {"status"}
+    mcts = _plan(tmp_path / "mcts")
+    write_run_configs(mcts)
+    assert dict(load_companion_config(mcts.drones[0].config_path).middleware) == {"seed": 0}
 
     versions = tuple(Version(name=n, size=s, quality=q)
                      for n, s, q in (("full", 4000, 1.0), ("half", 1500, 0.5),
@@ -191,18 +206,27 @@ def test_random_baseline_drops_at_its_rate_and_picks_any_version() -> None:
     image = Message(sender="d", seq=1, type="image", t_gen=0.0, size=4000, data={"red": 0.0},
                     versions=versions, version=0)
     status = Message(sender="d", seq=2, type="status", t_gen=0.0, size=50, data={})
-    policy = RandomDropAnyVersion(0.75, rng=np.random.default_rng(1))
+
+    def random_drop(p: float, seed: int) -> RandomDrop:
+        setup = DeciderSetup(spec=builtin_spec("image_streaming"), agent="d",
+                             constraint=ConstantConstraint(limit_bytes_per_s=1e4),
+                             rng=np.random.default_rng(seed))
+        policy = make_decider("random_drop", setup, drop_probability=p, any_version=True)
+        assert isinstance(policy, RandomDrop)
+        return policy
+
+    policy = random_drop(0.75, 1)
     decisions = [policy.decide(image, 0.0) for _ in range(4000)]
     sent = [d for d in decisions if d.send]
     assert len(sent) / 4000 == pytest.approx(0.25, abs=0.03)
     counts = [sum(d.version == v for d in sent) for v in range(3)]
     assert all(c / len(sent) == pytest.approx(1 / 3, abs=0.06) for c in counts)
     assert all(d.version is None for d in decisions if not d.send)
-    never = BaselineDecider(RandomDropAnyVersion(1.0, rng=np.random.default_rng(2)))
+    never = random_drop(1.0, 2)
     assert not never.decide(image, 0.0).send
     assert never.decide(status, 0.0).send  # the station must still hear the drone
     with pytest.raises(ValueError):
-        RandomDropAnyVersion(1.5, rng=np.random.default_rng(0))
+        random_drop(1.5, 0)
 
 
 def test_first_fix_option() -> None:

@@ -155,12 +155,13 @@ def test_study_quick(tmp_path: Path) -> None:
 
 
 def test_report_entries_keep_the_carried_quality() -> None:
-    from companion.protocol.records import Report, ReportEntry
+    from companion.middleware import ReceiverReport
+    from companion.protocol.records import ReportEntry
 
     mw = _mw()
     entry = ReportEntry(sender="b", seq=3, type="image", t_gen=T0, t_sent=T0, t_rcv=T0 + 0.1,
                         size=250, version=2, quality=0.25, data={})
-    mw.on_report(Report(entries=(entry,)), T0 + 0.1)
+    mw.on_report(ReceiverReport(entries=(entry,)), T0 + 0.1)
     base = mw.knowledge.base_message(msg("b", 4, "image", T0 + 1))
     assert base is not None and base[0].quality == 0.25 and base[1] == T0 + 0.1
     assert mw.counters["delivered"] == 1
@@ -168,12 +169,13 @@ def test_report_entries_keep_the_carried_quality() -> None:
 
 def test_a_report_entry_received_before_its_drone_clock_generated_it_counts() -> None:
     """Ground and drone clocks disagree by a little: t_rcv < t_gen is clamped, not dropped."""
-    from companion.protocol.records import Report, ReportEntry
+    from companion.middleware import ReceiverReport
+    from companion.protocol.records import ReportEntry
 
     mw = _mw()
     entry = ReportEntry(sender="b", seq=3, type="image", t_gen=T0, t_sent=T0, t_rcv=T0 - 0.02,
                         size=250, data={})
-    mw.on_report(Report(entries=(entry,)), T0 + 0.1)
+    mw.on_report(ReceiverReport(entries=(entry,)), T0 + 0.1)
     assert mw.counters["delivered"] == 1 and mw.counters["bad_report_entry"] == 0
 
 

@@ -1,0 +1,223 @@
+"""The adaptive goodput constraint ξ(t) = R_t(α) (thesis ch. 6.2, eq. 6.6-6.8).
+
+A linear data-rate model R(‖W‖_Δ) ≈ ‖W‖_G is fitted online, one stochastic-gradient step
+(squared loss) per reported message, with scikit-learn's ``SGDRegressor.partial_fit``.
+The constraint is the model's goodput at the tolerated backlog α, clamped to sane bounds.
+Because every reported message is a training sample, the model keeps learning while the
+application sends far less than ξ: more background traffic raises ‖W‖_Δ at the same
+goodput, the fit moves and ξ falls (figure 6.5, 65-75 s).
+
+Rates are fitted in units of ``scale_bytes_per_s``; set it to the link's order of magnitude
+and a learning rate tuned on a 1 Mbit/s radio carries over to a 100 Mbit/s WiFi (the thesis
+had to retune it per setup, ch. 7.3).
+Pure compute: no clock, no I/O (SGDRegressor is a numeric routine).
+"""
+
+from __future__ import annotations
+
+import math
+from abc import abstractmethod
+from collections.abc import Iterable
+
+import numpy as np
+from sklearn.linear_model import SGDRegressor
+
+from companion.middleware.constraints.base import GoodputConstraint
+from companion.middleware.constraints.linkstats import LinkSample, LinkStats, RoundTrip, WindowStats
+from companion.middleware.errors import ConstraintError
+
+__all__ = ["AdaptiveConstraint", "LinkStatsConstraint"]
+
+
+class LinkStatsConstraint(GoodputConstraint):
+    """A constraint that learns from link statistics of receiver reports (ch. 6).
+
+    Feeds every sample to its :class:`LinkStats` and hands each warm window to
+    :meth:`_learn`. Subclasses decide what ξ does with the observations.
+    """
+
+    def __init__(
+        self,
+        *,
+        window_s: float,
+        stats: LinkStats | None = None,
+        base_window_s: float = 10.0,
+        min_base_latency_s: float = 0.005,
+    ) -> None:
+        super().__init__(window_s=window_s)
+        self.stats = stats if stats is not None else LinkStats(
+            window_s=window_s, base_window_s=base_window_s, min_base_latency_s=min_base_latency_s
+        )
+        self.n_updates = 0
+        self.last_stats: WindowStats | None = None
+
+    def on_sample(self, sample: LinkSample, *, now: float) -> None:
+        """One update per delivered message (thesis: 'whenever a new message is received')."""
+        self.on_samples([sample], now=now)
+
+    def on_samples(self, samples: Iterable[LinkSample], *, now: float) -> None:
+        """All messages of one report: still one model update per message."""
+        observations: list[WindowStats] = []
+        for sample in samples:
+            before = self.stats.counters["samples"]
+            stats = self.stats.update(sample, now=now).get()
+            if self.stats.counters["samples"] == before or stats is None:
+                continue  # duplicate, stale or invalid: nothing new to learn
+            self.last_stats = stats
+            if stats.warm:
+                observations.append(stats)
+        if observations:
+            self._learn(observations)
+            self.n_updates += len(observations)
+
+    def on_round_trip(self, round_trip: RoundTrip, *, now: float) -> None:
+        """A report round trip: refines the clock offset used for latencies."""
+        del now
+        self.stats.on_round_trip(round_trip)
+
+    @abstractmethod
+    def _learn(self, observations: list[WindowStats]) -> None:
+        """Update ξ from warm windows, one per newly reported message, in order."""
+
+
+class AdaptiveConstraint(LinkStatsConstraint):
+    """ξ(t) = clamp(R_t(α)) with R fitted by SGD on (‖W‖_Δ, ‖W‖_G) (eq. 6.7/6.8).
+
+    Two safeguards on top of the thesis' plain SGD, both found necessary on a real queue:
+
+    - *Projection onto increasing models* (``min_coef``). An application that keeps to ξ
+      delivers G ≈ ξ, so the intercept alone can explain every sample and the fitted slope
+      drifts to ~0; ξ = R(α) then stops reacting to Δ (a neutral equilibrium wherever it
+      happens to be). The true R is increasing in Δ, so after each step the slope is
+      projected back to ≥ ``min_coef``; that keeps a restoring force ∝ (α − Δ).
+    - *Clipped backlog* (``backlog_clip``). In a congested queue Δ reaches tens of times the
+      goodput; a squared-loss step grows with x², so one such sample makes plain SGD
+      diverge. The linear model is meant for the uncongested regime (ch. 6.2), where
+      clipping changes nothing; beyond ``backlog_clip · α`` a sample only says "congested".
+
+    Parameters
+    ----------
+    alpha_bytes_per_s
+        α, the tolerated backlog ‖W‖_Δ (eq. 6.6). Lower: lower latency and loss.
+    learning_rate
+        SGD step size (constant schedule) in scaled units; higher adapts faster, noisier.
+    initial_coef
+        Initial belief on dR/dΔ (dimensionless: goodput bytes per backlog byte).
+    initial_intercept_bytes_per_s
+        Initial belief on R(0). ξ starts at intercept + coef·α.
+    min_bytes_per_s, max_bytes_per_s
+        Bounds on ξ, so a wild fit can neither silence the application nor flood the link.
+    scale_bytes_per_s
+        Unit the model is fitted in (default 1 Mbit/s = 125000 B/s).
+    min_coef
+        Least slope dR/dΔ kept after each step (projected SGD onto increasing models).
+    backlog_clip
+        Observed Δ is clipped at ``backlog_clip · α`` before fitting.
+    window_s
+        T of both the link statistics and the budget window (eq. 6.1).
+    stats
+        Link statistics to use (default: a new :class:`LinkStats` with ``window_s``).
+    """
+
+    def __init__(
+        self,
+        *,
+        alpha_bytes_per_s: float = 12_500.0,
+        learning_rate: float = 0.01,
+        initial_coef: float = 1.0,
+        initial_intercept_bytes_per_s: float = 62_500.0,
+        min_bytes_per_s: float = 1_250.0,
+        max_bytes_per_s: float = 12_500_000.0,
+        scale_bytes_per_s: float = 125_000.0,
+        min_coef: float = 0.1,
+        backlog_clip: float = 4.0,
+        window_s: float = 2.5,
+        base_window_s: float = 10.0,
+        min_base_latency_s: float = 0.005,
+        stats: LinkStats | None = None,
+    ) -> None:
+        super().__init__(
+            window_s=window_s,
+            stats=stats,
+            base_window_s=base_window_s,
+            min_base_latency_s=min_base_latency_s,
+        )
+        if not min_coef >= 0:
+            raise ConstraintError(f"min_coef must be >= 0, got {min_coef}")
+        if not backlog_clip >= 1:
+            raise ConstraintError(f"backlog_clip must be >= 1, got {backlog_clip}")
+        self.min_coef = float(min_coef)
+        self.backlog_clip = float(backlog_clip)
+        if not alpha_bytes_per_s > 0:
+            raise ConstraintError(f"alpha_bytes_per_s must be > 0, got {alpha_bytes_per_s}")
+        if not learning_rate > 0:
+            raise ConstraintError(f"learning_rate must be > 0, got {learning_rate}")
+        if not 0 <= min_bytes_per_s <= max_bytes_per_s:
+            raise ConstraintError(
+                f"need 0 <= min_bytes_per_s ({min_bytes_per_s}) <= max_bytes_per_s "
+                f"({max_bytes_per_s})"
+            )
+        if not scale_bytes_per_s > 0:
+            raise ConstraintError(f"scale_bytes_per_s must be > 0, got {scale_bytes_per_s}")
+        for name, value in (
+            ("initial_coef", initial_coef),
+            ("initial_intercept_bytes_per_s", initial_intercept_bytes_per_s),
+        ):
+            if not math.isfinite(value):
+                raise ConstraintError(f"{name} must be finite, got {value}")
+        self.alpha_bytes_per_s = float(alpha_bytes_per_s)
+        self.min_bytes_per_s = float(min_bytes_per_s)
+        self.max_bytes_per_s = float(max_bytes_per_s)
+        self.scale_bytes_per_s = float(scale_bytes_per_s)
+        self.model = SGDRegressor(
+            loss="squared_error",
+            penalty=None,
+            learning_rate="constant",
+            eta0=learning_rate,
+            shuffle=False,
+            fit_intercept=True,
+        )
+        # partial_fit has no coef_init: allocate with a step on (0, 0), which leaves the zero
+        # model unchanged (zero residual), then set the initial belief.
+        self.model.partial_fit(np.zeros((1, 1)), np.zeros(1))
+        self.model.coef_ = np.array([max(float(initial_coef), self.min_coef)])
+        self.model.intercept_ = np.array([initial_intercept_bytes_per_s / scale_bytes_per_s])
+
+    @property
+    def coef(self) -> float:
+        """Current slope dR/dΔ (dimensionless)."""
+        return float(self.model.coef_[0])
+
+    @property
+    def intercept_bytes_per_s(self) -> float:
+        """Current R(0) in bytes per second."""
+        return float(self.model.intercept_[0]) * self.scale_bytes_per_s
+
+    def predict_bytes_per_s(self, backlog_bytes_per_s: float) -> float:
+        """R_t(Δ): the modelled goodput at backlog Δ, unclamped."""
+        return self.intercept_bytes_per_s + self.coef * backlog_bytes_per_s
+
+    def limit_bytes_per_s(self, *, now: float) -> float:
+        """ξ(t) = R_t(α) clamped to [min, max] (eq. 6.7)."""
+        del now
+        xi = self.predict_bytes_per_s(self.alpha_bytes_per_s)
+        if not math.isfinite(xi):
+            return self.min_bytes_per_s
+        return min(self.max_bytes_per_s, max(self.min_bytes_per_s, xi))
+
+    def _learn(self, observations: list[WindowStats]) -> None:
+        # One epoch of plain SGD over the batch, in order: one step per observation.
+        scale = self.scale_bytes_per_s
+        clip = self.backlog_clip * self.alpha_bytes_per_s
+        x = np.array(
+            [[min(o.backlog_bytes_per_s, clip) / scale] for o in observations], dtype=np.float64
+        )
+        y = np.array([o.goodput_bytes_per_s / scale for o in observations], dtype=np.float64)
+        coef, intercept = self.model.coef_.copy(), self.model.intercept_.copy()
+        self.model.partial_fit(x, y)
+        if not (np.all(np.isfinite(self.model.coef_)) and np.isfinite(self.model.intercept_[0])):
+            # A divergent step (learning rate too high for this noise) must not poison ξ.
+            self.model.coef_, self.model.intercept_ = coef, intercept
+        if self.model.coef_[0] < self.min_coef:
+            # Projected SGD onto increasing models: see the class docstring.
+            self.model.coef_[0] = self.min_coef

@@ -1,0 +1,316 @@
+"""Link statistics learned from receiver reports (thesis ch. 6.1, eq. 6.2, 6.4, 6.5).
+
+Everything here is sans-I/O: samples and round trips come in as values, time as ``now``.
+
+Windows (eq. 6.1) are anchored at the newest *reception* time a report has told us about,
+not at the sender's ``now``: a report lists everything that arrived up to the moment it was
+written, so the window ``(t_rcv_newest - T, t_rcv_newest]`` is complete when the report
+is processed, whereas a window over ``t_sent`` ending at ``now`` would be missing every
+message still in flight and would read a congested link as an idle one.
+
+One-way latency is ``t_rcv - t_sent`` on two different clocks. The raw difference is stored
+and the current clock-offset estimate (receiver clock minus sender clock) is subtracted when
+the statistics are read, so a better offset estimate corrects old samples too and the
+base-latency minimum and the mean latency are always on the same footing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Self
+
+from companion.middleware.errors import LinkStatsError
+
+__all__ = [
+    "ClockOffset",
+    "ClockOffsetEstimator",
+    "LinkSample",
+    "LinkStats",
+    "RoundTrip",
+    "WindowStats",
+]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LinkSample:
+    """One delivered message as learned from a receiver report."""
+
+    t_sent: float
+    """When the sender put it on the link (sender's clock, seconds)."""
+    t_rcv: float
+    """When the receiver got it (receiver's clock, seconds)."""
+    size: int
+    """Payload bytes."""
+    sender: str = ""
+    seq: int = -1
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class WindowStats:
+    """The link as seen through the last window of length ``window_s``."""
+
+    t_end: float
+    """End of the window: newest reception time known (receiver clock, s)."""
+    window_s: float
+    """Window length T (s)."""
+    n_messages: int
+    """Messages received in the window, |W|."""
+    goodput_bytes_per_s: float
+    """‖W‖_G = Σ size / T (eq. 6.2), payload bytes per second."""
+    mean_latency_s: float
+    """‖W‖_L = mean(t_rcv - t_sent) (eq. 6.5), corrected by the clock offset."""
+    base_latency_s: float
+    """δ̂: minimum corrected latency over the last ``base_window_s`` (BBR-like)."""
+    backlog_bytes_per_s: float
+    """‖W‖_Δ = ‖W‖_G·‖W‖_L/δ̂ − ‖W‖_G (eq. 6.4), bytes per second (≥ 0; δ̂ floored)."""
+    warm: bool
+    """True once observations span at least one whole window (before, G is too low)."""
+
+    @property
+    def queueing_delay_s(self) -> float:
+        """Mean latency above the base latency, ‖W‖_L − δ̂."""
+        return self.mean_latency_s - self.base_latency_s
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RoundTrip:
+    """One NTP-style exchange: a message out, and the report that acknowledged it back.
+
+    ``t_sent``/``t_rcv`` are on the local (sender) clock, ``t_remote_rcv``/``t_remote_sent``
+    on the remote (receiver) clock.
+    """
+
+    t_sent: float
+    """When the acknowledged message left (local clock, s): NTP t1."""
+    t_remote_rcv: float
+    """When the receiver got that message (remote clock, s): NTP t2."""
+    t_remote_sent: float
+    """When the receiver sent the report (remote clock, s): NTP t3."""
+    t_rcv: float
+    """When the report arrived here (local clock, s): NTP t4."""
+
+    def __post_init__(self) -> None:
+        for name in ("t_sent", "t_remote_rcv", "t_remote_sent", "t_rcv"):
+            if not math.isfinite(getattr(self, name)):
+                raise LinkStatsError(f"{name} must be finite, got {getattr(self, name)}")
+        if self.t_rcv < self.t_sent:
+            raise LinkStatsError(f"t_rcv {self.t_rcv} is before t_sent {self.t_sent}")
+        if self.t_remote_sent < self.t_remote_rcv:
+            raise LinkStatsError(
+                f"t_remote_sent {self.t_remote_sent} is before t_remote_rcv {self.t_remote_rcv}"
+            )
+
+    @property
+    def offset_s(self) -> float:
+        """θ = ((t2 − t1) + (t3 − t4)) / 2: remote clock minus local clock (RFC 5905)."""
+        return ((self.t_remote_rcv - self.t_sent) + (self.t_remote_sent - self.t_rcv)) / 2.0
+
+    @property
+    def delay_s(self) -> float:
+        """Round-trip delay without the receiver's hold time: (t4 − t1) − (t3 − t2)."""
+        return max(0.0, (self.t_rcv - self.t_sent) - (self.t_remote_sent - self.t_remote_rcv))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ClockOffset:
+    """Estimated offset between the receiver's and the sender's clocks."""
+
+    offset_s: float
+    """Receiver clock minus sender clock (s); subtract it from ``t_rcv - t_sent``."""
+    uncertainty_s: float
+    """Half the round-trip delay of the sample used: the true offset is within ± this."""
+    n_samples: int
+    """Round trips in the history the estimate was chosen from."""
+
+
+class ClockOffsetEstimator:
+    """NTP-style clock offset from report round trips, using the lowest-delay sample.
+
+    Queueing makes a round trip asymmetric and biases its offset by up to half its delay,
+    so, as NTP's clock filter does (RFC 5905 sec. 10), the estimate is the offset of the
+    round trip with the smallest delay among those of the last ``history_s`` seconds.
+    The uncertainty is that sample's delay / 2: a bound, not a standard deviation.
+
+    Parameters
+    ----------
+    history_s
+        How long a round trip stays a candidate (local clock, s). Long enough to contain a
+        moment with empty queues, short enough to follow clock drift.
+    """
+
+    def __init__(self, *, history_s: float = 60.0) -> None:
+        if not history_s > 0:
+            raise LinkStatsError(f"history_s must be > 0, got {history_s}")
+        self.history_s = history_s
+        # Monotonic deque (t_rcv, delay, offset) with increasing delays: the front is the
+        # minimum-delay round trip of the history (sliding-window minimum).
+        self._best: deque[tuple[float, float, float]] = deque()
+        self._times: deque[float] = deque()
+
+    def update(self, round_trip: RoundTrip) -> Self:
+        """Add one round trip (assumed to arrive in order of ``t_rcv``)."""
+        t, delay = round_trip.t_rcv, round_trip.delay_s
+        while self._best and self._best[-1][1] >= delay:
+            self._best.pop()
+        self._best.append((t, delay, round_trip.offset_s))
+        self._times.append(t)
+        horizon = t - self.history_s
+        while self._best and self._best[0][0] <= horizon:
+            self._best.popleft()
+        while self._times and self._times[0] <= horizon:
+            self._times.popleft()
+        return self
+
+    def get(self) -> ClockOffset | None:
+        """The current estimate, or None before the first round trip."""
+        if not self._best:
+            return None
+        _, delay, offset = self._best[0]
+        return ClockOffset(offset_s=offset, uncertainty_s=delay / 2.0, n_samples=len(self._times))
+
+
+class LinkStats:
+    """Windowed goodput, latency, base latency and backlog (eq. 6.2, 6.4, 6.5).
+
+    ``update(sample, now=...)`` is O(1) amortised: sums are kept incrementally and δ̂ is a
+    sliding-window minimum (monotonic deque), so it can run for every reported message.
+
+    Parameters
+    ----------
+    window_s
+        T, the window length (thesis: 2.5 s in simulation, 0.5 s on robots).
+    base_window_s
+        How long a latency minimum is remembered. A fixed minimum would freeze after a
+        route change; BBR keeps its min-RTT for 10 s, which is the default here.
+    clock
+        Clock-offset estimator; when it has an estimate, latencies are corrected by it.
+    assumed_offset_s
+        Offset used while ``clock`` has no estimate (0: clocks assumed synchronised).
+    min_base_latency_s
+        Floor for the divisor δ̂ of eq. 6.4: the least one-way latency a real radio link
+        has (air time of a packet). Without it, a path with microsecond base latency (a
+        veth pair, loopback) turns sub-millisecond jitter into a backlog of several times
+        the goodput, and a clock error that drives δ̂ to ≤ 0 would divide by zero.
+    """
+
+    def __init__(
+        self,
+        *,
+        window_s: float = 2.5,
+        base_window_s: float = 10.0,
+        clock: ClockOffsetEstimator | None = None,
+        assumed_offset_s: float = 0.0,
+        min_base_latency_s: float = 0.005,
+    ) -> None:
+        if not window_s > 0:
+            raise LinkStatsError(f"window_s must be > 0, got {window_s}")
+        if not base_window_s >= window_s:
+            raise LinkStatsError(
+                f"base_window_s ({base_window_s}) must be >= window_s ({window_s})")
+        if not min_base_latency_s > 0:
+            raise LinkStatsError(f"min_base_latency_s must be > 0, got {min_base_latency_s}")
+        self.window_s = window_s
+        self.base_window_s = base_window_s
+        self.clock = clock if clock is not None else ClockOffsetEstimator()
+        self.assumed_offset_s = assumed_offset_s
+        self.min_base_latency_s = min_base_latency_s
+        self.counters: dict[str, int] = {"samples": 0, "duplicate": 0, "stale": 0, "invalid": 0}
+        # (t_rcv, raw latency, size, key) in arrival order; keys dedupe repeated reports.
+        self._window: deque[tuple[float, float, int, tuple[str, int] | None]] = deque()
+        self._keys: set[tuple[str, int]] = set()
+        self._sum_size = 0
+        self._sum_latency = 0.0
+        # Sliding minimum of raw latency over base_window_s: (t_rcv, raw latency), increasing.
+        self._min: deque[tuple[float, float]] = deque()
+        self._t_first: float | None = None
+        self._t_newest: float | None = None
+
+    # -- input -----------------------------------------------------------------------------
+
+    def update(self, sample: LinkSample, *, now: float) -> Self:
+        """Learn one delivered message from a report processed at ``now`` (local clock).
+
+        Duplicates (same sender and seq already in the window), non-finite times and
+        samples older than the current window are counted and ignored.
+        """
+        del now  # the window is anchored at reception times; kept for the uniform API
+        t_rcv, t_sent = sample.t_rcv, sample.t_sent
+        if not (math.isfinite(t_rcv) and math.isfinite(t_sent)) or sample.size < 0:
+            self.counters["invalid"] += 1
+            return self
+        if self._t_newest is not None and t_rcv <= self._t_newest - self.window_s:
+            self.counters["stale"] += 1
+            return self
+        if self._t_newest is None or t_rcv > self._t_newest:
+            self._t_newest = t_rcv
+            self._prune()  # first, so a repeat of a message that just left is not a duplicate
+        key = (sample.sender, sample.seq) if sample.seq >= 0 else None
+        if key is not None and key in self._keys:
+            self.counters["duplicate"] += 1
+            return self
+        self.counters["samples"] += 1
+        raw = t_rcv - t_sent
+        self._window.append((t_rcv, raw, sample.size, key))
+        if key is not None:
+            self._keys.add(key)
+        self._sum_size += sample.size
+        self._sum_latency += raw
+        while self._min and self._min[-1][1] >= raw:
+            self._min.pop()
+        self._min.append((t_rcv, raw))
+        if self._t_first is None:
+            self._t_first = t_rcv
+        return self
+
+    def on_round_trip(self, round_trip: RoundTrip) -> Self:
+        """Feed one report round trip to the clock-offset estimator."""
+        self.clock.update(round_trip)
+        return self
+
+    def _prune(self) -> None:
+        assert self._t_newest is not None
+        horizon = self._t_newest - self.window_s
+        while self._window and self._window[0][0] <= horizon:
+            _, raw, size, key = self._window.popleft()
+            self._sum_size -= size
+            self._sum_latency -= raw
+            if key is not None:
+                self._keys.discard(key)
+        if not self._window:  # re-anchor the float sums when the window empties
+            self._sum_size, self._sum_latency = 0, 0.0
+        base_horizon = self._t_newest - self.base_window_s
+        while self._min and self._min[0][0] <= base_horizon:
+            self._min.popleft()
+
+    # -- output ----------------------------------------------------------------------------
+
+    @property
+    def offset_s(self) -> float:
+        """Clock offset in use (receiver minus sender clock, s)."""
+        estimate = self.clock.get()
+        return estimate.offset_s if estimate is not None else self.assumed_offset_s
+
+    def get(self) -> WindowStats | None:
+        """Statistics of the current window, or None before the first sample."""
+        if self._t_newest is None or not self._window or self._t_first is None:
+            return None
+        n = len(self._window)
+        offset = self.offset_s
+        goodput = self._sum_size / self.window_s
+        mean_latency = self._sum_latency / n - offset
+        base = (self._min[0][1] if self._min else min(w[1] for w in self._window)) - offset
+        # eq. 6.4 as G·(L − δ̂)/δ̂: identical for δ̂ > 0, and the numerator (queueing delay)
+        # does not depend on the clock offset at all; only the divisor is floored.
+        backlog = goodput * max(0.0, mean_latency - base) / max(base, self.min_base_latency_s)
+        return WindowStats(
+            t_end=self._t_newest,
+            window_s=self.window_s,
+            n_messages=n,
+            goodput_bytes_per_s=goodput,
+            mean_latency_s=mean_latency,
+            base_latency_s=base,
+            backlog_bytes_per_s=backlog,
+            warm=self._t_newest - self._t_first >= self.window_s,
+        )

@@ -1,0 +1,47 @@
+"""The constraints by name: :func:`make_constraint` builds the one a configuration names.
+
+>>> make_constraint("constant", limit_bytes_per_s=1000.0).limit_bytes_per_s(now=0.0)
+1000.0
+>>> sorted(CONSTRAINTS)
+['adaptive', 'aimd', 'constant']
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable, Mapping
+
+from companion.middleware.constraints.adaptive import AdaptiveConstraint
+from companion.middleware.constraints.aimd import AimdConstraint
+from companion.middleware.constraints.base import ConstantConstraint, GoodputConstraint
+from companion.middleware.errors import ConstraintError
+
+__all__ = ["CONSTRAINTS", "make_constraint"]
+
+CONSTRAINTS: Mapping[str, Callable[..., GoodputConstraint]] = {
+    "constant": ConstantConstraint,
+    "adaptive": AdaptiveConstraint,
+    "aimd": AimdConstraint,
+}
+
+
+def make_constraint(name: str, **params: object) -> GoodputConstraint:
+    """Build the constraint called ``name`` with keyword ``params``.
+
+    Raises :class:`ConstraintError` naming the known constraints, or the parameter that was
+    not understood, so a typo in a mission file fails at start with a clear message.
+    """
+    try:
+        factory = CONSTRAINTS[name]
+    except KeyError:
+        raise ConstraintError(
+            f"unknown goodput constraint {name!r}; expected one of {sorted(CONSTRAINTS)}"
+        ) from None
+    try:
+        inspect.signature(factory).bind(**params)
+    except TypeError as exc:  # unexpected or missing keyword
+        raise ConstraintError(f"bad parameters for goodput constraint {name!r}: {exc}") from None
+    try:
+        return factory(**params)
+    except TypeError as exc:  # a value of the wrong type (a string for a number...)
+        raise ConstraintError(f"bad parameters for goodput constraint {name!r}: {exc}") from None
