@@ -15,8 +15,9 @@ Per cell: decide() wall and CPU time (mean, p99) after the first horizon (the fl
 by then), the size of the receiver reports the ground station would send for that run
 (:class:`~ground_station.reports.ReportScheduler` + the product's
 :class:`~companion.protocol.encoder.Encoder`: bytes per report and the downlink they take,
-one copy per drone), the tracemalloc peak of a short run of the same fleet (simulator and
-every agent's state), and utility. ``optimum`` cells compare MCTS with the exact offline
+one copy per drone), memory (how far the process's peak RSS rose above its RSS at the start
+of the run: simulator and every agent's state; tracemalloc would slow the timed run ~3x),
+and utility. ``optimum`` cells compare MCTS with the exact offline
 optimum on short missions; ``long`` cells measure whether decide time grows with mission
 length (first vs last tenth). Timing cells run one at a time by default (``--workers 1``) so
 they do not compete for the CPU. Writes ``scaling.csv`` (streamed, resumable),
@@ -26,13 +27,13 @@ they do not compete for the CPU. Writes ``scaling.csv`` (streamed, resumable),
 from __future__ import annotations
 
 import argparse
+import gc
 import hashlib
 import math
 import sys
 import time
-import tracemalloc
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +44,10 @@ IMAGE_CAPACITY_BYTES_PER_S = 125_000.0
 """1 Mbit/s shared link (the near-capacity link of bench_mcts's companion-default row)."""
 BATTERY_BUDGET_PER_10 = 9.25
 """Messages per 2.5 s window per 10 agents (the reference setup's budget at drop ~0.63)."""
+OPTIMUM_AGENTS = (2, 4)
+"""The exact offline optimum (DP over levels) is for small fleets only: at 10 agents it holds
+more than 500 000 states on one level 2.3 s into the mission (measured), so the optimum cells
+use 2 and 4 agents whatever ``--agents`` says."""
 OPTIMUM_BUDGET_PER_AGENT = 0.75
 """Messages per window per agent in the optimum cells (bench_mcts: 3 for 4 agents)."""
 REPORT_INTERVAL_S = 0.25
@@ -69,7 +74,7 @@ __all__ = [
 COLUMNS = (
     "decisions", "mean_ms", "p99_ms", "cpu_mean_ms", "cpu_p99_ms", "fallback_share",
     "utility_pct", "optimum_pct", "drop_share", "report_bytes_mean", "report_bytes_max",
-    "report_datagrams_mean", "report_downlink_kBps", "mem_peak_mb", "first_tenth_ms",
+    "report_datagrams_mean", "report_downlink_kBps", "rss_growth_mb", "first_tenth_ms",
     "last_tenth_ms", "growth", "growth_lo", "growth_hi", "sim_s",
 )
 
@@ -123,12 +128,39 @@ def _image_run(n: int, t_end: float, seed: int) -> tuple[Any, Any, list[Any]]:
     return spec, result, middlewares
 
 
-def _battery_run(n: int, t_end: float, seed: int) -> tuple[Any, Any, list[Any]]:
-    from sitl.study.drop_rate import run_mission
+def fleet_spec(scenario: str, n: int) -> Any:
+    """The scenario's spec for ``n`` agents: agent i's stream ``battery_i`` has the weight
+    of ``battery_{i % 10}`` (the fleet is copies of the thesis' 10-agent fleet; its weights
+    3^(i+1) would otherwise reach 3^100)."""
+    import tomllib
+    from importlib import resources
 
-    _run, result, spec = run_mission("mostly-low", "mcts1500", BATTERY_BUDGET_PER_10 * n / 10,
-                                     seed=seed % 2**31, t_end=t_end, n_agents=n)
-    return spec, result, []
+    from sitl.study.drop_rate import SCENARIOS
+    from utility_specs.spec import parse_spec
+
+    name = SCENARIOS[scenario]
+    raw = tomllib.loads((resources.files("utility_specs") / "missions" / f"{name}.toml")
+                        .read_text(encoding="utf-8"))
+    base = raw["types"]
+    raw["types"] = {f"battery_{i}": dict(base[f"battery_{i % len(base)}"]) for i in range(n)}
+    return parse_spec(raw, source=f"{name} x {n} agents")
+
+
+def _battery_run(n: int, t_end: float, seed: int) -> tuple[Any, Any, list[Any]]:
+    """The reference scenario (mostly-low, 1500 iterations) with ``n`` agents."""
+    from sitl.netsim import SimAgent, simulate
+    from sitl.study.drop_rate import CHANNEL, _scenario_streams, policy_factory
+
+    seed = seed % 2**31
+    spec = fleet_spec("mostly-low", n)
+    make = policy_factory("mcts1500", BATTERY_BUDGET_PER_10 * n / 10, seed=seed)
+    streams = _scenario_streams("mostly-low", n, np.random.default_rng([seed, 7]))
+    policies = [make(f"agent{i}", spec) for i in range(n)]
+    agents = [SimAgent(name=f"agent{i}", policy=policies[i], streams=[streams[i]])
+              for i in range(n)]
+    result = simulate(agents, channel=replace(CHANNEL, report_interval_s=REPORT_INTERVAL_S),
+                      t_end=t_end, rng=np.random.default_rng([seed, 3]))
+    return spec, result, policies
 
 
 RUNS: dict[str, Callable[[int, float, int], tuple[Any, Any, list[Any]]]] = {
@@ -226,10 +258,16 @@ def scaling_cell(params: Mapping[str, Any], seed: int) -> dict[str, Any]:
     elif kind in RUNS or kind == "long":
         _warm_up()
         run = RUNS["battery" if kind == "long" else kind]
+        gc.collect()
+        rss_start = _peak_rss_reset()
         spec, result, middlewares = run(n, t_end, seed)
+        row["rss_growth_mb"] = _rss_growth_mb(rss_start)
         wall, cpu = _timing(result, WARMUP[kind])
         decisions = sum(mw.counters["decisions"] for mw in middlewares)
         fallback = sum(mw.counters["fallback"] for mw in middlewares)
+        unknown = sum(mw.counters["unknown_type"] for mw in middlewares)
+        if unknown:  # a decision that never searched would flatter the timing
+            raise RuntimeError(f"{unknown} decisions on a type the spec does not define")
         sizes = report_sizes(result.delivered, senders=n, t_end=t_end)
         row.update(
             decisions=len(wall), mean_ms=float(wall.mean()),
@@ -247,24 +285,36 @@ def scaling_cell(params: Mapping[str, Any], seed: int) -> dict[str, Any]:
             row.update(first_tenth_ms=float(np.median(cpu[:tenth])),
                        last_tenth_ms=float(np.median(cpu[-tenth:])), growth=ratio,
                        growth_lo=lo, growth_hi=hi)
-        else:
-            row["mem_peak_mb"] = memory_peak_mb(kind, n, seed)
     else:
         raise ValueError(f"unknown cell kind {kind!r}")
     row["sim_s"] = round(time.perf_counter() - started, 2)
     return row
 
 
-def memory_peak_mb(kind: str, n: int, seed: int, *, t_end: float | None = None) -> float:
-    """tracemalloc peak of a short mission (its own run: tracing slows the timed one)."""
-    duration = t_end if t_end is not None else WARMUP[kind] + 2.0
-    tracemalloc.start()
+def _peak_rss_reset() -> int | None:
+    """Reset this process's peak RSS to its current RSS (Linux >= 4.0); its RSS in bytes."""
     try:
-        RUNS[kind](n, duration, seed)
-        _, peak = tracemalloc.get_traced_memory()
-    finally:
-        tracemalloc.stop()
-    return peak / 1e6
+        Path("/proc/self/clear_refs").write_text("5")
+        return _proc_status_kb("VmRSS") * 1024
+    except (OSError, ValueError):
+        return None
+
+
+def _proc_status_kb(field: str) -> int:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1])
+    raise ValueError(f"no {field} in /proc/self/status")
+
+
+def _rss_growth_mb(start: int | None) -> float:
+    """Peak RSS since :func:`_peak_rss_reset` minus the RSS then (NaN where not Linux)."""
+    if start is None:
+        return math.nan
+    try:
+        return max(0, _proc_status_kb("VmHWM") * 1024 - start) / 1e6
+    except (OSError, ValueError):
+        return math.nan
 
 
 @dataclass(frozen=True, slots=True)
@@ -313,10 +363,10 @@ def table(rows: Sequence[Mapping[str, Any]]) -> list[str]:
     """One line per (kind, agents): time, reports, memory, utility."""
     lines = [f"{'kind':8s} {'agents':>6s} {'decisions':>9s} {'mean ms':>8s} {'p99 ms':>7s} "
              f"{'cpu p99':>7s} {'fallbk':>6s} {'report B':>8s} {'dgrams':>6s} "
-             f"{'downlink kB/s':>13s} {'mem MB':>7s} {'utility %':>9s} {'optimum %':>9s}"]
+             f"{'downlink kB/s':>13s} {'RSS+ MB':>7s} {'utility %':>9s} {'optimum %':>9s}"]
     order = {"images": 0, "battery": 1, "optimum": 2, "long": 3}
     for r in sorted(rows, key=lambda r: (order.get(str(r["kind"]), 9), int(r["agents"]))):
-        def v(key: str, fmt: str) -> str:
+        def v(key: str, fmt: str, r: Mapping[str, Any] = r) -> str:
             x = _f(r, key)
             return "-" if math.isnan(x) else format(x, fmt)
 
@@ -325,22 +375,21 @@ def table(rows: Sequence[Mapping[str, Any]]) -> list[str]:
             f"{v('mean_ms', '.2f'):>8s} {v('p99_ms', '.2f'):>7s} {v('cpu_p99_ms', '.2f'):>7s} "
             f"{v('fallback_share', '.1%'):>6s} {v('report_bytes_mean', '.0f'):>8s} "
             f"{v('report_datagrams_mean', '.1f'):>6s} {v('report_downlink_kBps', '.1f'):>13s} "
-            f"{v('mem_peak_mb', '.1f'):>7s} {v('utility_pct', '.1f'):>9s} "
+            f"{v('rss_growth_mb', '.1f'):>7s} {v('utility_pct', '.1f'):>9s} "
             f"{v('optimum_pct', '.1f'):>9s}")
     return lines
 
 
 def plan(agents: Sequence[int], *, quick: bool) -> list[dict[str, Any]]:
     """The cells: images and battery at every size, optimum on short missions, one long one."""
-    t_img, t_bat = (5.0, 8.0) if quick else (15.0, 30.0)
+    t_img, t_bat = (4.0, 6.0) if quick else (15.0, 30.0)
     cells: list[dict[str, Any]] = []
     for n in agents:
         cells.append({"kind": "images", "agents": n, "t_end": t_img})
         cells.append({"kind": "battery", "agents": n, "t_end": t_bat})
-    for n in agents:
-        if n <= (10 if quick else 25):  # the exact optimum is for small instances only
-            cells.append({"kind": "optimum", "agents": n, "t_end": 4.0 if quick else 8.0})
-    cells.append({"kind": "long", "agents": min(agents), "t_end": 40.0 if quick else 600.0})
+    for n in OPTIMUM_AGENTS:
+        cells.append({"kind": "optimum", "agents": n, "t_end": 4.0 if quick else 10.0})
+    cells.append({"kind": "long", "agents": min(agents), "t_end": 30.0 if quick else 600.0})
     return cells
 
 
@@ -432,9 +481,9 @@ def _plot(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
     ax.set_ylabel("bytes")
     ax = axes[1][0]
     for kind, color in (("images", "tab:blue"), ("battery", "tab:red")):
-        x, mem = series(kind, "mem_peak_mb")
+        x, mem = series(kind, "rss_growth_mb")
         ax.plot(x, mem, marker="o", color=color, label=kind)
-    ax.set_title("tracemalloc peak (simulator + all agents)")
+    ax.set_title("peak RSS growth during the run (simulator + all agents)")
     ax.set_ylabel("MB")
     ax = axes[1][1]
     x, mcts = series("optimum", "utility_pct")
