@@ -12,16 +12,17 @@ every agent overhears every delivery, as in the thesis' ch. 5.4 setup) in two wo
   (9.25 per 10 agents: drop share ~0.63 at every size).
 
 Per cell: decide() wall and CPU time (mean, p99) after the first horizon (the fleet is known
-by then), the size of the receiver reports the ground station would send for that run
-(:class:`~ground_station.reports.ReportScheduler` + the product's
-:class:`~companion.protocol.encoder.Encoder`: bytes per report and the downlink they take,
-one copy per drone), memory (how far the process's peak RSS rose above its RSS at the start
-of the run: simulator and every agent's state; tracemalloc would slow the timed run ~3x),
-and utility. ``optimum`` cells compare MCTS with the exact offline
-optimum on short missions; ``long`` cells measure whether decide time grows with mission
-length (first vs last tenth). Timing cells run one at a time by default (``--workers 1``) so
-they do not compete for the CPU. Writes ``scaling.csv`` (streamed, resumable),
-``scaling.png`` and prints the table with the goals of issue 16.
+by then); the receiver reports the ground station would send for that run
+(:class:`~ground_station.reports.ReportScheduler` and the product's
+:class:`~companion.protocol.encoder.Encoder`): bytes per report and the downlink they take,
+one copy per drone; memory: how far the process's peak RSS rose above its RSS at the start
+of the run (a lower bound: memory freed by an earlier cell of the same process is reused;
+tracemalloc would slow the timed run ~3x) and each agent's retained state at the end
+(pickled); utility. ``optimum`` cells compare MCTS with the exact offline optimum on short
+missions; ``long`` cells measure whether decide time grows with mission length (first vs last
+tenth). Timing cells run one at a time by default (``--workers 1``) so they do not compete
+for the CPU. Writes ``scaling.csv`` (streamed, resumable), ``scaling.png`` and prints the
+table with the goals of issue 16.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import argparse
 import gc
 import hashlib
 import math
+import pickle
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -74,8 +76,8 @@ __all__ = [
 COLUMNS = (
     "decisions", "mean_ms", "p99_ms", "cpu_mean_ms", "cpu_p99_ms", "fallback_share",
     "utility_pct", "optimum_pct", "drop_share", "report_bytes_mean", "report_bytes_max",
-    "report_datagrams_mean", "report_downlink_kBps", "rss_growth_mb", "first_tenth_ms",
-    "last_tenth_ms", "growth", "growth_lo", "growth_hi", "sim_s",
+    "report_datagrams_mean", "report_downlink_kBps", "rss_growth_mb", "state_kB_per_agent",
+    "first_tenth_ms", "last_tenth_ms", "growth", "growth_lo", "growth_hi", "sim_s",
 )
 
 
@@ -262,6 +264,9 @@ def scaling_cell(params: Mapping[str, Any], seed: int) -> dict[str, Any]:
         rss_start = _peak_rss_reset()
         spec, result, middlewares = run(n, t_end, seed)
         row["rss_growth_mb"] = _rss_growth_mb(rss_start)
+        # what each agent keeps at the end (fleet knowledge, constraint, last problem):
+        # bounded if it does not grow with the fleet's history (compare long with battery)
+        row["state_kB_per_agent"] = len(pickle.dumps(middlewares)) / n / 1e3
         wall, cpu = _timing(result, WARMUP[kind])
         decisions = sum(mw.counters["decisions"] for mw in middlewares)
         fallback = sum(mw.counters["fallback"] for mw in middlewares)
@@ -363,7 +368,8 @@ def table(rows: Sequence[Mapping[str, Any]]) -> list[str]:
     """One line per (kind, agents): time, reports, memory, utility."""
     lines = [f"{'kind':8s} {'agents':>6s} {'decisions':>9s} {'mean ms':>8s} {'p99 ms':>7s} "
              f"{'cpu p99':>7s} {'fallbk':>6s} {'report B':>8s} {'dgrams':>6s} "
-             f"{'downlink kB/s':>13s} {'RSS+ MB':>7s} {'utility %':>9s} {'optimum %':>9s}"]
+             f"{'downlink kB/s':>13s} {'RSS+ MB':>7s} {'kB/agent':>8s} {'utility %':>9s} "
+             f"{'optimum %':>9s}"]
     order = {"images": 0, "battery": 1, "optimum": 2, "long": 3}
     for r in sorted(rows, key=lambda r: (order.get(str(r["kind"]), 9), int(r["agents"]))):
         def v(key: str, fmt: str, r: Mapping[str, Any] = r) -> str:
@@ -375,21 +381,22 @@ def table(rows: Sequence[Mapping[str, Any]]) -> list[str]:
             f"{v('mean_ms', '.2f'):>8s} {v('p99_ms', '.2f'):>7s} {v('cpu_p99_ms', '.2f'):>7s} "
             f"{v('fallback_share', '.1%'):>6s} {v('report_bytes_mean', '.0f'):>8s} "
             f"{v('report_datagrams_mean', '.1f'):>6s} {v('report_downlink_kBps', '.1f'):>13s} "
-            f"{v('rss_growth_mb', '.1f'):>7s} {v('utility_pct', '.1f'):>9s} "
+            f"{v('rss_growth_mb', '.1f'):>7s} {v('state_kB_per_agent', '.1f'):>8s} "
+            f"{v('utility_pct', '.1f'):>9s} "
             f"{v('optimum_pct', '.1f'):>9s}")
     return lines
 
 
 def plan(agents: Sequence[int], *, quick: bool) -> list[dict[str, Any]]:
     """The cells: images and battery at every size, optimum on short missions, one long one."""
-    t_img, t_bat = (4.0, 6.0) if quick else (15.0, 30.0)
+    t_img, t_bat = (4.0, 6.0) if quick else (8.0, 20.0)
     cells: list[dict[str, Any]] = []
     for n in agents:
         cells.append({"kind": "images", "agents": n, "t_end": t_img})
         cells.append({"kind": "battery", "agents": n, "t_end": t_bat})
     for n in OPTIMUM_AGENTS:
         cells.append({"kind": "optimum", "agents": n, "t_end": 4.0 if quick else 10.0})
-    cells.append({"kind": "long", "agents": min(agents), "t_end": 30.0 if quick else 600.0})
+    cells.append({"kind": "long", "agents": min(agents), "t_end": 20.0 if quick else 300.0})
     return cells
 
 
