@@ -188,7 +188,7 @@ def report_sizes(delivered: Sequence[Any], *, senders: int, t_end: float,
     from ground_station.reports import ReportScheduler
 
     key = hashlib.sha256(b"uav-infodist scaling study: sizes only").digest()
-    encoder = Encoder(1, "ground", key)
+    encoder = Encoder(1, "gs", key)  # the ground station's default station_id
     scheduler = ReportScheduler(interval_s=interval_s, now=0.0)
     sizes: list[int] = []
     datagrams: list[int] = []
