@@ -18,7 +18,7 @@ by then); the receiver reports the ground station would send for that run
 one copy per drone; memory: how far the process's peak RSS rose above its RSS at the start
 of the run (a lower bound: memory freed by an earlier cell of the same process is reused;
 tracemalloc would slow the timed run ~3x) and each agent's retained state at the end
-(pickled); utility. ``optimum`` cells compare MCTS with the exact offline optimum on short
+(pickled; the mission spec they share counts once, so tiny fleets look heavier); utility. ``optimum`` cells compare MCTS with the exact offline optimum on short
 missions; ``long`` cells measure whether decide time grows with mission length (first vs last
 tenth). Timing cells run one at a time by default (``--workers 1``) so they do not compete
 for the CPU. Writes ``scaling.csv`` (streamed, resumable), ``scaling.png`` and prints the

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sitl.study.scaling import Goal, check_goals, growth, report_sizes
+from sitl.study.scaling import Goal, check_goals, growth, report_sizes, scaling_cell
 from utility_specs.message import Message
 
 SITL = Path(sys.executable).parent / "uav-sitl"
@@ -87,7 +87,19 @@ def _decisions_after(t_end: float, warmup: float, n: int) -> int:
     return count
 
 
+def test_an_image_cell_measures_steady_state_decisions_reports_and_state() -> None:
+    row = scaling_cell({"kind": "images", "agents": 2, "t_end": 3.6}, 7)
+    assert row["decisions"] == _decisions_after(3.6, 3.0, 2)  # after the 3 s warm-up only
+    assert 0 < row["cpu_mean_ms"] <= row["cpu_p99_ms"]
+    assert row["fallback_share"] == 0.0
+    assert row["report_datagrams_mean"] >= 1 and row["report_downlink_kBps"] > 0
+    assert row["state_kB_per_agent"] > 1 and 0 <= row["utility_pct"] <= 100
+    assert math.isnan(row["growth"]) and math.isnan(row["optimum_pct"])
+
+
+@pytest.mark.slow
 def test_quick_scaling_study_writes_csv_png_and_table(tmp_path: Path) -> None:
+    """~50 s on the loaded 2-core machine (14 s CPU): Dask, numba and the 7 cells."""
     pytest.importorskip("dask.distributed", reason="pip install -e '.[study]' (Dask distributed)")
     run = subprocess.run([str(SITL), "study", "scaling", "--quick", "--agents", "2,4",
                           "--out", str(tmp_path)], capture_output=True, text=True, timeout=240)
