@@ -9,7 +9,7 @@ every agent overhears every delivery, as in the thesis' ch. 5.4 setup) in two wo
   5 frames/s in 3 versions (40/10/2.5 kB), 1 Hz position, 0.2 Hz battery, on a 1 Mbit/s link;
 - ``battery``: the thesis' reference scenario (mostly-low, 2048-byte messages at ~1 Hz per
   agent, 1500 iterations, horizon 5 s), the message budget per window scaled with the fleet
-  (9.25 per 10 agents: drop share ~0.63 at every size).
+  (9.25 per 10 agents: drop share ~0.75 at every size, measured).
 
 Per cell: decide() wall and CPU time (mean, p99) after the first horizon (the fleet is known
 by then); the receiver reports the ground station would send for that run
@@ -18,11 +18,12 @@ by then); the receiver reports the ground station would send for that run
 one copy per drone; memory: how far the process's peak RSS rose above its RSS at the start
 of the run (a lower bound: memory freed by an earlier cell of the same process is reused;
 tracemalloc would slow the timed run ~3x) and each agent's retained state at the end
-(pickled; the mission spec they share counts once, so tiny fleets look heavier); utility. ``optimum`` cells compare MCTS with the exact offline optimum on short
-missions; ``long`` cells measure whether decide time grows with mission length (first vs last
-tenth). Timing cells run one at a time by default (``--workers 1``) so they do not compete
-for the CPU. Writes ``scaling.csv`` (streamed, resumable), ``scaling.png`` and prints the
-table with the goals of issue 16.
+(pickled; the mission spec they share counts once, so tiny fleets look heavier); utility.
+``optimum`` cells compare MCTS with the exact offline optimum on short missions; ``long``
+cells measure whether decide time grows with mission length (first vs last tenth). Timing
+cells run one at a time by default (``--workers 1``) so they do not compete for the CPU.
+Writes ``scaling.csv`` (streamed, resumable), ``scaling.png`` and prints the table with the
+goals of issue 16.
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ FLEET_SIZES = (10, 25, 50, 100)
 IMAGE_CAPACITY_BYTES_PER_S = 125_000.0
 """1 Mbit/s shared link (the near-capacity link of bench_mcts's companion-default row)."""
 BATTERY_BUDGET_PER_10 = 9.25
-"""Messages per 2.5 s window per 10 agents (the reference setup's budget at drop ~0.63)."""
+"""Messages per 2.5 s window per 10 agents (the reference setup's budget 9.25)."""
 OPTIMUM_AGENTS = (2, 4)
 """The exact offline optimum (DP over levels) is for small fleets only: at 10 agents it holds
 more than 500 000 states on one level 2.3 s into the mission (measured), so the optimum cells
@@ -286,7 +287,7 @@ def scaling_cell(params: Mapping[str, Any], seed: int) -> dict[str, Any]:
         )
         if kind == "long":
             tenth = max(1, len(cpu) // 10)
-            ratio, lo, hi = growth(cpu[:tenth], cpu[-tenth:], seed=seed)
+            ratio, lo, hi = growth(cpu[:tenth].tolist(), cpu[-tenth:].tolist(), seed=seed)
             row.update(first_tenth_ms=float(np.median(cpu[:tenth])),
                        last_tenth_ms=float(np.median(cpu[-tenth:])), growth=ratio,
                        growth_lo=lo, growth_hi=hi)
