@@ -37,6 +37,7 @@ from ground_station.keys import (
     TOKEN,
     WEBSOCKETS,
 )
+from ground_station.mavlink_out import open_mavlink_out
 from ground_station.missions import MissionError, MissionManager, parse_params, parse_when
 from ground_station.receiver import GroundLink
 from ground_station.scene_map import load_scene_map
@@ -458,10 +459,15 @@ async def link_ctx(app: web.Application) -> AsyncIterator[None]:
     host, port = await link.open()
     app[LINK] = link
     log.info("receiving fleet %d on udp://%s:%d", config.fleet_id, host, port)
+    mirror = await open_mavlink_out(config, app[CLOCK])  # HOOK(peers): MAVLink 2 fleet mirror
+    if mirror is not None:
+        link.data_listeners.append(mirror.on_data)
     try:
         yield
     finally:
         link.close()
+        if mirror is not None:
+            mirror.close()
 
 
 def create_app(

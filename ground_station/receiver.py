@@ -13,7 +13,7 @@ import logging
 import socket
 import sys
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from companion.protocol import (
@@ -28,6 +28,7 @@ from companion.protocol import (
     PacketDropped,
     StatusReceived,
 )
+from companion.transport import open_medium_socket, parse_medium
 from ground_station.broadcast import Broadcaster
 from ground_station.config import GroundConfig
 from ground_station.fleet import Alert, FleetView
@@ -109,6 +110,7 @@ class GroundLink:
         self._replay_saving = False
         self.reports = ReportScheduler(interval_s=config.report_interval_s, now=now)
         self.sock: socket.socket | None = None
+        self.medium_sock: socket.socket | None = None
         self.rcvbuf_bytes = 0
         self.counters: Counter[str] = Counter()
         self._timer: asyncio.TimerHandle | None = None
@@ -119,6 +121,8 @@ class GroundLink:
         """Drone -> when its tile was last pushed to the dashboard."""
         self._tiles_due: dict[str, float] = {}
         """Drones whose tile changed since its last push -> when the next push is due."""
+        self.data_listeners: list[Callable[[str, Mapping[str, Any]], None]] = []
+        """HOOK(peers): called with (drone, data) for every message and status (MAVLink out)."""
 
     # -- lifecycle ------------------------------------------------------------------------
     async def open(self) -> tuple[str, int]:
@@ -142,6 +146,10 @@ class GroundLink:
         # iteration per burst instead of one per datagram (asyncio's datagram transport
         # reads one), which keeps the kernel buffer empty at thousands of datagrams/s.
         loop.add_reader(sock.fileno(), self._read_ready)
+        if self.config.shared_medium is not None:  # HOOK(peers): hear the fleet's medium too
+            self.medium_sock = open_medium_socket(parse_medium(self.config.shared_medium))
+            loop.add_reader(self.medium_sock.fileno(), self._read_ready, self.medium_sock)
+            log.info("listening to the shared medium %s", self.config.shared_medium)
         self._arm()
         return self.local_addr
 
@@ -188,9 +196,13 @@ class GroundLink:
             asyncio.get_running_loop().remove_reader(self.sock.fileno())
             self.sock.close()
             self.sock = None
+        if self.medium_sock is not None:  # HOOK(peers)
+            asyncio.get_running_loop().remove_reader(self.medium_sock.fileno())
+            self.medium_sock.close()
+            self.medium_sock = None
 
-    def _read_ready(self) -> None:
-        sock = self.sock
+    def _read_ready(self, medium: socket.socket | None = None) -> None:
+        sock = self.sock if medium is None else medium
         if sock is None:
             return
         now = self.clock()
@@ -248,6 +260,8 @@ class GroundLink:
                 Alert(t=now, level="info", kind="fleet", drone=message.sender, text="drone joined")
             )
         self.fleet.on_message(message, now=now, addr=addr, utility=utility)
+        for listener in self.data_listeners:  # HOOK(peers)
+            listener(message.sender, message.data)
         report = message.data.get("report")
         if isinstance(report, str) and report:
             self.missions.on_report(message.sender, report, now=now)
@@ -302,6 +316,8 @@ class GroundLink:
             )
         state = self.fleet.heard(event.sender, now=now, addr=addr)
         self.fleet.apply_data(state, status.info, now=now)
+        for listener in self.data_listeners:  # HOOK(peers)
+            listener(event.sender, status.info)
         self.reports.on_datagram(event.sender, t_sent=event.t_sent, t_rcv=event.t_rcv)
         self.missions.on_status(
             event.sender,
