@@ -35,6 +35,7 @@ from companion.camera import CameraService, Frame, FrameSource, open_source
 from companion.config import CompanionConfig, missing_keys
 from companion.imaging import DEFAULT_SCALES, EncodedImage, image_message
 from companion.mavlink import MavlinkService, MavlinkSettings
+from companion.peers import PeerServices, peer_types_of
 from companion.protocol import (
     CommandReceived,
     Decoder,
@@ -354,6 +355,10 @@ class CompanionApp:
         self.mavlink = MavlinkService(config.mavlink, self.telemetry, clock=clock,
                                       connect=mavlink_connect)
         self.publisher = TelemetryPublisher(self)
+        self.peers = PeerServices(  # HOOK(peers): peer table, /peers endpoint, ADSB_VEHICLE
+            config.peers, own_id=config.drone_id, clock=clock,
+            peer_types=(peer_types_of(load_mission_spec(config)) if config.peers.medium
+                        else frozenset()), send_mavlink=self.mavlink.send_message)
         self.telemetry.add_listener(self.publisher.on_sample)
         self.telemetry.add_listener(self._on_link_state)
         self.camera: CameraService | None = None
@@ -387,6 +392,7 @@ class CompanionApp:
                 if self.camera is not None:
                     group.create_task(self.camera.run(), name="camera")
                 group.create_task(self._housekeeping(), name="housekeeping")
+                group.create_task(self.peers.run(), name="peers")  # HOOK(peers)
                 await self._stopping.wait()
                 self._stop_services()
         finally:
@@ -429,6 +435,7 @@ class CompanionApp:
         self.transport.stop()
         self.mavlink.stop()
         self.publisher.stop()
+        self.peers.stop()  # HOOK(peers)
         if self.camera is not None:
             self.camera.stop()
 
@@ -526,7 +533,10 @@ class CompanionApp:
         chosen = dataclasses.replace(chosen, t_sent=t_sent)
         payload = payloads[version if version is not None and version < len(payloads) else 0]
         try:
-            self.transport.send_message(chosen, payload, t_sent)
+            if self.peers.shared(chosen.type):  # HOOK(peers): on the shared medium
+                self.transport.send_message(chosen, payload, t_sent, shared=True)  # type: ignore[call-arg]
+            else:
+                self.transport.send_message(chosen, payload, t_sent)
         except (OSError, ValueError) as exc:
             self.counters["send_errors"] += 1
             log.warning("send %s/%d failed: %s", chosen.type, chosen.seq, exc)
@@ -579,6 +589,7 @@ class CompanionApp:
     # -- transport events, reports and commands ----------------------------------------------
 
     def _on_transport_event(self, event: Any) -> None:
+        self.peers.on_event(event)  # HOOK(peers): peers' telemetry heard on the medium
         if isinstance(event, ReportReceived):
             self.counters["reports"] += 1
             loop = asyncio.get_running_loop()
@@ -1065,7 +1076,7 @@ def build_decider(config: CompanionConfig, *, budget_clock: Clock | None = None
 
 def build_transport_factory(config: CompanionConfig, *, clock: Clock) -> TransportFactory:
     """The UDP transport to the ground station (``companion.transport.UdpTransport``)."""
-    from companion.transport import UdpTransport
+    from companion.transport import UdpTransport, parse_medium
 
     gs = config.ground_station
     problem = missing_keys(config)
@@ -1089,6 +1100,7 @@ def build_transport_factory(config: CompanionConfig, *, clock: Clock) -> Transpo
             clock=clock,
             on_event=on_event,
             epoch=epoch,
+            medium=parse_medium(config.peers.medium) if config.peers.medium else None,  # HOOK
         )
 
     return factory

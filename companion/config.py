@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.mavlink import DEFAULT_STREAM_RATES_HZ, MavlinkSettings
+from companion.peers import PeersSettings, parse_peers_settings
 from companion.protocol.errors import LocalProtocolError
 from companion.protocol.signing import decode_key_text
 from companion.protocol.wire import MAX_ID_BYTES, MIN_KEY_BYTES
@@ -124,6 +125,8 @@ class CompanionConfig:
     telemetry: TelemetryConfig = field(default_factory=TelemetryConfig)
     middleware: Mapping[str, Any] = field(default_factory=dict)
     """Extra middleware parameters (``alpha``...), passed through to the optimiser."""
+    peers: PeersSettings = field(default_factory=PeersSettings)
+    """HOOK(peers): the ``[peers]`` table (shared medium, ADSB_VEHICLE, /peers endpoint)."""
     source: str = "<memory>"
 
 
@@ -415,11 +418,15 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
     te.done()
 
     middleware = root.mapping("middleware")
+    try:  # HOOK(peers)
+        peers = parse_peers_settings(root.mapping("peers"))
+    except ValueError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
     root.done()
     return CompanionConfig(
         drone_id=drone_id, mavlink=mavlink, camera=camera, scoring=scoring, mission=mission,
         ground_station=ground, budgets=budgets, constraint=constraint, telemetry=telemetry,
-        middleware=middleware, source=source,
+        middleware=middleware, peers=peers, source=source,
     )
 
 

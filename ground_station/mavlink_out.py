@@ -388,7 +388,7 @@ class MavlinkOut:
             else "0.0.0.0", 0)
         transport, _ = await loop.create_datagram_endpoint(lambda: _Protocol(self),
                                                            local_addr=local)
-        self.transport = cast(asyncio.DatagramTransport, transport)
+        self.transport = transport
         host, port = self.transport.get_extra_info("sockname")[:2]
         log.info("MAVLink 2 fleet mirror on udp://%s:%d%s", host, port,
                  f", sending to {self.out[0]}:{self.out[1]}" if self.out else "")

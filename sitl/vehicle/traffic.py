@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 from sitl.geo import GeoPoint, enu_from_geo
 
@@ -69,7 +70,7 @@ class TrafficReport:
     squawk: int = 0
 
     @classmethod
-    def from_mavlink(cls, msg: object) -> TrafficReport:
+    def from_mavlink(cls, msg: Any) -> TrafficReport:
         raw = getattr(msg, "callsign", b"")
         callsign = raw.decode("ascii", "replace") if isinstance(raw, bytes) else str(raw)
         return cls(
@@ -205,7 +206,7 @@ class TrafficAwareness:
     controller.
     """
 
-    def __init__(self, *, flavour: str, params: object, fc: object, home: GeoPoint) -> None:
+    def __init__(self, *, flavour: str, params: Any, fc: Any, home: GeoPoint) -> None:
         self.flavour = flavour
         self.params = params
         self.fc = fc
@@ -217,20 +218,20 @@ class TrafficAwareness:
 
     def _param(self, name: str, default: float) -> float:
         params = self.params
-        if name in params:  # type: ignore[operator]
-            return float(params.get(name))  # type: ignore[attr-defined]
+        if name in params:
+            return float(params.get(name))
         return default
 
     def _own_ned(self) -> tuple[float, float, float] | None:
         if not getattr(self.fc, "has_fix", False):
             return None
-        p = self.fc.state.position_ned_m  # type: ignore[attr-defined]
+        p = self.fc.state.position_ned_m
         return (float(p[0]), float(p[1]), float(p[2]))
 
     def enabled(self) -> bool:
         return self.flavour != "ardupilot" or self._param("ADSB_TYPE", 0) > 0
 
-    def on_adsb_vehicle(self, msg: object, now: float) -> None:
+    def on_adsb_vehicle(self, msg: Any, now: float) -> None:
         if not self.enabled():
             self.traffic._count("adsb_disabled")
             return
@@ -253,7 +254,7 @@ class TrafficAwareness:
     def check_avoidance(self, now: float) -> None:
         """ArduPilot AP_Avoidance, simplified (module docstring); PX4 warns only."""
         own = self._own_ned()
-        if own is None or self.fc.state.on_ground:  # type: ignore[attr-defined]
+        if own is None or self.fc.state.on_ground:
             return
         if self.flavour == "ardupilot":
             if self._param("AVD_ENABLE", 0) <= 0:
@@ -272,11 +273,11 @@ class TrafficAwareness:
             self.threats.add(icao)
             name = vehicle.report.callsign or f"{icao:06X}"
             self.texts.append((4, f"Avoid: traffic {name} {math.hypot(dn, de):.0f}m"))
-            fc: object = self.fc
+            fc = self.fc
             if action == MAV_COLLISION_ACTION_HOVER:
-                fc.reposition(own)  # type: ignore[attr-defined]
+                fc.reposition(own)
             elif action == MAV_COLLISION_ACTION_ASCEND_OR_DESCEND:
                 # away from the other: up when it is level or below (dd >= 0 means below)
                 sign = -1.0 if dd >= 0 else 1.0
                 climb = max(0.0, dist_z - abs(dd))
-                fc.reposition((own[0], own[1], own[2] + sign * climb))  # type: ignore[attr-defined]
+                fc.reposition((own[0], own[1], own[2] + sign * climb))
