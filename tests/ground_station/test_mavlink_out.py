@@ -278,3 +278,16 @@ async def test_mavproxy_lists_all_drones(tmp_path: Path) -> None:
             proc.wait()
         err = station.close()
     assert "Traceback" not in err
+
+
+@pytest.mark.parametrize(("autopilot", "mode"), [
+    ("ardupilot", "GUIDED"), ("ardupilot", "AUTO"), ("ardupilot", "LOITER"),
+    ("px4", "POSCTL"), ("px4", "MISSION"), ("px4", "RTL"), ("px4", "OFFBOARD")])
+def test_heartbeat_mode_reads_back_as_the_drones_mode(autopilot: str, mode: str) -> None:
+    """A GCS names the mode from HEARTBEAT's numbers: the name must survive the trip."""
+    from pymavlink import mavutil
+
+    m = MavlinkMirror(now=0.0)
+    m.on_data("drone1", {"autopilot": autopilot, "mode": mode}, now=0.0)
+    [hb] = [x for x in parse(m.datagrams_to_send()) if x.get_type() == "HEARTBEAT"]
+    assert mavutil.mode_string_v10(hb) == mode
