@@ -404,9 +404,15 @@ class MavlinkOut:
             self.transport = None
 
     def on_data(self, drone: str, data: Mapping[str, Any]) -> None:
-        """The hook the ground station's receiver calls for every message and status."""
-        self.mirror.on_data(drone, data, now=self.clock())
-        self._transmit()
+        """The hook the ground station's receiver calls for every message and status; a
+        fault here is logged and counted, never raised into the fleet's receive path."""
+        try:
+            self.mirror.on_data(drone, data, now=self.clock())
+            self._transmit()
+        except Exception:
+            self.mirror.counters["errors"] += 1
+            if self.mirror.counters["errors"] in (1, 10, 100, 1000):
+                log.exception("MAVLink mirror failed on data from %s", drone)
 
     def _on_datagram(self, data: bytes, addr: Addr) -> None:
         self.mirror.receive_datagram(data, addr, self.clock())
