@@ -114,3 +114,36 @@ def test_spec_receivers_field() -> None:
     for bad in ([], ["ground", "ground"], ["everyone"], "peers", [1]):
         with pytest.raises(SpecError, match="receivers"):
             parse_spec({"types": {"battery": {**base, "receivers": bad}}}, source="m.toml")
+
+
+async def test_ground_station_hears_the_medium(tmp_path, aiohttp_client) -> None:
+    """`shared_medium` on the station: a drone's datagram sent once to the medium is stored,
+    and the station still answers the drone's own unicast address."""
+    from ground_station.app import create_app
+    from ground_station.config import GroundConfig
+    from ground_station.keys import LINK, STORAGE
+    from tests.keys import TEST_COMMAND_KEY
+
+    text = f"broadcast:127.255.255.255:{free_udp_port()}"
+    config = GroundConfig(fleet_id=FLEET, fleet_key=TEST_FLEET_KEY,
+                          command_key=TEST_COMMAND_KEY, data_dir=tmp_path / "gs", mission="m",
+                          udp_port=0, report_interval_s=0.05, shared_medium=text)
+    client = await aiohttp_client(create_app(config, token="t" * 24))
+    link = client.server.app[LINK]
+    heard: list[MessageReassembled] = []
+    drone = transport("drone5", parse_medium(text), link.local_addr, heard)
+    task = asyncio.create_task(drone.run())
+    try:
+        await drone.wait_started()
+        battery = Message(sender="drone5", seq=3, type="battery", t_gen=time.time(), size=20,
+                          data={"level": 0.7})
+        assert drone.send_message(battery, b"", shared=True) == 1
+        async with asyncio.timeout(5):
+            while link.counters["messages"] < 1:
+                await asyncio.sleep(0.01)
+        assert link.fleet.drones["drone5"].battery == 0.7
+        assert link.fleet.drones["drone5"].addr == drone.local_address  # replies go home
+        await client.server.app[STORAGE].flush()
+    finally:
+        drone.stop()
+        await task
