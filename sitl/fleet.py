@@ -160,7 +160,13 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
                    help="--netns: iperf3 UDP background traffic of BITS bit/s from T s after "
                         "the start for D s (default from the start, to the end); thesis fig 7.4")
     p.add_argument("--quiet", action="store_true", help="no live progress line")
+    p.add_argument("--peers", action="store_true",  # HOOK(peers)
+                   help="peer sharing (docs/peers.md): a loopback broadcast medium, each "
+                        "drone's peers in its autopilot (ADSB_VEHICLE) and at GET /peers; "
+                        "use a spec with receivers = [\"peers\"] (--spec peer_sharing)")
     args = p.parse_args(list(argv))
+    if args.peers and args.netns:  # HOOK(peers)
+        p.error("--peers runs on loopback; it does not combine with --netns yet")
     if not 1 <= args.drones <= 64:
         p.error("--drones must be in 1..64")
     if args.duration < 0:
@@ -568,6 +574,9 @@ def format_summary(summary: dict[str, Any]) -> str:
         if counters:
             lines.append(f"  bottleneck sent {counters['sent_bytes']} B in "
                          f"{counters['sent_packets']} packets, dropped {counters['dropped']}")
+    if summary.get("peers") is not None:  # HOOK(peers)
+        from sitl.fleet_peers import format_peers
+        lines.extend(format_peers(summary["peers"], list(summary["drones"])))
     data = summary["data"]
     lines.append(f"data: {summary['run_dir']}")
     lines.append(f"  images   {data['images']}")
@@ -814,7 +823,19 @@ def make_plan(args: argparse.Namespace, run_dir: Path, *, netns: bool = False) -
         drone_listen_host="0.0.0.0" if netns else "127.0.0.1",
         camera_rate_hz=args.rate, camera_width=args.width, camera_height=args.height,
         mcts_iterations=args.mcts_iterations, time_budget_s=args.time_budget,
-        constraint=args.constraint, constraint_params=params, alpha=args.alpha, seed=args.seed)
+        constraint=args.constraint, constraint_params=params, alpha=args.alpha, seed=args.seed,
+        **_peers_plan(args, drones))  # HOOK(peers)
+
+
+def _peers_plan(args: argparse.Namespace, drones: Sequence[DroneSlot]) -> dict[str, Any]:
+    """HOOK(peers): the medium and /peers ports of ``--peers`` (sitl.fleet_peers)."""
+    if not getattr(args, "peers", False):
+        return {}
+    from sitl.fleet_peers import loopback_medium
+
+    return {"peers_medium": loopback_medium(),
+            "peers_http_ports": {d.drone_id: free_port(kind=socket.SOCK_STREAM)
+                                 for d in drones}}
 
 
 def _wait(stop: _Stop, what: str, timeout_s: float, ready: Callable[[], bool],
@@ -862,6 +883,7 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
     failure: str | None = None
     base_url = f"http://127.0.0.1:{plan.gs_http_port}"
     link_info: dict[str, Any] | None = None
+    peers_known: dict[str, Any] | None = None
     where: FleetNetns | _Loopback = netns or _Loopback()
     try:
         if netns is not None:
@@ -889,6 +911,9 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
                  "--flavour", args.flavour, "--seed", str(args.seed),
                  "--first-fix", str(args.first_fix),
                  "--ready-file", str(ready_file)]
+        if plan.peers_medium is not None:  # HOOK(peers)
+            from sitl.fleet_peers import vehicle_args
+            vargv += vehicle_args(args.flavour)
         for slot in plan.drones:
             vargv += ["--out", f"{mavlink_host(plan, slot)}:{slot.mavlink_port}"]
         vehicles.append(procs.start("vehicles", where.wrap_vehicles(vargv)))
@@ -950,6 +975,9 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
         t_end = time.time()
         if tty:
             out.write("\n")
+        if plan.peers_medium is not None:  # HOOK(peers): who knows whom, before stopping
+            from sitl.fleet_peers import poll_peers
+            peers_known = poll_peers(plan.peers_http_ports)
         _try(lambda: api.post("/api/mission/end", {"t_exec": t_end}))
     except FleetError as exc:
         failure = str(exc)
@@ -980,6 +1008,7 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
     summary["failure"] = failure
     summary["dashboard"] = f"{base_url}/"
     summary["link"] = link_info
+    summary["peers"] = peers_known  # HOOK(peers)
     text = json.dumps(_finite(summary), indent=2, sort_keys=True, allow_nan=False)
     (run_dir / "summary.json").write_text(text + "\n", encoding="utf-8")
     if args.summary_json is not None:

@@ -159,6 +159,10 @@ class FleetPlan:
     constraint_params: Mapping[str, Any] = field(default_factory=dict)
     alpha: float | None = None
     seed: int = 0
+    peers_medium: str | None = None
+    """HOOK(peers): the shared medium of ``--peers`` (sitl.fleet_peers); None: unicast."""
+    peers_http_ports: Mapping[str, int] = field(default_factory=dict)
+    """HOOK(peers): drone id -> its companion's ``GET /peers`` port."""
 
     @property
     def key_path(self) -> Path:
@@ -232,6 +236,11 @@ def companion_toml(plan: FleetPlan, drone: DroneSlot) -> str:
         "middleware": {"seed": plan.seed + drone.index}
         | ({"alpha": plan.alpha} if plan.alpha is not None else {}),
     }
+    if plan.peers_medium is not None:  # HOOK(peers)
+        from sitl.fleet_peers import companion_peers_table
+
+        tables["peers"] = companion_peers_table(plan.peers_medium,
+                                                plan.peers_http_ports[drone.drone_id])
     return _toml(tables, f"uav-companion config of {drone.drone_id}, written by uav-sitl fleet")
 
 
@@ -255,6 +264,8 @@ def ground_station_toml(plan: FleetPlan) -> str:
     }
     if plan.alpha is not None:
         table["alpha"] = plan.alpha
+    if plan.peers_medium is not None:  # HOOK(peers)
+        table["shared_medium"] = plan.peers_medium
     return _toml({"ground_station": table}, "uav-ground-station config, written by uav-sitl fleet")
 
 
