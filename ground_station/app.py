@@ -37,7 +37,6 @@ from ground_station.keys import (
     TOKEN,
     WEBSOCKETS,
 )
-from ground_station.mavlink_out import open_mavlink_out
 from ground_station.missions import MissionError, MissionManager, parse_params, parse_when
 from ground_station.receiver import GroundLink
 from ground_station.scene_map import load_scene_map
@@ -459,9 +458,13 @@ async def link_ctx(app: web.Application) -> AsyncIterator[None]:
     host, port = await link.open()
     app[LINK] = link
     log.info("receiving fleet %d on udp://%s:%d", config.fleet_id, host, port)
-    mirror = await open_mavlink_out(config, app[CLOCK])  # HOOK(peers): MAVLink 2 fleet mirror
-    if mirror is not None:
-        link.data_listeners.append(mirror.on_data)
+    mirror = None
+    if config.mavlink_out or config.mavlink_listen:  # HOOK(peers): MAVLink 2 fleet mirror
+        from ground_station.mavlink_out import open_mavlink_out  # pymavlink only when used
+
+        mirror = await open_mavlink_out(config, app[CLOCK])
+        if mirror is not None:
+            link.data_listeners.append(mirror.on_data)
     try:
         yield
     finally:
