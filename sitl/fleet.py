@@ -576,7 +576,8 @@ def format_summary(summary: dict[str, Any]) -> str:
                          f"{counters['sent_packets']} packets, dropped {counters['dropped']}")
     if summary.get("peers") is not None:  # HOOK(peers)
         from sitl.fleet_peers import format_peers
-        lines.extend(format_peers(summary["peers"], list(summary["drones"])))
+        lines.extend(format_peers(summary["peers"], list(summary["drones"]),
+                                  summary.get("peers_age_bound_s")))
     data = summary["data"]
     lines.append(f"data: {summary['run_dir']}")
     lines.append(f"  images   {data['images']}")
@@ -1009,6 +1010,9 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
     summary["dashboard"] = f"{base_url}/"
     summary["link"] = link_info
     summary["peers"] = peers_known  # HOOK(peers)
+    if peers_known is not None:
+        from sitl.fleet_peers import position_age_bound
+        summary["peers_age_bound_s"] = position_age_bound(plan.spec_path)
     text = json.dumps(_finite(summary), indent=2, sort_keys=True, allow_nan=False)
     (run_dir / "summary.json").write_text(text + "\n", encoding="utf-8")
     if args.summary_json is not None:

@@ -10,12 +10,15 @@ it knows and how old each position is, and the summary prints it.
 from __future__ import annotations
 
 import json
+import math
 import socket
 import urllib.request
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
-__all__ = ["companion_peers_table", "format_peers", "poll_peers", "vehicle_args"]
+__all__ = ["companion_peers_table", "format_peers", "poll_peers", "position_age_bound",
+           "vehicle_args"]
 
 ADSB_RATE_HZ = 1.0
 
@@ -55,9 +58,26 @@ def poll_peers(http_ports: Mapping[str, int], *, timeout_s: float = 2.0
     return known
 
 
+def position_age_bound(spec_path: Path) -> float | None:
+    """The age at which a position is worth nothing under the spec (eq. 4.12:
+    U = 1 - pi v_max^2 age^2 / A = 0, so age = sqrt(A / (pi v_max^2))); None without a
+    ``position`` type of utility ``position``."""
+    from utility_specs.files import load_spec
+
+    try:
+        info = load_spec(spec_path).types.get("position")
+    except (OSError, ValueError):
+        return None
+    if info is None or info.utility.name != "position":
+        return None
+    params = info.utility.params()
+    return math.sqrt(params["area"] / (math.pi * params["v_max"] ** 2))
+
+
 def format_peers(known: Mapping[str, Mapping[str, float | None] | None],
-                 drones: Sequence[str]) -> list[str]:
-    """Summary lines: per drone, the peers it knows with their position ages."""
+                 drones: Sequence[str], bound_s: float | None = None) -> list[str]:
+    """Summary lines: per drone, the peers it knows with their position ages, and whether
+    every age is below ``bound_s`` (:func:`position_age_bound`)."""
     lines = ["peers (position age when the mission ended):"]
     worst: float | None = None
     complete = True
@@ -76,4 +96,8 @@ def format_peers(known: Mapping[str, Mapping[str, float | None] | None],
                      + (f"; missing {', '.join(missing)}" if missing else ""))
     lines.append(f"  every drone knows every peer: {'yes' if complete else 'no'}"
                  + (f", oldest position {worst:.1f} s" if worst is not None else ""))
+    if bound_s is not None:
+        within = complete and worst is not None and worst < bound_s
+        lines.append(f"  bound from the spec (eq. 4.12, position worth 0): {bound_s:.1f} s: "
+                     f"{'every position within it' if within else 'NOT met'}")
     return lines

@@ -11,7 +11,7 @@ from companion.config import parse_config
 from ground_station.config import config_from_mapping
 from sitl.fleet import make_plan, parse_args
 from sitl.fleet_config import companion_toml, ground_station_toml
-from sitl.fleet_peers import format_peers, vehicle_args
+from sitl.fleet_peers import format_peers, position_age_bound, vehicle_args
 
 
 def test_peers_plan_configures_medium_endpoint_and_station(tmp_path: Path) -> None:
@@ -56,5 +56,18 @@ def test_summary_lines() -> None:
     assert lines[2] == "  drone2: drone1 0.6 s; missing drone3"
     assert lines[3] == "  drone3: no answer from its /peers endpoint"
     assert lines[4] == "  every drone knows every peer: no, oldest position 1.2 s"
-    ok = format_peers({"a": {"b": 0.3}, "b": {"a": 0.5}}, ["a", "b"])
-    assert ok[-1] == "  every drone knows every peer: yes, oldest position 0.5 s"
+    ok = format_peers({"a": {"b": 0.3}, "b": {"a": 0.5}}, ["a", "b"], bound_s=37.6)
+    assert ok[-2] == "  every drone knows every peer: yes, oldest position 0.5 s"
+    assert ok[-1].endswith("37.6 s: every position within it")
+    late = format_peers({"a": {"b": 40.0}, "b": {"a": 0.5}}, ["a", "b"], bound_s=37.6)
+    assert late[-1].endswith("NOT met")
+
+
+def test_age_bound_from_the_spec() -> None:
+    from utility_specs.files import builtin_spec
+
+    spec = builtin_spec("peer_sharing")
+    # v_max 15 m/s over 1 km²: a position is worth nothing after sqrt(A / (pi v²)) = 37.6 s
+    assert position_age_bound(Path(spec.source)) == pytest.approx(37.61, abs=0.01)
+    assert position_age_bound(Path(builtin_spec("image_streaming").source)) == pytest.approx(
+        37.61, abs=0.01)
