@@ -472,7 +472,12 @@ class PeerServices:
 
     async def run(self) -> None:
         if self.http is not None:
-            await self.http.start()
+            try:
+                await self.http.start()
+            except OSError as exc:  # the drone flies on without its local endpoint
+                log.error("peers.http: cannot serve on %s: %s", self.settings.http,
+                          exc.strerror or exc)
+                self.http = None
         try:
             if self.injector is not None:
                 injector = asyncio.ensure_future(self.injector.run())

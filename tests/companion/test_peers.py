@@ -177,3 +177,28 @@ def test_settings_are_validated() -> None:
             parse_peers_settings(bad)
     with pytest.raises(ConfigError, match=r"peers\.adsb_rate_hz"):
         parse_config({"drone": {"id": "d1"}, "peers": {"adsb_rate_hz": "fast"}})
+
+
+async def test_a_busy_http_port_is_logged_and_the_rest_runs(caplog: pytest.LogCaptureFixture
+                                                            ) -> None:
+    import socket
+
+    busy = socket.socket()
+    busy.bind(("127.0.0.1", 0))
+    busy.listen()
+    port = busy.getsockname()[1]
+    sent: list[object] = []
+    services = PeerServices(PeersSettings(http=f"127.0.0.1:{port}", adsb_rate_hz=20.0),
+                            own_id="d1", clock=lambda: 1.0, send_mavlink=sent.append)
+    services.table.on_message(msg("d2", "position", 0.9, lat_deg=LAT, lon_deg=LON), now=1.0)
+    task = asyncio.create_task(services.run())
+    try:
+        async with asyncio.timeout(5):
+            while not sent:
+                await asyncio.sleep(0.01)
+    finally:
+        services.stop()
+        await task
+        busy.close()
+    assert services.http is None
+    assert any("peers.http: cannot serve on" in r.getMessage() for r in caplog.records)
