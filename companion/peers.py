@@ -38,6 +38,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from companion.protocol import MessageReassembled
 from utility_specs.message import Message
 
 __all__ = [
@@ -465,8 +466,6 @@ class PeerServices:
         return self.settings.medium is not None and type_name in self.peer_types
 
     def on_event(self, event: Any) -> None:
-        from companion.protocol import MessageReassembled
-
         if isinstance(event, MessageReassembled):
             self.table.on_message(event.message, now=self.clock())
 
