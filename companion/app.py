@@ -33,6 +33,7 @@ from companion.dispatch import COUNTERS, Dispatcher
 from companion.mavlink import MavlinkService, MavlinkSettings
 from companion.mission import MissionWindow
 from companion.mission_log import MissionLogWriter
+from companion.peers import PeerServices, peer_types_of
 from companion.pipeline import CameraPipeline
 from companion.protocol import (
     CommandReceived,
@@ -68,7 +69,8 @@ class Transport(Protocol):
 
     def stop(self) -> None: ...
 
-    def send_message(self, message: Message, payload: bytes, now: float) -> int: ...
+    def send_message(self, message: Message, payload: bytes, now: float, *,
+                     shared: bool = False) -> int: ...
 
     def send_status(self, status: Any, now: float) -> int: ...
 
@@ -111,7 +113,7 @@ class CompanionApp:
         self._stopping = asyncio.Event()
         self.transport = transport_factory(self._on_transport_event)
         self.dispatcher = Dispatcher(config, decider=decider, clock=clock,
-                                     send_message=self.transport.send_message,
+                                     send_message=self._send_message,
                                      mission_log=self.mission_log, mission=self.mission,
                                      counters=self.counters)
         self.mavlink = MavlinkService(config.mavlink, self.telemetry, clock=clock,
@@ -119,6 +121,10 @@ class CompanionApp:
         self.publisher = TelemetryPublisher(config.telemetry, telemetry=self.telemetry,
                                             dispatcher=self.dispatcher, mission=self.mission,
                                             clock=clock)
+        self.peers = PeerServices(  # peer table, /peers endpoint, ADSB_VEHICLE (docs/peers.md)
+            config.peers, own_id=config.drone_id, clock=clock,
+            peer_types=(peer_types_of(load_mission_spec(config)) if config.peers.medium
+                        else frozenset()), send_mavlink=self.mavlink.send_message)
         self.telemetry.add_listener(self.publisher.on_sample)
         self.telemetry.add_listener(self._on_link_state)
         self.commands = CommandExecutor(
@@ -172,6 +178,7 @@ class CompanionApp:
                 if self.camera is not None:
                     group.create_task(self.camera.run(), name="camera")
                 group.create_task(self._housekeeping(), name="housekeeping")
+                group.create_task(self.peers.run(), name="peers")
                 await self._stopping.wait()
                 self._stop_services()
         finally:
@@ -188,6 +195,7 @@ class CompanionApp:
         self.transport.stop()
         self.mavlink.stop()
         self.publisher.stop()
+        self.peers.stop()
         if self.camera is not None:
             self.camera.stop()
 
@@ -208,10 +216,17 @@ class CompanionApp:
     # -- routing ----------------------------------------------------------------------------
 
     def _on_transport_event(self, event: Any) -> None:
+        self.peers.on_event(event)  # peers' telemetry heard on the shared medium
         if isinstance(event, ReportReceived):
             self.dispatcher.on_report(event)
         elif isinstance(event, CommandReceived):
             self.commands.schedule(event.command)
+
+    def _send_message(self, message: Message, payload: bytes, now: float) -> int:
+        """Types the spec shares with peers go on the shared medium (docs/peers.md)."""
+        if self.peers.shared(message.type):
+            return self.transport.send_message(message, payload, now, shared=True)
+        return self.transport.send_message(message, payload, now)
 
     def _on_link_state(self, sample: Sample) -> None:
         """Autopilot link changes go to the mission log as state records."""
@@ -318,7 +333,7 @@ def build_decider(config: CompanionConfig, *, budget_clock: Clock | None = None)
 
 def build_transport_factory(config: CompanionConfig, *, clock: Clock) -> TransportFactory:
     """The UDP transport to the ground station (``companion.transport.UdpTransport``)."""
-    from companion.transport import UdpTransport
+    from companion.transport import UdpTransport, parse_medium
 
     gs = config.ground_station
     problem = missing_keys(config)
@@ -342,6 +357,7 @@ def build_transport_factory(config: CompanionConfig, *, clock: Clock) -> Transpo
             clock=clock,
             on_event=on_event,
             epoch=epoch,
+            medium=parse_medium(config.peers.medium) if config.peers.medium else None,
         )
 
     return factory

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.mavlink import DEFAULT_STREAM_RATES_HZ, MavlinkSettings
+from companion.peers import PeersSettings, parse_peers_settings
 from companion.protocol.errors import LocalProtocolError
 from companion.protocol.signing import decode_key_text
 from companion.protocol.wire import MAX_ID_BYTES, MIN_KEY_BYTES
@@ -126,6 +127,8 @@ class CompanionConfig:
     """``policy`` (a name of ``companion.middleware.policies.DECIDERS``, default ``mcts``),
     ``seed``, and the policy's own keys (``alpha``, ``drop_probability``...), checked when
     the policy is built."""
+    peers: PeersSettings = field(default_factory=PeersSettings)
+    """The ``[peers]`` table (shared medium, ADSB_VEHICLE, /peers endpoint: docs/peers.md)."""
     source: str = "<memory>"
 
 
@@ -396,11 +399,15 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
 
     middleware = root.mapping("middleware")
     _check_policy(middleware.get("policy", "mcts"), source)
+    try:
+        peers = parse_peers_settings(root.mapping("peers"))
+    except ValueError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
     root.done()
     return CompanionConfig(
         drone_id=drone_id, mavlink=mavlink, camera=camera, scoring=scoring, mission=mission,
         ground_station=ground, budgets=budgets, constraint=constraint, telemetry=telemetry,
-        middleware=middleware, source=source,
+        middleware=middleware, peers=peers, source=source,
     )
 
 

@@ -345,6 +345,13 @@ class ParamReadCommand(Command):
     name: str
 
 
+@dataclass(kw_only=True, eq=False)
+class SendCommand(Command):
+    """send one message as is (ADSB_VEHICLE); done once written."""
+
+    message: Any
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class MavlinkSettings:
     url: str
@@ -599,6 +606,9 @@ class MavlinkReader:
             except CommandError as exc:
                 command.future.set_exception(exc)
                 continue
+            if isinstance(command, SendCommand):  # nothing to wait for
+                command.future.set_result(None)
+                continue
             self._pending.append(_Pending(command=command, deadline=now + command.timeout_s))
 
     def _send_command(self, conn: Any, command: Command) -> None:
@@ -613,6 +623,8 @@ class MavlinkReader:
                                        1 if command.arm else 0, 0, 0, 0, 0, 0, 0)
         elif isinstance(command, ParamReadCommand):
             conn.mav.param_request_read_send(target, component, command.name.encode(), -1)
+        elif isinstance(command, SendCommand):
+            conn.mav.send(command.message)
         else:
             raise CommandError(f"unknown command {command!r}")
 
@@ -795,6 +807,13 @@ class MavlinkService:
         if snap.autopilot == "ardupilot" and snap.mode in ("RTL", "LAND"):
             raise CommandError(f"arm: ArduPilot will not arm in {snap.mode}; change mode first")
         await self._command(ArmCommand(arm=True, timeout_s=timeout_s))
+
+    def send_message(self, message: Any) -> None:
+        """queue one message for the autopilot; fire and forget (a link that is
+        down drops it, like the radio would)."""
+        if self.reader is None:
+            raise CommandError("MAVLink service not running")
+        self.reader.submit(SendCommand(message=message, timeout_s=1.0))
 
     async def disarm(self, *, timeout_s: float = 5.0) -> None:
         await self._command(ArmCommand(arm=False, timeout_s=timeout_s))

@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import ipaddress
 import logging
 import socket
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Literal
 
 from companion.protocol import (
     Address,
@@ -30,7 +32,7 @@ from companion.protocol import (
 from companion.protocol.records import EPOCH_STATUS
 from utility_specs.message import Message
 
-__all__ = ["Clock", "UdpTransport"]
+__all__ = ["Clock", "SharedMedium", "UdpTransport", "open_medium_socket", "parse_medium"]
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +47,113 @@ SEND_COUNTERS = (
     "send_dropped_buffer_full",
     "send_not_ready",
     "events_dropped",
+    "medium_sent",
+    "medium_received",
+    "medium_own_echo",
 )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SharedMedium:
+    """One datagram to every fleet member: UDP broadcast or multicast (docs/peers.md).
+
+    Every member (drones and the ground station) listens on ``port`` of this address;
+    datagrams are still sent from each member's own unicast socket, so replies (reports,
+    commands) go back to the sender's address as before.
+    """
+
+    kind: Literal["broadcast", "multicast"]
+    address: str
+    port: int
+    interface: str = "0.0.0.0"
+    """Local address of the interface multicast is sent and joined on (127.0.0.1 on one
+    machine, the radio's address in the field)."""
+
+    @property
+    def target(self) -> tuple[str, int]:
+        return (self.address, self.port)
+
+
+def parse_medium(text: str) -> SharedMedium:
+    """``broadcast:ADDR:PORT`` or ``multicast:GROUP:PORT[:IFACE_ADDR]``; ValueError (one
+    line) otherwise."""
+    parts = text.split(":")
+    usage = (f"expected broadcast:ADDR:PORT or multicast:GROUP:PORT[:IFACE_ADDR], "
+             f"got {text!r}")
+    if len(parts) not in (3, 4) or parts[0] not in ("broadcast", "multicast"):
+        raise ValueError(usage)
+    if len(parts) == 4 and parts[0] != "multicast":
+        raise ValueError(usage)
+    try:
+        address = ipaddress.IPv4Address(parts[1])
+        interface = ipaddress.IPv4Address(parts[3]) if len(parts) == 4 else None
+    except ValueError:
+        raise ValueError(usage) from None
+    if not parts[2].isdigit() or not 1 <= int(parts[2]) <= 65535:
+        raise ValueError(usage)
+    if parts[0] == "multicast" and not address.is_multicast:
+        raise ValueError(f"{parts[1]} is not a multicast group (224.0.0.0/4)")
+    kind: Literal["broadcast", "multicast"] = "broadcast" if parts[0] == "broadcast" \
+        else "multicast"
+    return SharedMedium(kind=kind, address=str(address), port=int(parts[2]),
+                        interface=str(interface) if interface is not None else "0.0.0.0")
+
+
+def open_medium_socket(medium: SharedMedium) -> socket.socket:
+    """A non-blocking socket receiving the medium's datagrams; several processes on one
+    host may hold one each (SO_REUSEADDR: broadcast and multicast reach all of them)."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        if medium.kind == "multicast":
+            sock.bind((medium.address, medium.port))
+            mreq = socket.inet_aton(medium.address) + socket.inet_aton(medium.interface)
+            sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, mreq)
+        else:
+            sock.bind(("", medium.port))
+        sock.setblocking(False)
+    except OSError:
+        sock.close()
+        raise
+    return sock
+
+
+def prepare_medium_sender(sock: socket.socket, medium: SharedMedium) -> None:
+    """Let a unicast socket send to the medium (broadcast permission, multicast interface)."""
+    if medium.kind == "broadcast":
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+    else:
+        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF,
+                        socket.inet_aton(medium.interface))
+        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
+        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)
+
+
+def _sender_id(data: bytes) -> str | None:
+    """The header's sender id (docs/protocol.md: length at offset 26, id from 27), unverified:
+    used only to skip our own echo before spending a decode on it."""
+    if len(data) < 27:
+        return None
+    n = data[26]
+    try:
+        return data[27:27 + n].decode()
+    except UnicodeDecodeError:
+        return None
+
+
+class _MediumProtocol(asyncio.DatagramProtocol):
+    """The medium listener: everything but our own echo goes to the same decoder."""
+
+    def __init__(self, owner: UdpTransport) -> None:
+        self._owner = owner
+
+    def datagram_received(self, data: bytes, addr: Address) -> None:
+        owner = self._owner
+        if _sender_id(data) == owner.encoder.sender:  # our own datagram, looped back
+            owner.counters["medium_own_echo"] += 1
+            return
+        owner.counters["medium_received"] += 1
+        owner._on_datagram(data, addr)
 
 
 class _Protocol(asyncio.DatagramProtocol):
@@ -80,9 +188,14 @@ class UdpTransport:
         max_queued_events: int = 1000,
         max_write_buffer_bytes: int = 256 * 1024,
         epoch: int | None = None,
+        medium: SharedMedium | None = None,
     ) -> None:
         """``epoch``: this boot's epoch (the decoder's); announced to ``remote_addr`` at start
-        and whenever a command for another boot is refused, at most twice a second."""
+        and whenever a command for another boot is refused, at most twice a second.
+        ``medium``: the fleet's shared medium; ``send_message(..., shared=True)`` goes there
+        and peers' datagrams heard on it reach ``on_event`` like the ground's."""
+        self.medium = medium
+        self._medium_transport: asyncio.DatagramTransport | None = None
         self.encoder = encoder
         self.epoch = epoch
         self._epoch_sent_at = -1.0
@@ -122,6 +235,13 @@ class UdpTransport:
             lambda: _Protocol(self), local_addr=self.local_addr
         )
         self._transport = transport
+        if self.medium is not None:
+            prepare_medium_sender(transport.get_extra_info("socket"), self.medium)
+            medium_sock = open_medium_socket(self.medium)
+            self._medium_transport, _ = await self._loop.create_datagram_endpoint(
+                lambda: _MediumProtocol(self), sock=medium_sock)
+            log.info("shared medium: %s %s:%d", self.medium.kind, self.medium.address,
+                     self.medium.port)
         self._started.set()
         log.info("protocol transport bound to %s", self.local_address)
         self._announce_epoch()
@@ -156,6 +276,9 @@ class UdpTransport:
         if self._transport is not None:
             self._transport.close()
             self._transport = None
+        if self._medium_transport is not None:
+            self._medium_transport.close()
+            self._medium_transport = None
 
     async def _resolve(self, addr: tuple[str, int]) -> tuple[str, int]:
         assert self._loop is not None
@@ -167,15 +290,23 @@ class UdpTransport:
 
     # -- sending -------------------------------------------------------------------------
 
-    def send_message(self, message: Message, payload: bytes, now: float | None = None) -> int:
+    def send_message(self, message: Message, payload: bytes, now: float | None = None, *,
+                     shared: bool = False) -> int:
         """Fragment and send one message; returns the datagrams sent (0 if it was dropped).
 
+        ``shared``: to the shared medium (every peer and the ground station hear it) when
+        one is configured, else to ``remote_addr`` as usual.
         ``LocalProtocolError`` (a message the wire cannot carry) propagates: it is the
         caller's bug, not bad luck on the link.
         """
         now = self._clock() if now is None else now
         datagrams = self.encoder.fragment(message, payload, now)
-        sent = self.send_datagrams(datagrams)
+        if shared and self.medium is not None:
+            sent = self.send_datagrams(datagrams, self.medium.target)
+            if sent:
+                self.counters["medium_sent"] += 1
+        else:
+            sent = self.send_datagrams(datagrams)
         if sent:
             self.counters["messages_sent"] += 1
         return sent

@@ -458,10 +458,19 @@ async def link_ctx(app: web.Application) -> AsyncIterator[None]:
     host, port = await link.open()
     app[LINK] = link
     log.info("receiving fleet %d on udp://%s:%d", config.fleet_id, host, port)
+    mirror = None
+    if config.mavlink_out or config.mavlink_listen:  # MAVLink 2 fleet mirror
+        from ground_station.mavlink_out import open_mavlink_out  # pymavlink only when used
+
+        mirror = await open_mavlink_out(config, app[CLOCK])
+        if mirror is not None:
+            link.data_listeners.append(mirror.on_data)
     try:
         yield
     finally:
         link.close()
+        if mirror is not None:
+            mirror.close()
 
 
 def create_app(

@@ -97,6 +97,14 @@ class GroundConfig:
     """fsync every image file (and its folder) before it counts as stored."""
     token_file: Path | None = None
     """Control token location; default ``data_dir / "token"``."""
+    mavlink_out: str | None = None
+    """``HOST:PORT`` the fleet is re-emitted to as MAVLink 2 (e.g. QGC's
+    ``127.0.0.1:14550``); off when unset (docs/peers.md)."""
+    mavlink_listen: str | None = None
+    """``HOST:PORT`` the MAVLink mirror binds for clients that connect."""
+    shared_medium: str | None = None
+    """the fleet's shared medium (``broadcast:ADDR:PORT`` or
+    ``multicast:GROUP:PORT[:IFACE]``) heard besides ``udp_port``; None: unicast only."""
 
     def __post_init__(self) -> None:
         checks: list[tuple[str, bool, str]] = [
@@ -127,6 +135,22 @@ class GroundConfig:
         for key, ok, expected in checks:
             if not ok:
                 raise ConfigError("<config>", key, expected, getattr(self, key))
+        for key in ("mavlink_out", "mavlink_listen"):
+            value = getattr(self, key)
+            if value is not None:
+                from ground_station.mavlink_out import parse_endpoint
+                try:
+                    parse_endpoint(value)
+                except ValueError:
+                    raise ConfigError("<config>", key, "HOST:PORT", value) from None
+        if self.shared_medium is not None:
+            from companion.transport import parse_medium
+            try:
+                parse_medium(self.shared_medium)
+            except ValueError:
+                raise ConfigError("<config>", "shared_medium",
+                                  "broadcast:ADDR:PORT or multicast:GROUP:PORT[:IFACE]",
+                                  self.shared_medium) from None
 
     @property
     def token_path(self) -> Path:
@@ -167,6 +191,9 @@ _TYPES: dict[str, tuple[type | tuple[type, ...], str]] = {
     "clock_tolerance_s": ((int, float), "a number of seconds"),
     "fsync": (bool, "true or false"),
     "token_file": (str, "a path string"),
+    "mavlink_out": (str, "HOST:PORT"),
+    "mavlink_listen": (str, "HOST:PORT"),
+    "shared_medium": (str, "broadcast:ADDR:PORT or multicast:GROUP:PORT[:IFACE]"),
 }
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from companion.protocol import (
@@ -133,6 +133,8 @@ class GroundLink:
         """Drone -> when its tile was last pushed to the dashboard."""
         self._tiles_due: dict[str, float] = {}
         """Drones whose tile changed since its last push -> when the next push is due."""
+        self.data_listeners: list[Callable[[str, Mapping[str, Any]], None]] = []
+        """Called with (drone, data) for every message and status (MAVLink out)."""
 
     # -- lifecycle ------------------------------------------------------------------------
     async def open(self) -> Address:
@@ -235,6 +237,8 @@ class GroundLink:
                 Alert(t=now, level="info", kind="fleet", drone=message.sender, text="drone joined")
             )
         self.fleet.on_message(message, now=now, addr=addr, utility=utility)
+        for listener in self.data_listeners:
+            listener(message.sender, message.data)
         report = message.data.get("report")
         if isinstance(report, str) and report:
             self.missions.on_report(message.sender, report, now=now)
@@ -290,6 +294,8 @@ class GroundLink:
             )
         state = self.fleet.heard(event.sender, now=now, addr=addr)
         self.fleet.apply_data(state, status.info, now=now)
+        for listener in self.data_listeners:
+            listener(event.sender, status.info)
         self.reports.on_datagram(event.sender, t_sent=event.t_sent, t_rcv=event.t_rcv)
         self.missions.on_status(
             event.sender,

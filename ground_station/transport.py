@@ -84,9 +84,13 @@ class GroundTransport(Protocol[A]):
 class UdpTransport:
     """One UDP socket bound to ``(host, port)``; implements :class:`GroundTransport`."""
 
-    def __init__(self, host: str, port: int, *, rcvbuf_bytes: int) -> None:
+    def __init__(self, host: str, port: int, *, rcvbuf_bytes: int,
+                 medium: str | None = None) -> None:
         self.host = host
         self.port = port
+        self.medium = medium
+        """Also hear the fleet's shared medium (``broadcast:``/``multicast:``, docs/peers.md)."""
+        self._medium_sock: socket.socket | None = None
         self.rcvbuf_bytes = rcvbuf_bytes
         """Asked for; :meth:`stats` says what the kernel granted."""
         self.granted_rcvbuf_bytes = 0
@@ -106,7 +110,18 @@ class UdpTransport:
             sock.close()
             raise
         self._sock, self._sink = sock, sink
-        loop.add_reader(sock.fileno(), self._read_ready)
+        loop.add_reader(sock.fileno(), self._read_ready, sock)
+        if self.medium is not None:
+            from companion.transport import open_medium_socket, parse_medium
+
+            try:
+                medium_sock = open_medium_socket(parse_medium(self.medium))
+            except BaseException:
+                self.close()
+                raise
+            self._medium_sock = medium_sock
+            loop.add_reader(medium_sock.fileno(), self._read_ready, medium_sock)
+            log.info("listening to the shared medium %s", self.medium)
         return self.local_addr
 
     @property
@@ -117,16 +132,17 @@ class UdpTransport:
         return str(host), int(port)
 
     def close(self) -> None:
-        sock, self._sock = self._sock, None
-        if sock is None:
-            return
-        with contextlib.suppress(RuntimeError):  # no running loop (at interpreter exit)
-            asyncio.get_running_loop().remove_reader(sock.fileno())
-        sock.close()
+        for sock in (self._sock, self._medium_sock):
+            if sock is None:
+                continue
+            with contextlib.suppress(RuntimeError):  # no running loop (at interpreter exit)
+                asyncio.get_running_loop().remove_reader(sock.fileno())
+            sock.close()
+        self._sock = self._medium_sock = None
 
-    def _read_ready(self) -> None:
-        sock, sink = self._sock, self._sink
-        if sock is None or sink is None:
+    def _read_ready(self, sock: socket.socket) -> None:
+        sink = self._sink
+        if sink is None or sock.fileno() < 0:
             return
         recvfrom = sock.recvfrom
         burst: list[tuple[bytes, UdpAddress]] = []
@@ -165,7 +181,8 @@ class UdpTransport:
 
 def udp_transport(config: GroundConfig) -> UdpTransport:
     """The UDP transport a ground-station config asks for."""
-    return UdpTransport(config.udp_host, config.udp_port, rcvbuf_bytes=config.udp_rcvbuf_bytes)
+    return UdpTransport(config.udp_host, config.udp_port, rcvbuf_bytes=config.udp_rcvbuf_bytes,
+                        medium=config.shared_medium)
 
 
 def set_receive_buffer(sock: socket.socket, size: int) -> int:

@@ -160,7 +160,13 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
                    help="--netns: iperf3 UDP background traffic of BITS bit/s from T s after "
                         "the start for D s (default from the start, to the end); thesis fig 7.4")
     p.add_argument("--quiet", action="store_true", help="no live progress line")
+    p.add_argument("--peers", action="store_true",
+                   help="peer sharing (docs/peers.md): a loopback broadcast medium, each "
+                        "drone's peers in its autopilot (ADSB_VEHICLE) and at GET /peers; "
+                        "use a spec with receivers = [\"peers\"] (--spec peer_sharing)")
     args = p.parse_args(list(argv))
+    if args.peers and args.netns:
+        p.error("--peers runs on loopback; it does not combine with --netns yet")
     if not 1 <= args.drones <= 64:
         p.error("--drones must be in 1..64")
     if args.duration < 0:
@@ -568,6 +574,10 @@ def format_summary(summary: dict[str, Any]) -> str:
         if counters:
             lines.append(f"  bottleneck sent {counters['sent_bytes']} B in "
                          f"{counters['sent_packets']} packets, dropped {counters['dropped']}")
+    if summary.get("peers") is not None:
+        from sitl.fleet_peers import format_peers
+        lines.extend(format_peers(summary["peers"], list(summary["drones"]),
+                                  summary.get("peers_age_bound_s")))
     data = summary["data"]
     lines.append(f"data: {summary['run_dir']}")
     lines.append(f"  images   {data['images']}")
@@ -815,7 +825,19 @@ def make_plan(args: argparse.Namespace, run_dir: Path, *, netns: bool = False) -
         camera_rate_hz=args.rate, camera_width=args.width, camera_height=args.height,
         mcts_iterations=args.mcts_iterations, time_budget_s=args.time_budget,
         constraint=args.constraint, constraint_params=params, alpha=args.alpha, seed=args.seed,
-        policy=COMPANION_POLICY[args.policy], drop_probability=args.drop_probability)
+        policy=COMPANION_POLICY[args.policy], drop_probability=args.drop_probability,
+        **_peers_plan(args, drones))
+
+
+def _peers_plan(args: argparse.Namespace, drones: Sequence[DroneSlot]) -> dict[str, Any]:
+    """the medium and /peers ports of ``--peers`` (sitl.fleet_peers)."""
+    if not getattr(args, "peers", False):
+        return {}
+    from sitl.fleet_peers import loopback_medium
+
+    return {"peers_medium": loopback_medium(),
+            "peers_http_ports": {d.drone_id: free_port(kind=socket.SOCK_STREAM)
+                                 for d in drones}}
 
 
 def _wait(stop: _Stop, what: str, timeout_s: float, ready: Callable[[], bool],
@@ -863,6 +885,7 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
     failure: str | None = None
     base_url = f"http://127.0.0.1:{plan.gs_http_port}"
     link_info: dict[str, Any] | None = None
+    peers_known: dict[str, Any] | None = None
     where: FleetNetns | _Loopback = netns or _Loopback()
     try:
         if netns is not None:
@@ -890,6 +913,9 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
                  "--flavour", args.flavour, "--seed", str(args.seed),
                  "--first-fix", str(args.first_fix),
                  "--ready-file", str(ready_file)]
+        if plan.peers_medium is not None:
+            from sitl.fleet_peers import vehicle_args
+            vargv += vehicle_args(args.flavour)
         for slot in plan.drones:
             vargv += ["--out", f"{mavlink_host(plan, slot)}:{slot.mavlink_port}"]
         vehicles.append(procs.start("vehicles", where.wrap_vehicles(vargv)))
@@ -951,6 +977,9 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
         t_end = time.time()
         if tty:
             out.write("\n")
+        if plan.peers_medium is not None:  # who knows whom, before stopping
+            from sitl.fleet_peers import poll_peers
+            peers_known = poll_peers(plan.peers_http_ports)
         _try(lambda: api.post("/api/mission/end", {"t_exec": t_end}))
     except FleetError as exc:
         failure = str(exc)
@@ -981,6 +1010,10 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
     summary["failure"] = failure
     summary["dashboard"] = f"{base_url}/"
     summary["link"] = link_info
+    summary["peers"] = peers_known
+    if peers_known is not None:
+        from sitl.fleet_peers import position_age_bound
+        summary["peers_age_bound_s"] = position_age_bound(plan.spec_path)
     text = json.dumps(_finite(summary), indent=2, sort_keys=True, allow_nan=False)
     (run_dir / "summary.json").write_text(text + "\n", encoding="utf-8")
     if args.summary_json is not None:

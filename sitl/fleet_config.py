@@ -162,6 +162,10 @@ class FleetPlan:
     policy: str = "mcts"
     """The companions' ``[middleware] policy`` (``random_drop``: any version, status kept)."""
     drop_probability: float = 0.5
+    peers_medium: str | None = None
+    """the shared medium of ``--peers`` (sitl.fleet_peers); None: unicast."""
+    peers_http_ports: Mapping[str, int] = field(default_factory=dict)
+    """drone id -> its companion's ``GET /peers`` port."""
 
     @property
     def key_path(self) -> Path:
@@ -238,6 +242,11 @@ def companion_toml(plan: FleetPlan, drone: DroneSlot) -> str:
         | ({"drop_probability": plan.drop_probability, "any_version": True}
            if plan.policy == "random_drop" else {}),
     }
+    if plan.peers_medium is not None:
+        from sitl.fleet_peers import companion_peers_table
+
+        tables["peers"] = companion_peers_table(plan.peers_medium,
+                                                plan.peers_http_ports[drone.drone_id])
     return _toml(tables, f"uav-companion config of {drone.drone_id}, written by uav-sitl fleet")
 
 
@@ -261,6 +270,8 @@ def ground_station_toml(plan: FleetPlan) -> str:
     }
     if plan.alpha is not None:
         table["alpha"] = plan.alpha
+    if plan.peers_medium is not None:
+        table["shared_medium"] = plan.peers_medium
     return _toml({"ground_station": table}, "uav-ground-station config, written by uav-sitl fleet")
 
 

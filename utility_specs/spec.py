@@ -12,6 +12,7 @@ A spec is a TOML file (``utility_specs/missions/*.toml``)::
     per_sender = true            # aggregate each sender's stream on its own
     markovian = true             # only the newest message matters (eq. 5.8)
     params = { depletion_rate = 0.01 }
+    receivers = ["ground"]       # who it is for: "ground", "peers" (every other drone), or both
 
 Reading the file is a thin edge (:func:`load_spec`); :func:`parse_spec` validates a mapping
 and every error names the file, the key and what was expected.
@@ -30,6 +31,7 @@ from utility_specs.functions import UtilityFunction, make_function
 
 __all__ = [
     "AGGREGATIONS",
+    "RECEIVERS",
     "InfoType",
     "MissionSpec",
     "parse_spec",
@@ -37,7 +39,11 @@ __all__ = [
 
 Aggregation = Literal["sum", "max", "last"]
 AGGREGATIONS: tuple[Aggregation, ...] = ("sum", "max", "last")
-_TYPE_KEYS = {"utility", "aggregation", "weight", "per_sender", "markovian", "params"}
+Receiver = Literal["ground", "peers"]
+RECEIVERS: tuple[Receiver, ...] = ("ground", "peers")
+"""``ground``: the ground station; ``peers``: every other drone (over the shared medium)."""
+_TYPE_KEYS = {"utility", "aggregation", "weight", "per_sender", "markovian", "params",
+              "receivers"}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -50,6 +56,13 @@ class InfoType:
     weight: float = 1.0
     per_sender: bool = False
     markovian: bool = False
+    receivers: tuple[Receiver, ...] = ("ground",)
+    """Who the type is for; the utility of a message counts at each receiver (eq. 4.2)."""
+
+    @property
+    def for_peers(self) -> bool:
+        """Sent on the shared medium, so every other drone hears it."""
+        return "peers" in self.receivers
 
     def __post_init__(self) -> None:
         if self.aggregation not in AGGREGATIONS:
@@ -61,6 +74,10 @@ class InfoType:
             )
         if not (math.isfinite(self.weight) and self.weight >= 0):
             raise SpecError(f"type {self.name!r}: weight must be a finite number >= 0")
+        if (not self.receivers or len(set(self.receivers)) != len(self.receivers)
+                or not set(self.receivers) <= set(RECEIVERS)):
+            raise SpecError(f"type {self.name!r}: receivers must be a non-empty list of "
+                            f"distinct {list(RECEIVERS)}")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -150,6 +167,14 @@ def _parse_type(type_name: str, table: Any, source: str) -> InfoType:
         flags[flag] = value
     params = table.get("params", {})
     _expect(isinstance(params, Mapping), source, f"{key}.params", "a table", params)
+    receivers = table.get("receivers", ["ground"])
+    _expect(
+        isinstance(receivers, list) and bool(receivers)
+        and all(isinstance(r, str) and r in RECEIVERS for r in receivers)
+        and len(set(receivers)) == len(receivers),
+        source, f"{key}.receivers",
+        '["ground"], ["peers"] or ["ground", "peers"]', receivers,
+    )
     try:
         function = make_function(cast(str, utility), params)
         return InfoType(
@@ -159,6 +184,7 @@ def _parse_type(type_name: str, table: Any, source: str) -> InfoType:
             weight=float(weight),
             per_sender=flags["per_sender"],
             markovian=flags["markovian"],
+            receivers=cast(tuple[Receiver, ...], tuple(receivers)),
         )
     except SpecError as exc:
         raise SpecError(f"{source}: {key}: {exc}") from None

@@ -56,6 +56,7 @@ from sitl.vehicle.telemetry import (
     STREAM_GROUPS,
     Telemetry,
 )
+from sitl.vehicle.traffic import TrafficAwareness, TrafficList
 
 __all__ = ["DEFAULT_FIRST_FIX_S", "DEFAULT_HOME", "VehicleConfig", "VehicleCore"]
 
@@ -72,6 +73,8 @@ DEFAULT_FIRST_FIX_S = 15.0
 """ArduCopter SITL reports an EKF origin 10-20 s after boot; PX4 SIH in a similar time."""
 
 CONTROL_PERIOD_S = 0.1
+TRAFFIC_PERIOD_S = 1.0
+"""The traffic list is aged, checked for threats and streamed once a (wall) second."""
 """The core wakes at least this often (sim s) so mission events are never late by more."""
 
 
@@ -225,7 +228,11 @@ class VehicleCore:
             "SET_POSITION_TARGET_GLOBAL_INT": self._on_position_target_global,
             "TIMESYNC": self._on_timesync,
             "PING": self._on_ping,
+            "ADSB_VEHICLE": self._on_adsb_vehicle,  # sitl.vehicle.traffic
         }
+        self.awareness = TrafficAwareness(flavour=self.flavour.name, params=self.params,
+                                          fc=self.fc, home=config.home)
+        self._next_traffic = now
         if config.mission:
             self.fc.set_mission(list(config.mission))
         self._upload: _Upload | None = None
@@ -253,7 +260,7 @@ class VehicleCore:
 
     def get_timer(self) -> float:
         """The next deadline (vehicle seconds) at which ``handle_timer`` must run."""
-        deadline = self._last_control + CONTROL_PERIOD_S
+        deadline = min(self._last_control + CONTROL_PERIOD_S, self._next_traffic)
         if self._next_due:
             deadline = min(deadline, min(self._next_due.values()))
         if self._upload is not None:
@@ -262,6 +269,9 @@ class VehicleCore:
 
     def handle_timer(self, now: float) -> None:
         self._advance(now)
+        if now >= self._next_traffic:  # age the list, stream it as the stacks do
+            self._next_traffic = now + TRAFFIC_PERIOD_S * self.config.speedup
+            self._traffic_tick(now)
         for msg_id, due in list(self._next_due.items()):
             if due <= now + 1e-9:
                 interval = self._intervals[msg_id] * self.config.speedup
@@ -746,6 +756,38 @@ class VehicleCore:
             lat, lon = _lat_lon(msg.lat_int / 1e7, msg.lon_int / 1e7)
             pos = self._geo_to_ned(lat, lon, _finite((alt_rel,), "alt")[0])
         self._guided_from_mask(msg.type_mask, pos, (msg.vx, msg.vy, msg.vz), msg.yaw, now)
+
+    # ------------------------------------------------------------ ADS-B traffic (peers)
+
+    @property
+    def traffic(self) -> TrafficList:
+        """The vehicles this autopilot knows from ADSB_VEHICLE (sitl.vehicle.traffic)."""
+        return self.awareness.traffic
+
+    def _on_adsb_vehicle(self, msg: Any, now: float) -> None:
+        self.awareness.on_adsb_vehicle(msg, now)
+        self._flush_traffic_texts()
+
+    def _flush_traffic_texts(self) -> None:
+        for severity, text in self.awareness.texts:
+            self.statustext(severity, text)
+        self.awareness.texts.clear()
+
+    def _traffic_tick(self, now: float) -> None:
+        """Expire, check avoidance, and send the list to the clients as ADSB_VEHICLE with
+        ``tslc`` = age (ArduPilot's SRn_ADSB stream, PX4's ADSB_VEHICLE stream)."""
+        self.awareness.tick(now)
+        self.awareness.check_avoidance(now)
+        self._flush_traffic_texts()
+        for vehicle in self.traffic.vehicles.values():
+            r = vehicle.report
+            self._send(mavlink.MAVLink_adsb_vehicle_message(
+                r.icao_address, round(r.lat_deg * 1e7), round(r.lon_deg * 1e7), 1,
+                round(r.alt_amsl_m * 1000), round(r.heading_deg * 100) % 36000,
+                max(0, min(65535, round(r.hor_velocity_m_s * 100))),
+                max(-32768, min(32767, round(r.ver_velocity_m_s * 100))),
+                r.callsign.encode()[:8], r.emitter_type,
+                max(0, min(255, int(vehicle.age(now)))), r.flags, r.squawk))
 
     def _on_ping(self, msg: Any, now: float) -> None:
         if msg.target_system == 0 and msg.target_component == 0:  # a request, not a reply

@@ -91,6 +91,12 @@ _AP_SCALARS: tuple[ParamRow, ...] = (
     ("PRX1_TYPE", 0, _I8), ("RNGFND1_TYPE", 0, _I8), ("FLOW_TYPE", 0, _I8),
     ("SIM_SPEEDUP", 1.0, _F), ("SIM_GPS_DISABLE", 0, _I8), ("SIM_BATT_VOLTAGE", 12.6, _F),
     ("STAT_RUNTIME", 0, _I32), ("STAT_FLTTIME", 0, _I32), ("STAT_BOOTCNT", 1, _I16),
+    # ADS-B in and avoidance (AP_ADSB, AP_Avoidance; read by sitl.vehicle.traffic)
+    ("ADSB_TYPE", 0, _I8), ("ADSB_LIST_MAX", 25, _I16), ("ADSB_LIST_RADIUS", 2000, _I32),
+    ("ADSB_LIST_ALT", 0, _I16), ("ADSB_ICAO_ID", 0, _I32), ("AVD_ENABLE", 0, _I8),
+    ("AVD_F_ACTION", 1, _I8), ("AVD_F_DIST_XY", 100, _I16), ("AVD_F_DIST_Z", 100, _I16),
+    ("AVD_F_TIME", 30, _I8), ("AVD_W_ACTION", 1, _I8), ("AVD_W_DIST_XY", 300, _I16),
+    ("AVD_W_DIST_Z", 300, _I16), ("AVD_W_TIME", 30, _I8),
 )
 
 _AP_SERVO_FUNCTIONS = (33, 34, 35, 36)  # Motor1..Motor4 on SERVO1..4 (quad X)
@@ -147,6 +153,9 @@ _PX4_SCALARS: tuple[ParamRow, ...] = (
     ("CBRK_IO_SAFETY", 22027, _I32), ("CBRK_USB_CHK", 197848, _I32),
     ("LNDMC_Z_VEL_MAX", 0.5, _F), ("LNDMC_XY_VEL_MAX", 1.5, _F), ("LNDMC_ALT_MAX", -1.0, _F),
     ("CA_AIRFRAME", 0, _I32), ("CA_ROTOR_COUNT", 4, _I32),
+    # traffic avoidance (navigator; read by sitl.vehicle.traffic)
+    ("NAV_TRAFF_AVOID", 1, _I32), ("NAV_TRAFF_A_RADU", 10.0, _F),
+    ("NAV_TRAFF_A_RADM", 500.0, _F),
 )
 
 
