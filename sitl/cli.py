@@ -17,6 +17,11 @@ STUDIES: dict[str, tuple[str, str]] = {
     "fig5.7": ("sitl.study.fig57", "thesis figure 5.7 at 31 drop shares x 30 runs, on Dask"),
     "fig6.1": ("sitl.study.fig61", "thesis figure 6.1: reception rate and latency vs rate"),
     "fig6.2": ("sitl.study.fig62", "thesis figure 6.2: mean backlog vs publishing rate, on Dask"),
+    "fig6.3": ("sitl.study.fig63", "thesis figures 6.3/6.4: the α sweep (8 agents, 6 Hz)"),
+    "fig6.4": ("sitl.study.fig63", "thesis figures 6.3/6.4 (same command as fig6.3)"),
+    "fig6.5": ("sitl.study.fig65", "thesis figure 6.5: ξ smoothness and step response"),
+    "fig7.3": ("sitl.study.fig73", "thesis figure 7.3: image frames per robot by red content"),
+    "fig7.4": ("sitl.study.fig74", "thesis figure 7.4: image streaming, background step"),
     "adaptive-vs-aimd": ("sitl.study.adaptive", "thesis figure 6.5: adaptive constraint vs AIMD"),
     "mcts-vs-baselines": ("sitl.study.baselines", "MCTS vs every baseline, equal budget and bytes"),
 }
