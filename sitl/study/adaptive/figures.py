@@ -24,24 +24,41 @@ MBIT = 125_000.0
 """Bytes per second in one Mbit/s."""
 
 
-def figure_6_5_runs(*, seed: int = 1, alpha_bytes_per_s: float = 0.1 * MBIT,
-                    learning_rate: float = 0.01) -> dict[str, SimTrace]:
-    """Figure 6.5 on the model: on/off demand every 25 s, background 0.1 -> 0.25 Mbit/s."""
-    on_off = steps(*[(25.0 * k + dt, level) for k in range(4)
+FIG65_CONSTRAINTS = ("adaptive", "adaptive-weighted", "aimd")
+"""adaptive: the thesis' SGD; adaptive-weighted: the same with ``use_weighted``; AIMD."""
+
+
+def figure_6_5_constraint(name: str, *, alpha_bytes_per_s: float = 0.1 * MBIT,
+                          learning_rate: float = 0.01) -> GoodputConstraint:
+    """One of :data:`FIG65_CONSTRAINTS` as figure 6.5 runs it."""
+    if name == "aimd":
+        return make_constraint("aimd", alpha_bytes_per_s=alpha_bytes_per_s,
+                               initial_bytes_per_s=0.4 * MBIT)
+    return make_constraint("adaptive", alpha_bytes_per_s=alpha_bytes_per_s,
+                           learning_rate=learning_rate, initial_intercept_bytes_per_s=0.3 * MBIT,
+                           use_weighted=name == "adaptive-weighted")
+
+
+def figure_6_5_run(constraint: GoodputConstraint, *, seed: int = 1,
+                   duration_s: float = 100.0) -> SimTrace:
+    """Figure 6.5 on the model: on/off demand every 25 s, background 0.1 -> 0.25 Mbit/s at
+    half time (50 s of the thesis' 100 s)."""
+    k = duration_s / 100.0
+    on_off = steps(*[(k * (25.0 * i + dt), level) for i in range(4)
                      for dt, level in ((0.0, 1.5 * MBIT), (15.0, 0.08 * MBIT))])
-    background = steps((0.0, 0.1 * MBIT), (50.0, 0.25 * MBIT))
-    constraints: dict[str, GoodputConstraint] = {
-        "adaptive": make_constraint("adaptive", alpha_bytes_per_s=alpha_bytes_per_s,
-                                    learning_rate=learning_rate,
-                                    initial_intercept_bytes_per_s=0.3 * MBIT),
-        "aimd": make_constraint("aimd", alpha_bytes_per_s=alpha_bytes_per_s,
-                                initial_bytes_per_s=0.4 * MBIT),
-    }
-    return {
-        name: simulate(c, duration_s=100.0, rng=np.random.default_rng(seed),
-                       demand_bytes_per_s=on_off, background_bytes_per_s=background)
-        for name, c in constraints.items()
-    }
+    background = steps((0.0, 0.1 * MBIT), (50.0 * k, 0.25 * MBIT))
+    return simulate(constraint, duration_s=duration_s, rng=np.random.default_rng(seed),
+                    demand_bytes_per_s=on_off, background_bytes_per_s=background)
+
+
+def figure_6_5_runs(*, seed: int = 1, alpha_bytes_per_s: float = 0.1 * MBIT,
+                    learning_rate: float = 0.01,
+                    names: tuple[str, ...] = ("adaptive", "aimd")) -> dict[str, SimTrace]:
+    """Figure 6.5 on the model, one run per constraint (same seed: same demand draws)."""
+    return {name: figure_6_5_run(figure_6_5_constraint(
+                name, alpha_bytes_per_s=alpha_bytes_per_s, learning_rate=learning_rate),
+                seed=seed)
+            for name in names}
 
 
 def rfc8867_model_runs(*, seed: int = 1, alpha_bytes_per_s: float = 0.5 * MBIT,
