@@ -80,6 +80,9 @@ class SimAgent:
     name: str
     policy: Policy
     streams: Sequence[StreamConfig]
+    overheard: bool = True
+    """False: traffic outside the information distribution (background, e.g. iperf): it
+    shares the medium but no agent's knowledge sees its deliveries."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -239,8 +242,9 @@ def simulate(
         elif kind == _DELIVER:
             m = payload.delivered(receiver=channel.receiver, t_rcv=now)
             generated[m.key] = m
-            for agent in agents:
-                agent.policy.on_delivered([m], now)
+            if agents[index[m.sender]].overheard:
+                for agent in agents:
+                    agent.policy.on_delivered([m], now)
             if channel.report_interval_s is not None and m.sender in index:
                 unreported[index[m.sender]].append(m)
         else:

@@ -1,0 +1,5 @@
+"""``python -m sitl.linkemu probe-sender|probe-receiver``."""
+
+from sitl.linkemu.probe import main
+
+raise SystemExit(main())
