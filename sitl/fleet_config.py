@@ -140,6 +140,9 @@ class FleetPlan:
     gs_http_port: int
     gs_host: str = "127.0.0.1"
     """Where companions send (the receiver namespace's address with ``--netns``)."""
+    relay_port: int | None = None
+    """The shaped relay's port on ``gs_host`` (:mod:`sitl.relay_udp`): companions send
+    there and it forwards to ``gs_udp_port``; None: straight to the station."""
     gs_bind_host: str = "127.0.0.1"
     """Where the station's UDP socket binds (its HTTP API is always on 127.0.0.1)."""
     drone_bind_host: str = "127.0.0.1"
@@ -219,7 +222,7 @@ def companion_toml(plan: FleetPlan, drone: DroneSlot) -> str:
         "mission": {"spec": str(plan.spec_path), "log": str(drone.log_path)},
         "ground_station": {
             "host": plan.gs_host,
-            "port": plan.gs_udp_port,
+            "port": plan.relay_port if plan.relay_port is not None else plan.gs_udp_port,
             "fleet_id": plan.fleet_id,
             "fleet_key_file": str(plan.key_path),
             "command_public_key_file": str(plan.command_pub_path),
