@@ -34,6 +34,7 @@ from typing import IO, Any, Protocol
 from companion.camera import CameraService, Frame, FrameSource, open_source
 from companion.config import CompanionConfig, missing_keys
 from companion.imaging import DEFAULT_SCALES, EncodedImage, image_message
+from companion.linkhealth import LinkHealth
 from companion.mavlink import MavlinkService, MavlinkSettings
 from companion.protocol import (
     CommandReceived,
@@ -291,6 +292,9 @@ class TelemetryPublisher:
         xi = self._app.constraint_limit()
         if xi is not None:
             data["xi_bytes_per_s"] = xi
+        link = getattr(self._app.decider, "link_health", None)  # Δ and loss for the station
+        if link is not None:
+            data |= {k: v for k, v in link(self._app.clock()).items() if v is not None}
         fallback = self._app.fallback_share()
         if fallback is not None:
             data["fallback_share"] = fallback
@@ -844,6 +848,7 @@ class MiddlewareDecider:
         self._budget_clock = budget_clock
         self.counters: dict[str, int] = {"link_samples": 0, "round_trips": 0,
                                          "bad_round_trips": 0}
+        self.health = LinkHealth()
 
     def warm_up(self) -> None:
         """One decision on a throwaway optimiser, so JIT compilation (numba) happens before
@@ -865,7 +870,20 @@ class MiddlewareDecider:
     def decide(self, message: Message, now: float) -> DecisionLike:
         deadline = self._budget_clock() + self.time_budget_s
         decision: DecisionLike = self.middleware.decide(message, now, deadline=deadline)
+        if message.type == "status" and not decision.send:
+            # the heartbeat: a status always goes, so the station's silence means loss; its
+            # bytes count in the window like any send
+            self.middleware.knowledge.on_sent(message, now=now)
+            self.constraint.on_sent(message.size, now=now)
+            decision = dataclasses.replace(decision, send=True, version=None,  # type: ignore[type-var]
+                                           reason="status-heartbeat")
+        if decision.send:
+            self.health.on_sent(message.seq, now)
         return decision
+
+    def link_health(self, now: float) -> dict[str, float | None]:
+        """Δ (s) and loss of this drone's link, for its status messages."""
+        return {"delta_s": self.health.delta_s(self.constraint), "loss": self.health.loss(now)}
 
     def on_report(self, event: Any, now: float) -> None:
         """Deliveries for the optimiser; our own ones as link samples for the constraint."""
@@ -888,6 +906,8 @@ class MiddlewareDecider:
         samples = [LinkSample(t_sent=e.t_sent, t_rcv=e.t_rcv, size=e.size, sender=e.sender,
                               seq=e.seq)
                    for e in report.entries if e.sender == self.agent and e.t_sent is not None]
+        for sample in samples:
+            self.health.on_delivered(sample.seq)
         if not samples:
             return
         self.constraint.on_samples(samples, now=now)

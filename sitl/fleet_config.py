@@ -43,6 +43,14 @@ __all__ = [
 ]
 
 
+STATUS_PERIOD_S = 1.0
+"""Every simulated drone sends a status this often (a few hundred bytes, counted in its
+goodput window like any message), so the station hears each drone at a fixed rate."""
+LINK_LOST_S = 5.0
+"""The station flags a drone lost after this much silence: five missed statuses, well above
+the queueing delay of the shaped link (under a second), so a clean run raises no alert."""
+
+
 def mission_spec_path(name: str = "image_streaming") -> Path:
     """The shipped mission spec file ``utility_specs/missions/NAME.toml`` (or a path)."""
     path = Path(name)
@@ -229,6 +237,9 @@ def companion_toml(plan: FleetPlan, drone: DroneSlot) -> str:
             "listen_host": plan.drone_listen_host,
             "listen_port": 0,
         },
+        # the heartbeat: a status every second whatever the optimiser drops (the station
+        # flags a drone lost after ``link_lost_s`` of silence)
+        "telemetry": {"status_period_s": STATUS_PERIOD_S},
         "budgets": {"mcts_iterations": plan.mcts_iterations,
                     "time_budget_s": plan.time_budget_s},
         "constraint": {"name": plan.constraint, "params": dict(plan.constraint_params)},
@@ -255,6 +266,7 @@ def ground_station_toml(plan: FleetPlan) -> str:
         "http_port": plan.gs_http_port,
         "spec": str(plan.spec_path),
         "scene": str(scene_path(plan.scene).resolve()),  # the dashboard map draws it
+        "link_lost_s": LINK_LOST_S,
     }
     if plan.alpha is not None:
         table["alpha"] = plan.alpha

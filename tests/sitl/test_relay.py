@@ -93,7 +93,7 @@ def test_background_delays_the_fleet_behind_it() -> None:
     assert not q.offer("c", 1000, 1.0)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=50, deadline=None)
 @given(st.lists(st.tuples(st.floats(0.0, 5.0), st.integers(1, 3000)), max_size=60),
        st.floats(100.0, 10_000.0), st.integers(500, 20_000))
 def test_never_faster_than_rate_plus_burst_and_never_over_the_queue_limit(
