@@ -131,8 +131,9 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--constraint", choices=("constant", "adaptive", "aimd"), default=None,
                    help="goodput constraint (default: constant on loopback, adaptive with "
                         "--netns)")
-    p.add_argument("--goodput", type=float, default=40_000.0,
-                   help="constant constraint: fleet goodput limit in bytes/s (default 40000)")
+    p.add_argument("--goodput", type=float, default=None,
+                   help="constant constraint: fleet goodput limit in bytes/s (default 40000; "
+                        "given alone, it selects the constant constraint)")
     p.add_argument("--window", type=float, default=2.0,
                    help="constant constraint: window T in s (default 2)")
     p.add_argument("--rate", type=float, default=5.0, help="camera frames/s per drone")
@@ -216,7 +217,10 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
         args.background = Background(RELAY_BACKGROUND_SHARE * args.relay_rate,
                                      args.duration / 2 if args.duration else 60.0)
     if args.constraint is None:
-        args.constraint = "adaptive" if args.netns or args.relay else "constant"
+        shaped = args.netns or args.relay
+        args.constraint = "adaptive" if shaped and args.goodput is None else "constant"
+    if args.goodput is None:
+        args.goodput = 40_000.0
     return args
 
 
@@ -685,6 +689,9 @@ def format_summary(summary: dict[str, Any]) -> str:
                          f"{counters['sent_packets']} packets, dropped {counters['dropped']}")
     data = summary["data"]
     lines.append(f"data: {summary['run_dir']}")
+    if summary.get("report"):
+        lines.append(f"  report   {summary['report']} (and {summary.get('dashboard', '')}"
+                     "report while the station runs)")
     lines.append(f"  images   {data['images']}")
     lines.append(f"  database {data['ground_station_db']}")
     lines.append(f"  logs     {data['ground_station_log']} + drones/*/mission_log.jsonl")
@@ -1166,6 +1173,7 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
     summary["failure"] = failure
     summary["dashboard"] = f"{base_url}/"
     summary["link"] = link_info
+    summary["report"] = _write_report_png(plan)
     text = json.dumps(_finite(summary), indent=2, sort_keys=True, allow_nan=False)
     (run_dir / "summary.json").write_text(text + "\n", encoding="utf-8")
     if args.summary_json is not None:
@@ -1176,6 +1184,18 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
         print(f"uav-sitl fleet: {failure}", file=sys.stderr)
         return 1
     return 0
+
+
+def _write_report_png(plan: FleetPlan) -> str | None:
+    """The end-of-mission report's plot (utility over time per drone) in the run folder."""
+    from ground_station.report_page import write_png
+
+    try:
+        path = write_png(plan.gs_db_path, plan.mission, plan.run_dir / "utility.png")
+    except (OSError, ValueError, sqlite3.Error) as exc:
+        print(f"uav-sitl fleet: no utility plot: {exc}", file=sys.stderr)
+        return None
+    return None if path is None else str(path)
 
 
 def _finite(value: Any) -> Any:

@@ -120,7 +120,12 @@ def test_two_drones_for_15_s(tmp_path: Path) -> None:
     assert set(summary["utility"]["per_type"]) >= {"image", "position"}
     _station_stored_what_it_received(summary)
     assert summary["exit_codes"] == {"ground_station": 0, "vehicles": 0, "drone1": 0,
-                                     "drone2": 0}
+                                     "drone2": 0, "relay": 0}
+    # issue 12: the default link is the shaped relay, and it carried every byte received
+    link = summary["link"]
+    assert link["kind"] == "relay" and summary["constraint"]["name"] == "adaptive"
+    assert link["bottleneck"]["sent_bytes"] >= summary["bytes_received"]
+    assert (run_dir / "utility.png").read_bytes()[:4] == b"\x89PNG"
     assert (run_dir / "fleet.key").stat().st_mode & 0o077 == 0
     assert (run_dir / "gs-data" / "token").stat().st_mode & 0o077 == 0
 
