@@ -65,7 +65,7 @@ def render_png(series: dict[str, Any], path: Path) -> Path:
 
     fig, ax = plt.subplots(figsize=(8, 3.6), dpi=100)
     for drone, d in series["drones"].items():
-        ax.plot(series["t"], d["utility"], color=d["color"], lw=1.8,
+        ax.plot(series["t"], d["utility"], color=d["color"], lw=1.8, marker="o", ms=3,
                 label=f"{drone} (total {d['total']:.0f})")
     ax.set_xlabel("mission time (s)")
     ax.set_ylabel(f"utility received per {series['bin_s']:g} s")

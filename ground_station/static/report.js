@@ -27,6 +27,12 @@ function draw(series) {
       if (i === 0) ctx.moveTo(x, y); else ctx.lineTo(x, y);
     });
     ctx.stroke();
+    ctx.fillStyle = d.color;  // dots too: a one-bin mission still shows its points
+    d.utility.forEach((u, i) => {
+      const x = pad + (w - pad - 10) * series.t[i] / tMax;
+      const y = h - pad - (h - 2 * pad) * u / uMax;
+      ctx.beginPath(); ctx.arc(x, y, 3, 0, 2 * Math.PI); ctx.fill();
+    });
   }
   $("r-legend").innerHTML = drones.map(([drone, d]) =>
     `<span class="lg" data-drone="${esc(drone)}" data-color="${esc(d.color)}"><i style="background:${esc(d.color)}"></i>${esc(drone)} total ${d.total.toFixed(0)}</span>`).join(" ");
