@@ -126,6 +126,17 @@ def test_two_drones_for_15_s(tmp_path: Path) -> None:
     assert link["kind"] == "relay" and summary["constraint"]["name"] == "adaptive"
     assert link["bottleneck"]["sent_bytes"] >= summary["bytes_received"]
     assert (run_dir / "utility.png").read_bytes()[:4] == b"\x89PNG"
+    # a clean run over the relay: the 1 Hz status heartbeat keeps every drone heard
+    import sqlite3
+
+    con = sqlite3.connect(f"file:{run_dir / 'gs-data' / 'ground_station.sqlite3'}?mode=ro",
+                          uri=True)
+    lost = con.execute("SELECT drone, text FROM alerts WHERE kind = 'link' AND text LIKE "
+                       "'link lost%' AND t <= ?", (summary["t_end"],)).fetchall()
+    # (after the end the launcher stops the drones before the station: they do fall silent)
+    con.close()
+    assert lost == []
+    assert set(summary["phases"]["drones"]) == {"drone1", "drone2"}
     assert (run_dir / "fleet.key").stat().st_mode & 0o077 == 0
     assert (run_dir / "gs-data" / "token").stat().st_mode & 0o077 == 0
 
