@@ -98,9 +98,9 @@ def test_options() -> None:
     # issue 12: by default the fleet talks through the shaped relay, under the adaptive
     # constraint, with a background step at mid-mission (60 s when open-ended)
     assert args.constraint == "adaptive" and (args.width, args.height) == (640, 480)
-    assert args.relay and args.relay_rate == 800_000.0
-    assert args.background == Background(320_000.0, 60.0, None)
-    assert parse_args(["--duration", "120"]).background == Background(320_000.0, 60.0, None)
+    assert args.relay and (args.relay_rate, args.relay_queue) == (400_000.0, 20_000)
+    assert args.background == Background(160_000.0, 60.0, None)
+    assert parse_args(["--duration", "120"]).background == Background(160_000.0, 60.0, None)
     assert parse_args(["--background", "off"]).background is None
     assert parse_args(["--goodput", "9000"]).constraint == "constant"  # as before
     plain = parse_args(["--relay-rate", "0"])
