@@ -212,7 +212,8 @@ def _constrained_run(folder: Path, name: str, *extra: str) -> dict[str, Any]:
     scene = folder / "red_strip.toml"
     scene.write_text(RED_STRIP_SCENE)
     return _fleet(folder / name, "--drones", "4", "--scene", str(scene), "--duration", "60",
-                  "--goodput", "10000", "--window", "2", "--rate", "3", "--seed", "3", *extra,
+                  "--goodput", "10000", "--window", "2", "--rate", "3", "--seed", "3",
+                  "--relay-rate", "0", *extra,  # loopback, as this comparison was made on
                   timeout_s=400)
 
 
