@@ -18,6 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 from companion.config import CompanionConfig
+from companion.linkhealth import LinkHealth
 from companion.mission import MissionWindow
 from companion.mission_log import MissionLogWriter
 from utility_specs.message import Message
@@ -58,6 +59,8 @@ class Dispatcher:
         self._timer: asyncio.TimerHandle | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stopping: asyncio.Event | None = None
+        self.health = LinkHealth()
+        """Δ and loss of this drone's own link, for its status messages."""
 
     # -- life cycle -------------------------------------------------------------------------
 
@@ -174,6 +177,7 @@ class Dispatcher:
             self._log.write_message(chosen, sent=False, decision={**info, "error": str(exc)})
             return False
         self.counters["sent"] += 1
+        self.health.on_sent(chosen.seq, t_sent)
         self.sent_by_type[chosen.type] = self.sent_by_type.get(chosen.type, 0) + 1
         self._log.write_message(chosen, sent=True, decision=info)
         return True
@@ -186,8 +190,11 @@ class Dispatcher:
         loop = asyncio.get_running_loop()
         from companion.middleware.reports import ReceiverReport
 
-        future = loop.run_in_executor(self._pool, self.decider.on_report,
-                                      ReceiverReport.from_event(event), self.clock())
+        report = ReceiverReport.from_event(event)
+        for entry in report.entries:
+            if entry.sender == self.config.drone_id:
+                self.health.on_delivered(entry.seq)
+        future = loop.run_in_executor(self._pool, self.decider.on_report, report, self.clock())
         future.add_done_callback(self._after_call)
 
     async def set_params(self, params: Mapping[str, Any]) -> None:
@@ -256,6 +263,12 @@ class Dispatcher:
             return None
         value = float(constraint.limit_bytes_per_s(now=self.clock()))
         return value if math.isfinite(value) else None
+
+    def link_health(self) -> dict[str, float]:
+        """Δ (s) and loss of this drone's link, for status messages (what is known)."""
+        values = {"delta_s": self.health.delta_s(getattr(self.decider, "constraint", None)),
+                  "loss": self.health.loss(self.clock())}
+        return {k: v for k, v in values.items() if v is not None}
 
     def fallback_share(self) -> float | None:
         """Share of decisions the optimiser did not make itself (greedy fallback or timeout);

@@ -149,6 +149,7 @@ class TelemetryPublisher:
         xi = self._dispatcher.constraint_limit()
         if xi is not None:
             data["xi_bytes_per_s"] = xi
+        data |= self._dispatcher.link_health()  # Δ and loss for the station
         fallback = self._dispatcher.fallback_share()
         if fallback is not None:
             data["fallback_share"] = fallback

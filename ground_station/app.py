@@ -520,4 +520,7 @@ def create_app(
     app.router.add_post("/api/mission/params", api_params)
     app.router.add_post("/api/mission/report", api_report)
     app.router.add_post("/api/mission/reports/reset", api_reset_reports)
+    from ground_station.report_page import add_report_routes  # the end-of-mission report
+
+    add_report_routes(app, static_dir=STATIC_DIR)
     return app

@@ -63,12 +63,14 @@ __all__ = [
     "Processes",
     "StationTail",
     "evaluate_utility",
+    "format_phases",
     "format_summary",
     "main",
     "make_plan",
     "parse_args",
     "parse_background",
     "progress_line",
+    "red_phases",
     "run",
     "summarize",
 ]
@@ -86,6 +88,16 @@ WIFI_G_DELAY_MS = 2.0
 air time of a frame, a few ms); applied only where the kernel has netem."""
 WIFI_G_LOSS_PERCENT = 0.1
 """``--netns`` default residual loss per datagram after 802.11 MAC retransmissions."""
+
+
+RELAY_RATE_BIT_S = 400_000.0
+"""Default rate of the shaped relay (no root): a narrow radio, so four camera streams must
+share it and the adaptive constraint has something to adapt to (at 800 kbit/s the drones' ξ
+hardly binds and drone3's share over the red was only 1.3x the others', at 400 kbit/s 1.8x)."""
+RELAY_QUEUE_BYTES = 20_000
+"""The relay's queue: 0.4 s at the default rate, like a radio modem's buffer."""
+RELAY_BACKGROUND_SHARE = 0.4
+"""Default background step on the relay: this share of its rate from mid-mission."""
 
 
 class FleetError(RuntimeError):
@@ -120,8 +132,9 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--constraint", choices=("constant", "adaptive", "aimd"), default=None,
                    help="goodput constraint (default: constant on loopback, adaptive with "
                         "--netns)")
-    p.add_argument("--goodput", type=float, default=40_000.0,
-                   help="constant constraint: fleet goodput limit in bytes/s (default 40000)")
+    p.add_argument("--goodput", type=float, default=None,
+                   help="constant constraint: fleet goodput limit in bytes/s (default 40000; "
+                        "given alone, it selects the constant constraint)")
     p.add_argument("--window", type=float, default=2.0,
                    help="constant constraint: window T in s (default 2)")
     p.add_argument("--rate", type=float, default=5.0, help="camera frames/s per drone")
@@ -157,8 +170,16 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
                    help=f"--netns: loss per datagram in %% (default {WIFI_G_LOSS_PERCENT:g}; "
                         "needs netem)")
     p.add_argument("--background", default=None, metavar="BITS[@T[+D]]",
-                   help="--netns: iperf3 UDP background traffic of BITS bit/s from T s after "
-                        "the start for D s (default from the start, to the end); thesis fig 7.4")
+                   help="background traffic of BITS bit/s from T s after the start for D s "
+                        "(default from the start, to the end; thesis fig 7.4): iperf3 with "
+                        "--netns, in the relay's queue otherwise (relay default: 40%% of its "
+                        "rate from mid-mission; 'off' for none)")
+    p.add_argument("--relay-rate", type=float, default=RELAY_RATE_BIT_S, metavar="BITS",
+                   help="without --netns: the shaped relay's rate in bit/s between the drones "
+                        f"and the station (default {RELAY_RATE_BIT_S:g}); 0 = no relay, "
+                        "straight over loopback")
+    p.add_argument("--relay-queue", type=int, default=RELAY_QUEUE_BYTES, metavar="BYTES",
+                   help=f"the relay's queue limit in bytes (default {RELAY_QUEUE_BYTES})")
     p.add_argument("--quiet", action="store_true", help="no live progress line")
     p.add_argument("--peers", action="store_true",
                    help="peer sharing (docs/peers.md): a loopback broadcast medium, each "
@@ -186,15 +207,27 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     except ValueError:
         p.error(f"--size: expected WxH, got {args.size!r}")
     args.width, args.height = w, h
-    if args.background is not None:
+    if args.relay_rate < 0 or args.relay_queue <= 0:
+        p.error("--relay-rate must be >= 0 and --relay-queue > 0")
+    args.relay = not args.netns and args.relay_rate > 0
+    if args.background == "off":
+        args.background = None
+    elif args.background is not None:
         try:
             args.background = parse_background(args.background)
         except ValueError as exc:
             p.error(f"--background: {exc}")
-        if not args.netns:
-            p.error("--background needs --netns (the traffic must share the shaped link)")
+        if not (args.netns or args.relay):
+            p.error("--background needs --netns or the relay (the traffic must share the "
+                    "shaped link)")
+    elif args.relay:  # thesis fig 7.4: a step of cross traffic at mid-mission
+        args.background = Background(RELAY_BACKGROUND_SHARE * args.relay_rate,
+                                     args.duration / 2 if args.duration else 60.0)
     if args.constraint is None:
-        args.constraint = "adaptive" if args.netns else "constant"
+        shaped = args.netns or args.relay
+        args.constraint = "adaptive" if shaped and args.goodput is None else "constant"
+    if args.goodput is None:
+        args.goodput = 40_000.0
     return args
 
 
@@ -491,6 +524,11 @@ def summarize(plan: FleetPlan, *, t_start: float, t_end: float, policy: str,
             if r["seq"] not in seen or r["t_rcv"] < seen[r["seq"]]["t_rcv"]:
                 seen[r["seq"]] = r
     received = {sender: list(copies.values()) for sender, copies in first_copies.items()}
+    copies: list[tuple[str, float, int]] = [
+        (str(r["sender"]), float(r["t_gen"]), int(r.get("size", 0)))
+        for r in _records(plan.gs_log_path)
+        if r.get("type") == "image" and r.get("t_rcv") is not None]
+    seen: dict[str, list[tuple[float, float]]] = {}
     bytes_generated = 0
     bytes_generated_mean = 0.0
     stored = _stored_images(plan.gs_db_path, plan.mission, t_start, t_end)
@@ -500,6 +538,8 @@ def summarize(plan: FleetPlan, *, t_start: float, t_end: float, policy: str,
         bytes_generated += sum(_best_size(r) for r in records)
         bytes_generated_mean += sum(_mean_size(r) for r in records)
         in_window = [r for r in records if r.get("type") == "image"]
+        seen[slot.drone_id] = [(float(r["t_gen"]), float(r["data"].get("red") or 0.0))
+                               for r in in_window if isinstance(r.get("data"), dict)]
         sent = [r for r in in_window if r.get("t_sent") is not None]
         got_all = received.get(slot.drone_id, [])
         got = [r for r in got_all if t_start <= r["t_gen"] <= t_end]
@@ -539,6 +579,7 @@ def summarize(plan: FleetPlan, *, t_start: float, t_end: float, policy: str,
         "bytes_generated": bytes_generated,
         "bytes_generated_mean_version": bytes_generated_mean,
         "utility": utility,
+        "phases": red_phases(seen, copies, t_start=t_start, t_end=t_end),
         "run_dir": str(plan.run_dir),
         "data": {
             "ground_station_db": str(plan.gs_db_path),
@@ -548,6 +589,80 @@ def summarize(plan: FleetPlan, *, t_start: float, t_end: float, policy: str,
             "process_logs": str(plan.logs_dir),
         },
     }
+
+
+RED_SEEN = 0.02
+"""A drone "sees red" in a phase bin when its frames there average at least this red share
+(the red objects fill a few % of a frame; fields and trees stay well below 1 %)."""
+PHASE_BIN_S = 5.0
+
+
+def red_phases(seen: dict[str, list[tuple[float, float]]],
+               received: Sequence[tuple[str, float, int]], *, t_start: float, t_end: float,
+               bin_s: float = PHASE_BIN_S, red_seen: float = RED_SEEN) -> dict[str, Any]:
+    """Per drone, its share of the image bytes that reached the station while it saw red
+    and while it did not, against the mean share of the other drones in the same bins.
+
+    ``seen``: per drone, (t_gen, red) of the frames it generated; ``received``: (sender,
+    t_gen, bytes) of every image copy the station received. Bins of ``bin_s`` by t_gen.
+    """
+    n_bins = max(1, math.ceil((t_end - t_start) / bin_s))
+    drones = list(seen)
+
+    def index(t: float) -> int | None:
+        i = int((t - t_start) // bin_s)
+        return i if 0 <= i < n_bins else None
+
+    red: dict[str, list[list[float]]] = {d: [[] for _ in range(n_bins)] for d in drones}
+    for d, frames in seen.items():
+        for t, r in frames:
+            i = index(t)
+            if i is not None:
+                red[d][i].append(r)
+    got = {d: [0] * n_bins for d in drones}
+    for sender, t, size in received:
+        i = index(t)
+        if i is not None and sender in got:
+            got[sender][i] += size
+    totals = [sum(got[d][i] for d in drones) for i in range(n_bins)]
+    out: dict[str, Any] = {"bin_s": bin_s, "red_seen": red_seen, "drones": {}}
+    for d in drones:
+        others = [o for o in drones if o != d]
+        phases: dict[str, Any] = {}
+        for phase, wanted in (("red", True), ("plain", False)):
+            bins = [i for i in range(n_bins) if totals[i] > 0 and red[d][i]
+                    and (sum(red[d][i]) / len(red[d][i]) >= red_seen) == wanted]
+            if not bins:
+                phases[phase] = None
+                continue
+            own = sum(got[d][i] / totals[i] for i in bins) / len(bins)
+            rest = (sum(got[o][i] / totals[i] for i in bins for o in others)
+                    / (len(bins) * len(others))) if others else None
+            phases[phase] = {"seconds": len(bins) * bin_s, "share": own,
+                             "others_mean_share": rest,
+                             "ratio": own / rest if rest else None}
+        out["drones"][d] = phases
+    return out
+
+
+def format_phases(phases: dict[str, Any]) -> list[str]:
+    """``drone3 over red 35 s: share 48 % vs others' mean 17 % (2.8x); ...``"""
+    lines = [f"goodput share per phase ({phases['bin_s']:g} s bins; over red: frames with "
+             f">= {100 * phases['red_seen']:g} % red)"]
+    for d, p in phases["drones"].items():
+        parts = []
+        for phase, label in (("red", "over red"), ("plain", "elsewhere")):
+            x = p.get(phase)
+            if x is None:
+                parts.append(f"{label} -")
+                continue
+            ratio = "" if x["ratio"] is None else f" ({x['ratio']:.1f}x)"
+            rest = ("" if x["others_mean_share"] is None
+                    else f" vs others' mean {100 * x['others_mean_share']:.0f} %")
+            parts.append(f"{label} {x['seconds']:.0f} s: share {100 * x['share']:.0f} %"
+                         f"{rest}{ratio}")
+        lines.append(f"  {d:<8} " + "; ".join(parts))
+    return lines
 
 
 def format_summary(summary: dict[str, Any]) -> str:
@@ -567,6 +682,11 @@ def format_summary(summary: dict[str, Any]) -> str:
         lines.append(f"total utility {utility['total']:.3f} ({per_type})")
     elif utility:
         lines.append(f"utility: not evaluated: {utility.get('error')}")
+    if summary.get("phases"):
+        lines.extend(format_phases(summary["phases"]))
+    constraint = summary.get("constraint")
+    if constraint:
+        lines.append(f"constraint: {constraint.get('name')}")
     link = summary.get("link")
     if link:
         lines.append(f"link: {link['description']}")
@@ -580,6 +700,9 @@ def format_summary(summary: dict[str, Any]) -> str:
                                   summary.get("peers_age_bound_s")))
     data = summary["data"]
     lines.append(f"data: {summary['run_dir']}")
+    if summary.get("report"):
+        lines.append(f"  report   {summary['report']} (and {summary.get('dashboard', '')}"
+                     "report while the station runs)")
     lines.append(f"  images   {data['images']}")
     lines.append(f"  database {data['ground_station_db']}")
     lines.append(f"  logs     {data['ground_station_log']} + drones/*/mission_log.jsonl")
@@ -812,13 +935,17 @@ def make_plan(args: argparse.Namespace, run_dir: Path, *, netns: bool = False) -
                   mavlink_host=SharedMedium.vehicle_addrs(i)[1] if netns else None)
         for i in range(args.drones))
     params: dict[str, Any] = {}
+    relay = getattr(args, "relay", False)
     if args.constraint == "constant":
         params = {"limit_bytes_per_s": float(args.goodput), "window_s": float(args.window)}
+    elif relay:
+        params = relay_constraint_params(args.constraint, args.relay_rate / 8.0)
     return FleetPlan(
         run_dir=run_dir, drones=drones, scene=_scene_arg(args.scene),
         spec_path=mission_spec_path(args.spec), gs_udp_port=free_port(),
         gs_http_port=args.http_port or free_port(kind=socket.SOCK_STREAM),
         gs_host=GROUND_ADDR if netns else "127.0.0.1",
+        relay_port=free_port() if relay else None,
         gs_bind_host="0.0.0.0" if netns else "127.0.0.1",
         drone_bind_host="0.0.0.0" if netns else "127.0.0.1",
         drone_listen_host="0.0.0.0" if netns else "127.0.0.1",
@@ -838,6 +965,58 @@ def _peers_plan(args: argparse.Namespace, drones: Sequence[DroneSlot]) -> dict[s
     return {"peers_medium": loopback_medium(),
             "peers_http_ports": {d.drone_id: free_port(kind=socket.SOCK_STREAM)
                                  for d in drones}}
+
+
+def relay_constraint_params(name: str, rate_bytes_per_s: float) -> dict[str, Any]:
+    """The adaptive (or AIMD) constraint scaled to the relay's rate: the parameters tuned on
+    the 1 Mbit/s kernel link (``sitl.study.adaptive.REAL_LINK_CONSTRAINTS``) in units of the
+    link, with a window that holds a few camera frames."""
+    params: dict[str, Any] = {"window_s": 1.0, "alpha_bytes_per_s": 0.5 * rate_bytes_per_s,
+                              "min_base_latency_s": 0.01,
+                              "min_bytes_per_s": 0.05 * rate_bytes_per_s}
+    if name == "adaptive":
+        params |= {"learning_rate": 0.1, "min_coef": 0.3, "backlog_clip": 2.0,
+                   "scale_bytes_per_s": rate_bytes_per_s,
+                   "initial_intercept_bytes_per_s": 0.5 * rate_bytes_per_s}
+    return params
+
+
+def relay_description(args: argparse.Namespace) -> str:
+    bg = args.background
+    load = ("no background load" if bg is None else
+            f"background {bg.rate_bit_s / 1e3:g} kbit/s from {bg.start_s:g} s"
+            + ("" if bg.duration_s is None else f" for {bg.duration_s:g} s"))
+    return (f"shaped UDP relay (user space, sitl.relay): {args.relay_rate / 1e3:g} kbit/s "
+            f"token bucket, {args.relay_queue} B queue, {load}")
+
+
+def _relay_argv(args: argparse.Namespace, plan: FleetPlan, stats: Path) -> list[str]:
+    assert plan.relay_port is not None
+    argv = [sys.executable, "-m", "sitl.relay_udp",
+            "--listen", f"127.0.0.1:{plan.relay_port}", "--to", f"127.0.0.1:{plan.gs_udp_port}",
+            "--rate", repr(args.relay_rate / 8.0), "--queue", str(args.relay_queue),
+            "--stats", str(stats)]
+    bg = args.background
+    if bg is not None:
+        argv += ["--background", f"{bg.rate_bit_s / 8.0!r}@{bg.start_s!r}"
+                 + ("" if bg.duration_s is None else f"+{bg.duration_s!r}")]
+    return argv
+
+
+def _relay_link(args: argparse.Namespace, stats_path: Path) -> dict[str, Any]:
+    """The relay's part of the summary: what ran and its counters."""
+    stats: dict[str, Any] = {}
+    with contextlib.suppress(OSError, ValueError):
+        stats = json.loads(stats_path.read_text(encoding="utf-8"))
+    return {"description": relay_description(args), "kind": "relay",
+            "rate_bit_s": args.relay_rate, "queue_limit_bytes": args.relay_queue,
+            "bottleneck": {"sent_bytes": stats.get("sent_bytes"),
+                           "sent_packets": stats.get("sent_packets"),
+                           "dropped": stats.get("dropped_packets"),
+                           "max_backlog_bytes": stats.get("max_backlog_bytes"),
+                           "background_sent_packets": stats.get("background_sent_packets"),
+                           "background_dropped_packets":
+                               stats.get("background_dropped_packets")} if stats else None}
 
 
 def _wait(stop: _Stop, what: str, timeout_s: float, ready: Callable[[], bool],
@@ -886,6 +1065,8 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
     base_url = f"http://127.0.0.1:{plan.gs_http_port}"
     link_info: dict[str, Any] | None = None
     peers_known: dict[str, Any] | None = None
+    relay_stats = run_dir / "relay.json"
+    relay_signalled = False
     where: FleetNetns | _Loopback = netns or _Loopback()
     try:
         if netns is not None:
@@ -896,6 +1077,11 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
         print(f"dashboard:  {base_url}/?login={login_code(token, now=time.time())}", file=out)
         print(f"token:      {token}   (also: uav-ground-station token --data-dir "
               f"{plan.gs_data_dir})", file=out)
+        if args.relay:
+            print(f"link:       {relay_description(args)}", file=out)
+        elif netns is None:
+            print("link:       loopback, unshaped (no relay: --relay-rate 0)", file=out)
+        print(f"constraint: {plan.constraint} {dict(plan.constraint_params)}", file=out)
         if netns is not None:
             print(f"link:       {netns.medium.describe()}", file=out)
             if netns.medium.netem is False:  # said on stderr too, where warnings go
@@ -906,6 +1092,9 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
         station.append(procs.start("ground_station", where.wrap_gs(
             [*_tool("uav-ground-station", "ground_station.cli"), "run",
              "--config", str(plan.gs_config_path)])))
+        relay: list[Child] = []
+        if args.relay:
+            relay.append(procs.start("relay", _relay_argv(args, plan, relay_stats)))
         ready_file = run_dir / "vehicles.json"
         vargv = [*_tool("uav-sitl", "sitl.cli"), "vehicle", "--count", str(args.drones),
                  "--port", "0", "--host", plan.drone_bind_host, "--scene", plan.scene,
@@ -953,9 +1142,12 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
             now = time.time()
             if netns is not None:
                 netns.tick(now)
+            if relay and not relay_signalled and now >= t_start:
+                _signal_group(relay[0].proc, signal.SIGUSR1)  # the background's origin
+                relay_signalled = True
             if args.duration and now >= t_start + args.duration:
                 break
-            dead = [c for c in (*station, *vehicles, *companions) if not c.alive()]
+            dead = [c for c in (*station, *vehicles, *companions, *relay) if not c.alive()]
             if dead:
                 failure = (f"{dead[0].name} exited ({dead[0].proc.returncode}); its log "
                            f"({dead[0].log_path}) ends with:\n{dead[0].tail()}")
@@ -991,6 +1183,8 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
         time.sleep(0.5)  # the last datagrams reach the station before it stops
         procs.stop(station, timeout_s=15.0)
         procs.stop_all(timeout_s=5.0)
+        if args.relay:
+            link_info = _relay_link(args, relay_stats)
         if netns is not None:
             if netns.medium.namespaces:
                 link_info = netns.describe()
@@ -1014,6 +1208,7 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
     if peers_known is not None:
         from sitl.fleet_peers import position_age_bound
         summary["peers_age_bound_s"] = position_age_bound(plan.spec_path)
+    summary["report"] = _write_report_png(plan)
     text = json.dumps(_finite(summary), indent=2, sort_keys=True, allow_nan=False)
     (run_dir / "summary.json").write_text(text + "\n", encoding="utf-8")
     if args.summary_json is not None:
@@ -1024,6 +1219,18 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
         print(f"uav-sitl fleet: {failure}", file=sys.stderr)
         return 1
     return 0
+
+
+def _write_report_png(plan: FleetPlan) -> str | None:
+    """The end-of-mission report's plot (utility over time per drone) in the run folder."""
+    from ground_station.report_page import write_png
+
+    try:
+        path = write_png(plan.gs_db_path, plan.mission, plan.run_dir / "utility.png")
+    except (OSError, ValueError, sqlite3.Error) as exc:
+        print(f"uav-sitl fleet: no utility plot: {exc}", file=sys.stderr)
+        return None
+    return None if path is None else str(path)
 
 
 def _finite(value: Any) -> Any:

@@ -43,6 +43,14 @@ __all__ = [
 ]
 
 
+STATUS_PERIOD_S = 1.0
+"""Every simulated drone sends a status this often (a few hundred bytes, counted in its
+goodput window like any message), so the station hears each drone at a fixed rate."""
+LINK_LOST_S = 5.0
+"""The station flags a drone lost after this much silence: five missed statuses, well above
+the queueing delay of the shaped link (under a second), so a clean run raises no alert."""
+
+
 def mission_spec_path(name: str = "image_streaming") -> Path:
     """The shipped mission spec file ``utility_specs/missions/NAME.toml`` (or a path)."""
     path = Path(name)
@@ -140,6 +148,9 @@ class FleetPlan:
     gs_http_port: int
     gs_host: str = "127.0.0.1"
     """Where companions send (the receiver namespace's address with ``--netns``)."""
+    relay_port: int | None = None
+    """The shaped relay's port on ``gs_host`` (:mod:`sitl.relay_udp`): companions send
+    there and it forwards to ``gs_udp_port``; None: straight to the station."""
     gs_bind_host: str = "127.0.0.1"
     """Where the station's UDP socket binds (its HTTP API is always on 127.0.0.1)."""
     drone_bind_host: str = "127.0.0.1"
@@ -226,13 +237,16 @@ def companion_toml(plan: FleetPlan, drone: DroneSlot) -> str:
         "mission": {"spec": str(plan.spec_path), "log": str(drone.log_path)},
         "ground_station": {
             "host": plan.gs_host,
-            "port": plan.gs_udp_port,
+            "port": plan.relay_port if plan.relay_port is not None else plan.gs_udp_port,
             "fleet_id": plan.fleet_id,
             "fleet_key_file": str(plan.key_path),
             "command_public_key_file": str(plan.command_pub_path),
             "listen_host": plan.drone_listen_host,
             "listen_port": 0,
         },
+        # the heartbeat: a status every second whatever the optimiser drops (the station
+        # flags a drone lost after ``link_lost_s`` of silence)
+        "telemetry": {"status_period_s": STATUS_PERIOD_S},
         "budgets": {"mcts_iterations": plan.mcts_iterations,
                     "time_budget_s": plan.time_budget_s},
         "constraint": {"name": plan.constraint, "params": dict(plan.constraint_params)},
@@ -267,6 +281,7 @@ def ground_station_toml(plan: FleetPlan) -> str:
         "http_port": plan.gs_http_port,
         "spec": str(plan.spec_path),
         "scene": str(scene_path(plan.scene).resolve()),  # the dashboard map draws it
+        "link_lost_s": LINK_LOST_S,
     }
     if plan.alpha is not None:
         table["alpha"] = plan.alpha

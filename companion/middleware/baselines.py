@@ -16,7 +16,14 @@ from typing import Self
 import numpy as np
 
 from companion.middleware.constraints.base import GoodputConstraint
-from companion.middleware.decider import Decider, DeciderSetup, Decision, ParamsResult, ParamValue
+from companion.middleware.decider import (
+    COMPANION_ALWAYS_SEND,
+    Decider,
+    DeciderSetup,
+    Decision,
+    ParamsResult,
+    ParamValue,
+)
 from companion.middleware.errors import MiddlewareError, ParamError
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge
@@ -39,10 +46,6 @@ __all__ = [
 Policy = Decider
 """The old name of :class:`~companion.middleware.decider.Decider` (kept for importers)."""
 
-COMPANION_ALWAYS_SEND = ("status",)
-"""What a baseline built for a companion sends whatever it decides otherwise: the status
-(a few hundred bytes every few seconds) lets the station hear every drone however much the
-policy drops. This favours a baseline slightly in a utility comparison, never the optimiser."""
 
 
 def _send(message: Message, reason: str, version: int = 0) -> Decision:

@@ -22,7 +22,19 @@ if TYPE_CHECKING:
     from companion.middleware.constraints.base import GoodputConstraint
     from companion.middleware.reports import ReceiverReport, ReportLearned
 
-__all__ = ["Decider", "DeciderSetup", "Decision", "ParamValue", "ParamsResult"]
+__all__ = [
+    "COMPANION_ALWAYS_SEND",
+    "Decider",
+    "DeciderSetup",
+    "Decision",
+    "ParamValue",
+    "ParamsResult",
+]
+
+COMPANION_ALWAYS_SEND = ("status",)
+"""What a policy built for a companion (the registry) sends whatever it decides otherwise:
+the status heartbeat (a few hundred bytes a second, counted in the window like any send) lets
+the station hear every drone however much the policy drops, so silence means loss."""
 
 ParamValue = int | float | str | bool | None
 """What a live parameter can be (JSON scalars: they arrive in a command's arguments)."""

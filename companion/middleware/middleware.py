@@ -17,6 +17,7 @@ the shell must not record it a second time.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -25,7 +26,13 @@ from typing import Self
 import numpy as np
 
 from companion.middleware.constraints.base import ConstantConstraint, GoodputConstraint
-from companion.middleware.decider import DeciderSetup, Decision, ParamsResult, ParamValue
+from companion.middleware.decider import (
+    COMPANION_ALWAYS_SEND,
+    DeciderSetup,
+    Decision,
+    ParamsResult,
+    ParamValue,
+)
 from companion.middleware.errors import MiddlewareError, ParamError, UnknownParamError
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge, settle_inflight, usable
@@ -139,6 +146,8 @@ class Middleware:
         self.counters: Counter[str] = Counter()
         self.last_problem: Problem | None = None
         self._last_sent: dict[str, float] = {}
+        self.always_send: frozenset[str] = frozenset()
+        """Own types sent whatever the search says (the companion's status heartbeat)."""
         """Per own message type: when it last sent one (what the fleet has heard of)."""
 
     @classmethod
@@ -157,8 +166,10 @@ class Middleware:
                                       **params)  # type: ignore[arg-type]
         except TypeError as exc:  # a value of the wrong type
             raise ParamError(str(exc)) from None
-        return cls(config, rng=setup.rng, constraint=setup.constraint,
-                   budget_clock=setup.budget_clock)
+        middleware = cls(config, rng=setup.rng, constraint=setup.constraint,
+                         budget_clock=setup.budget_clock)
+        middleware.always_send = frozenset(COMPANION_ALWAYS_SEND)
+        return middleware
 
     @property
     def spec(self) -> MissionSpec:
@@ -249,6 +260,11 @@ class Middleware:
             levels=problem.n,
             level=level,
         )
+        if not decision.send and message.type in self.always_send:
+            # the heartbeat (a status): it always goes, so the station's silence means loss;
+            # its bytes count in the window like any send (``_after``)
+            decision = dataclasses.replace(decision, send=True, version=None,
+                                           reason="status-heartbeat")
         self._after(message, decision, now)
         return decision
 

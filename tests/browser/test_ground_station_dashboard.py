@@ -102,6 +102,12 @@ east_m = 0.0
 north_m = 60.0
 """
 
+SERIES_DRAWN = """() => ['xi', 'delta', 'latency', 'loss'].every((k) =>
+    [...document.querySelectorAll('.tile')].every((t) => state.series.some((p) =>
+        p.drones && p.drones[t.dataset.drone] && typeof p.drones[t.dataset.drone][k] ===
+        'number')))"""
+"""Every drone has points in the ξ, Δ, latency and loss series (charts not empty)."""
+
 LABEL_BOXES = """() => [...document.querySelectorAll('#map text.label')].map((t) => {
     const b = t.getBBox(); return [b.x, b.y, b.width, b.height]; })"""
 
@@ -303,6 +309,24 @@ async def test_dashboard_live_tiles_and_start_mission(
                 timeout_s=2.0,
             )
             assert time.time() >= commands[0].command.t_exec
+            # the link charts have something to draw: ξ, Δ, latency and loss per drone
+            await wait_js(page, SERIES_DRAWN, timeout_s=15.0)
+            # a clean run: every drone heard all along, no link-lost alert, none listed
+            alerts = await page.evaluate(
+                "() => state.alerts.filter((a) => a.kind === 'link').map((a) => a.text)")
+            assert alerts == [], alerts
+            assert "link lost" not in await page.inner_text("#alerts")
+            await page.screenshot(path=str(ARTIFACTS / "dashboard_running.png"))
+            # the end-of-mission report: utility over time per drone, in the drones' colours
+            await page.click("#report-link")
+            await wait_js(page, "() => document.body.dataset.loaded === '1'", timeout_s=15.0)
+            legend = dict(await page.evaluate("""() => [...document.querySelectorAll(
+                '#r-legend .lg')].map((e) => [e.dataset.drone, e.dataset.color])"""))
+            assert legend == EXPECTED_COLOURS
+            await wait_js(page, "() => document.querySelector('#r-png').naturalWidth > 0",
+                          timeout_s=15.0)
+            assert (tmp_path / "gs" / "missions" / "browser" / "utility.png").exists()
+            await page.screenshot(path=str(ARTIFACTS / "report.png"), full_page=True)
             await browser.close()
     finally:
         flying.cancel()

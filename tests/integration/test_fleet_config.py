@@ -50,8 +50,11 @@ def test_configs_are_accepted_by_the_companion_and_the_ground_station(tmp_path: 
         cfg = load_companion_config(drone.config_path)
         ids.add(cfg.drone_id)
         assert cfg.ground_station.fleet_key == key
+        # through the shaped relay, which forwards to the station
+        assert plan.relay_port not in (None, plan.gs_udp_port)
         assert (cfg.ground_station.host, cfg.ground_station.port) == ("127.0.0.1",
-                                                                      plan.gs_udp_port)
+                                                                      plan.relay_port)
+        assert cfg.telemetry.status_period_s == 1.0  # the heartbeat
         assert cfg.mavlink.url == f"udpin:127.0.0.1:{drone.mavlink_port}"
         assert (cfg.camera.source, cfg.camera.width, cfg.camera.rate_hz) == ("synthetic", 320,
                                                                              2.0)
@@ -62,6 +65,11 @@ def test_configs_are_accepted_by_the_companion_and_the_ground_station(tmp_path: 
         assert cfg.middleware["alpha"] == 7.0
     assert ids == {"drone1", "drone2", "drone3"}
     assert len({d.mavlink_port for d in plan.drones}) == 3
+    assert gs.link_lost_s == 5.0
+    direct = _plan(tmp_path / "direct", "--relay-rate", "0")
+    write_run_configs(direct)
+    cfg = load_companion_config(direct.drones[0].config_path)
+    assert direct.relay_port is None and cfg.ground_station.port == direct.gs_udp_port
 
 
 def test_fleet_key_is_fresh_and_private(tmp_path: Path) -> None:
@@ -85,10 +93,21 @@ def test_toml_values_round_trip() -> None:
 def test_options() -> None:
     args = parse_args([])
     assert (args.drones, args.scene, args.duration, args.policy) == (4, "demo", 0.0, "mcts")
-    assert args.constraint == "constant" and (args.width, args.height) == (640, 480)
+    # issue 12: by default the fleet talks through the shaped relay, under the adaptive
+    # constraint, with a background step at mid-mission (60 s when open-ended)
+    assert args.constraint == "adaptive" and (args.width, args.height) == (640, 480)
+    assert args.relay and (args.relay_rate, args.relay_queue) == (400_000.0, 20_000)
+    assert args.background == Background(160_000.0, 60.0, None)
+    assert parse_args(["--duration", "120"]).background == Background(160_000.0, 60.0, None)
+    assert parse_args(["--background", "off"]).background is None
+    assert parse_args(["--goodput", "9000"]).constraint == "constant"  # as before
+    plain = parse_args(["--relay-rate", "0"])
+    assert (plain.relay, plain.constraint, plain.background) == (False, "constant", None)
     assert parse_args(["--netns"]).constraint == "adaptive"
+    assert not parse_args(["--netns"]).relay
     for bad in (["--drones", "0"], ["--duration", "-1"], ["--size", "big"],
-                ["--background", "1e6"], ["--drop-probability", "2"]):
+                ["--relay-rate", "0", "--background", "1e6"], ["--relay-rate", "-1"],
+                ["--drop-probability", "2"]):
         with pytest.raises(SystemExit):
             parse_args(bad)
     assert parse_background("2e6") == Background(2e6, 0.0, None)

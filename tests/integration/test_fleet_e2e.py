@@ -120,7 +120,23 @@ def test_two_drones_for_15_s(tmp_path: Path) -> None:
     assert set(summary["utility"]["per_type"]) >= {"image", "position"}
     _station_stored_what_it_received(summary)
     assert summary["exit_codes"] == {"ground_station": 0, "vehicles": 0, "drone1": 0,
-                                     "drone2": 0}
+                                     "drone2": 0, "relay": 0}
+    # issue 12: the default link is the shaped relay, and it carried every byte received
+    link = summary["link"]
+    assert link["kind"] == "relay" and summary["constraint"]["name"] == "adaptive"
+    assert link["bottleneck"]["sent_bytes"] >= summary["bytes_received"]
+    assert (run_dir / "utility.png").read_bytes()[:4] == b"\x89PNG"
+    # a clean run over the relay: the 1 Hz status heartbeat keeps every drone heard
+    import sqlite3
+
+    con = sqlite3.connect(f"file:{run_dir / 'gs-data' / 'ground_station.sqlite3'}?mode=ro",
+                          uri=True)
+    lost = con.execute("SELECT drone, text FROM alerts WHERE kind = 'link' AND text LIKE "
+                       "'link lost%' AND t <= ?", (summary["t_end"],)).fetchall()
+    # (after the end the launcher stops the drones before the station: they do fall silent)
+    con.close()
+    assert lost == []
+    assert set(summary["phases"]["drones"]) == {"drone1", "drone2"}
     assert (run_dir / "fleet.key").stat().st_mode & 0o077 == 0
     assert (run_dir / "gs-data" / "token").stat().st_mode & 0o077 == 0
 
@@ -196,7 +212,8 @@ def _constrained_run(folder: Path, name: str, *extra: str) -> dict[str, Any]:
     scene = folder / "red_strip.toml"
     scene.write_text(RED_STRIP_SCENE)
     return _fleet(folder / name, "--drones", "4", "--scene", str(scene), "--duration", "60",
-                  "--goodput", "10000", "--window", "2", "--rate", "3", "--seed", "3", *extra,
+                  "--goodput", "10000", "--window", "2", "--rate", "3", "--seed", "3",
+                  "--relay-rate", "0", *extra,  # loopback, as this comparison was made on
                   timeout_s=400)
 
 

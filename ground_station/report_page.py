@@ -1,0 +1,124 @@
+"""The end-of-mission report: utility over time per drone, as a page and as a PNG.
+
+Utility here is what the station received: the summed utility weight (eq. 7.1/7.2 times the
+version's quality, the gallery's U) of each drone's images per ``bin_s`` of reception time.
+``GET /report`` is the page, ``GET /api/report`` its numbers, ``GET /api/report.png`` the
+plot, also written to ``DATA_DIR/missions/MISSION/utility.png``; ``uav-sitl fleet`` writes
+the same PNG into its run folder at the end (:func:`write_png`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import sqlite3
+from pathlib import Path
+from typing import Any
+
+from aiohttp import web
+
+__all__ = ["add_report_routes", "render_png", "utility_series", "write_png"]
+
+BIN_S = 5.0
+PALETTE = ["#4aa3ff", "#ffa657", "#3fb950", "#f778ba", "#e3b341", "#a371f7",
+           "#56d4dd", "#ff7b72", "#b5e853", "#d2a8ff", "#2ec4a6", "#c9b18a"]
+"""The dashboard's palette (app.js): a drone has one colour on the page and in the PNG."""
+
+
+def color(drone: str) -> str:
+    """app.js ``colorIndex`` for ids ending in a number (uav1 -> slot 0); others hashed."""
+    digits = len(drone) - len(drone.rstrip("0123456789"))
+    if digits:
+        return PALETTE[(int(drone[-digits:][-6:]) + len(PALETTE) - 1) % len(PALETTE)]
+    h = 0x811C9DC5
+    for ch in drone:
+        h = ((h ^ ord(ch)) * 0x01000193) & 0xFFFFFFFF
+    return PALETTE[h % len(PALETTE)]
+
+
+def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S
+                   ) -> dict[str, Any]:
+    """Per drone, the utility received per ``bin_s`` from the mission's first image on."""
+    rows = db.execute("SELECT sender, t_rcv, utility FROM images WHERE mission = ? "
+                      "AND type = 'image' ORDER BY t_rcv", (mission,)).fetchall()
+    window = db.execute("SELECT t_start, t_end FROM missions WHERE name = ?",
+                        (mission,)).fetchone()
+    t0 = window[0] if window and window[0] is not None else (rows[0][1] if rows else 0.0)
+    t_last = max((r[1] for r in rows), default=t0)
+    n = max(1, int((t_last - t0) // bin_s) + 1) if rows else 0
+    drones: dict[str, list[float]] = {}
+    for sender, t_rcv, utility in rows:
+        i = int((t_rcv - t0) // bin_s)
+        if 0 <= i < n:
+            drones.setdefault(str(sender), [0.0] * n)[i] += float(utility)
+    return {"mission": mission, "t_start": t0, "bin_s": bin_s,
+            "t": [i * bin_s for i in range(n)],
+            "drones": {d: {"utility": v, "total": sum(v), "color": color(d)}
+                       for d, v in sorted(drones.items())}}
+
+
+def render_png(series: dict[str, Any], path: Path) -> Path:
+    """Draw the series into ``path`` (matplotlib, no display)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 3.6), dpi=100)
+    for drone, d in series["drones"].items():
+        ax.plot(series["t"], d["utility"], color=d["color"], lw=1.8, marker="o", ms=3,
+                label=f"{drone} (total {d['total']:.0f})")
+    ax.set_xlabel("mission time (s)")
+    ax.set_ylabel(f"utility received per {series['bin_s']:g} s")
+    ax.set_title(f"mission {series['mission']}: utility over time per drone")
+    ax.grid(alpha=0.3)
+    if series["drones"]:
+        ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def write_png(db_path: Path, mission: str, path: Path) -> Path | None:
+    """The report PNG of a finished run from the station's database (None: no database)."""
+    if not db_path.exists():
+        return None
+    con = sqlite3.connect(f"file:{db_path}?mode=ro", uri=True, timeout=10.0)
+    try:
+        series = utility_series(con, mission)
+    finally:
+        con.close()
+    return render_png(series, path)
+
+
+def add_report_routes(app: web.Application, *, static_dir: Path) -> None:
+    """``/report``, ``/api/report`` and ``/api/report.png`` (reads: the token middleware
+    guards the ``/api/`` ones like every data read)."""
+    from ground_station.keys import CONFIG, STORAGE
+
+    async def page(request: web.Request) -> web.StreamResponse:
+        return web.FileResponse(static_dir / "report.html",
+                                headers={"Cache-Control": "no-cache"})
+
+    async def series_of(request: web.Request) -> dict[str, Any]:
+        mission = request.query.get("mission", request.app[CONFIG].mission)
+        return await request.app[STORAGE].read(lambda s: utility_series(s.db, mission))
+
+    async def api(request: web.Request) -> web.Response:
+        return web.json_response(await series_of(request))
+
+    async def png(request: web.Request) -> web.Response:
+        series = await series_of(request)
+        config = request.app[CONFIG]
+        if "/" in series["mission"] or series["mission"].startswith("."):
+            raise web.HTTPBadRequest(text="bad mission name")
+        path = Path(config.data_dir) / "missions" / series["mission"] / "utility.png"
+        body = await asyncio.get_running_loop().run_in_executor(
+            None, lambda: render_png(series, path).read_bytes())
+        return web.Response(body=body, content_type="image/png",
+                            headers={"Cache-Control": "no-cache"})
+
+    app.router.add_get("/report", page)
+    app.router.add_get("/api/report", api)
+    app.router.add_get("/api/report.png", png)

@@ -1,0 +1,53 @@
+// End-of-mission report: utility over time per drone (plain JS, no libraries).
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+function esc(s) { return String(s).replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]); }
+
+function draw(series) {
+  const canvas = $("r-chart");
+  const ctx = canvas.getContext("2d");
+  const w = canvas.width, h = canvas.height, pad = 44;
+  ctx.clearRect(0, 0, w, h);
+  const drones = Object.entries(series.drones);
+  const tMax = Math.max(1, ...series.t);
+  const uMax = Math.max(1e-9, ...drones.flatMap(([, d]) => d.utility));
+  ctx.strokeStyle = "#30363d"; ctx.fillStyle = "#8b949e"; ctx.font = "12px sans-serif";
+  for (let i = 0; i <= 4; i++) {
+    const y = h - pad - (h - 2 * pad) * i / 4;
+    ctx.beginPath(); ctx.moveTo(pad, y); ctx.lineTo(w - 10, y); ctx.stroke();
+    ctx.fillText((uMax * i / 4).toFixed(0), 4, y + 4);
+  }
+  ctx.fillText("mission time (s) →  " + tMax.toFixed(0) + " s", w - 200, h - 12);
+  for (const [drone, d] of drones) {
+    ctx.strokeStyle = d.color; ctx.lineWidth = 2; ctx.beginPath();
+    d.utility.forEach((u, i) => {
+      const x = pad + (w - pad - 10) * series.t[i] / tMax;
+      const y = h - pad - (h - 2 * pad) * u / uMax;
+      if (i === 0) ctx.moveTo(x, y); else ctx.lineTo(x, y);
+    });
+    ctx.stroke();
+    ctx.fillStyle = d.color;  // dots too: a one-bin mission still shows its points
+    d.utility.forEach((u, i) => {
+      const x = pad + (w - pad - 10) * series.t[i] / tMax;
+      const y = h - pad - (h - 2 * pad) * u / uMax;
+      ctx.beginPath(); ctx.arc(x, y, 3, 0, 2 * Math.PI); ctx.fill();
+    });
+  }
+  $("r-legend").innerHTML = drones.map(([drone, d]) =>
+    `<span class="lg" data-drone="${esc(drone)}" data-color="${esc(d.color)}"><i style="background:${esc(d.color)}"></i>${esc(drone)} total ${d.total.toFixed(0)}</span>`).join(" ");
+  $("r-empty").classList.toggle("hidden", drones.length > 0);
+}
+
+async function load() {
+  const res = await fetch("/api/report", { credentials: "same-origin" });
+  if (!res.ok) { $("r-empty").textContent = "not logged in: open the dashboard's login link first"; $("r-empty").classList.remove("hidden"); return; }
+  const series = await res.json();
+  $("r-mission").textContent = series.mission;
+  $("r-bin").textContent = series.bin_s;
+  if (series.t_start) $("r-times").textContent = "from " + new Date(series.t_start * 1000).toLocaleTimeString();
+  draw(series);
+  $("r-png").src = "/api/report.png?t=" + Date.now();
+  document.body.dataset.loaded = "1";
+}
+load();

@@ -1,0 +1,69 @@
+"""The end-of-mission report: utility over time per drone (numbers, page, PNG)."""
+
+from __future__ import annotations
+
+import sqlite3
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from ground_station.app import create_app
+from ground_station.config import GroundConfig
+from ground_station.report_page import color, utility_series, write_png
+from ground_station.storage import Storage
+
+TOKEN = "report-test-token-0123456789"
+
+
+def _fill(root: Path, mission: str = "m") -> Path:
+    storage = Storage(root, fsync=False)
+    db = storage.db
+    db.execute("INSERT INTO missions (name, t_created, t_start) VALUES (?, 0, 100.0)", (mission,))
+    rows = [("uav1", 101.0, 1.0), ("uav1", 104.0, 2.0), ("uav3", 106.0, 11.0),
+            ("uav1", 112.0, 1.0), ("uav3", 112.5, 0.5), ("other", 90.0, 7.0)]
+    for seq, (sender, t, u) in enumerate(rows):
+        db.execute("INSERT INTO images (mission, sender, seq, type, t_gen, t_rcv, size, "
+                   "utility) VALUES (?, ?, ?, 'image', ?, ?, 100, ?)",
+                   (mission, sender, seq, t - 0.1, t, u))
+    path = storage.db_path
+    db.close()
+    return path
+
+
+def test_utility_is_summed_per_drone_and_bin_from_the_mission_start(tmp_path: Path) -> None:
+    db = sqlite3.connect(_fill(tmp_path))
+    series = utility_series(db, "m", bin_s=5.0)
+    assert series["t"] == [0.0, 5.0, 10.0]
+    assert series["drones"]["uav1"]["utility"] == [3.0, 0.0, 1.0]
+    assert series["drones"]["uav3"]["utility"] == [0.0, 11.0, 0.5]
+    assert "other" not in series["drones"]  # before the mission start
+    assert series["drones"]["uav3"]["total"] == 11.5
+    assert (color("uav1"), color("uav3"), color("uav13")) == ("#4aa3ff", "#3fb950", "#4aa3ff")
+    assert utility_series(db, "nothing")["drones"] == {}
+
+
+def test_png_is_written(tmp_path: Path) -> None:
+    out = write_png(_fill(tmp_path / "gs"), "m", tmp_path / "run" / "utility.png")
+    assert out is not None and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert write_png(tmp_path / "missing.sqlite3", "m", tmp_path / "x.png") is None
+
+
+async def test_report_routes_serve_page_numbers_and_png(
+        tmp_path: Path, aiohttp_client: Callable[..., Any]) -> None:
+    from tests.keys import TEST_COMMAND_KEY
+
+    _fill(tmp_path / "gs", mission="demo")
+    config = GroundConfig(fleet_key=b"report-test-fleet-key-00000000", fleet_id=3,
+                          command_key=TEST_COMMAND_KEY, data_dir=tmp_path / "gs",
+                          mission="demo", udp_host="127.0.0.1", udp_port=0, fsync=False)
+    client = await aiohttp_client(create_app(config, token=TOKEN))
+    page = await client.get("/report")
+    assert page.status == 200 and "Utility over time per drone" in await page.text()
+    assert (await client.get("/api/report")).status == 401  # a data read: token needed
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    body = await (await client.get("/api/report", headers=auth)).json()
+    assert body["drones"]["uav3"]["utility"] == [0.0, 11.0, 0.5]
+    png = await client.get("/api/report.png", headers=auth)
+    assert png.status == 200 and png.content_type == "image/png"
+    assert (tmp_path / "gs" / "missions" / "demo" / "utility.png").read_bytes() == \
+        await png.read()
