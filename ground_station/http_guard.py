@@ -15,6 +15,7 @@ import asyncio
 import logging
 import re
 import time
+from typing import Any
 
 from aiohttp import web
 from aiohttp.abc import AbstractAccessLogger
@@ -139,6 +140,25 @@ def raise_open_file_limit() -> tuple[int, int] | None:
     return soft, hard
 
 
+_last_resource_warning = 0.0
+
+
+def _loop_exception(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+    """Out of file descriptors while accepting (asyncio pauses accepting for a second and
+    retries): one warning line at most every 10 s, not a traceback per attempt. Anything
+    else goes to asyncio's default handler."""
+    global _last_resource_warning
+    exc = context.get("exception")
+    if context.get("message", "").startswith("socket.accept() out of system resource") \
+            and isinstance(exc, OSError):
+        now = time.monotonic()
+        if now - _last_resource_warning >= 10.0:
+            _last_resource_warning = now
+            log.warning("HTTP: cannot accept a connection (%s); retrying", exc.strerror or exc)
+        return
+    loop.default_exception_handler(context)
+
+
 def serve(app: web.Application, *, host: str, port: int, max_connections: int,
           idle_timeout_s: float) -> None:
     """``web.run_app`` with the connection cap, idle timeout and redacting access log.
@@ -148,6 +168,7 @@ def serve(app: web.Application, *, host: str, port: int, max_connections: int,
     """
 
     async def main() -> None:
+        asyncio.get_running_loop().set_exception_handler(_loop_exception)
         runner = web.AppRunner(app, handle_signals=True, access_log_class=RedactingAccessLogger,
                                keepalive_timeout=idle_timeout_s)
         await runner.setup()
