@@ -180,14 +180,16 @@ class Dispatcher:
 
     # -- reports, timers, live parameters ----------------------------------------------------
 
-    def on_report(self, event: Any) -> None:
-        """A receiver report for the decider, handled in its executor."""
+    def on_report(self, event: Any, *, receiver: str = "ground") -> None:
+        """A receiver report (a protocol event, or a ``ReceiverReport`` built here) for the
+        decider, handled in its executor; ``receiver``: who sent the event's report."""
         self.counters["reports"] += 1
         loop = asyncio.get_running_loop()
         from companion.middleware.reports import ReceiverReport
 
-        future = loop.run_in_executor(self._pool, self.decider.on_report,
-                                      ReceiverReport.from_event(event), self.clock())
+        report = event if isinstance(event, ReceiverReport) \
+            else ReceiverReport.from_event(event, receiver=receiver)
+        future = loop.run_in_executor(self._pool, self.decider.on_report, report, self.clock())
         future.add_done_callback(self._after_call)
 
     async def set_params(self, params: Mapping[str, Any]) -> None:
