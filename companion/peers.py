@@ -69,6 +69,8 @@ ADSB_ALTITUDE_TYPE_GEOMETRIC = 1
 ADSB_EMITTER_TYPE_UAV = 14
 MAX_PEERS = 256
 """Peers kept; a new one beyond this evicts the least recently heard."""
+MAX_STATUS_PEERS = 32
+"""Peers whose ages a status message carries at most (the most recently heard)."""
 _CALLSIGN_DROP = re.compile(r"[^A-Z0-9]")
 
 
@@ -237,6 +239,18 @@ class PeerTable:
         """What ``GET /peers`` returns."""
         return {"drone": self.own_id, "t": now,
                 "peers": [self.peers[d].to_json(now) for d in sorted(self.peers)]}
+
+    def ages(self, now: float, *, limit: int = MAX_STATUS_PEERS) -> dict[str, float]:
+        """Per peer, the age of its position (of its last word when it sent none), 0.1 s
+        resolution: the compact map a status message carries to the dashboard. At most
+        ``limit``, the most recently heard."""
+        out: dict[str, float] = {}
+        for drone, peer in list(self.peers.items())[-limit:]:
+            age = peer.age(peer.t_position, now)
+            if age is None:
+                age = max(0.0, now - peer.t_heard)
+            out[drone] = round(age, 1)
+        return out
 
     def adsb_reports(self, now: float) -> list[AdsbReport]:
         """One ADSB_VEHICLE per peer with a position (module docstring)."""
@@ -534,6 +548,13 @@ class PeerServices:
             self.table.on_message(event.message, now=now)
             if self._send_report is not None:
                 self.reporter.on_message(event.message, t_rcv=event.message.t_rcv or now)
+
+    def status_fields(self) -> dict[str, Any]:
+        """``peers``: {peer: age of its position, s} for this drone's status messages (the
+        dashboard shows who each drone knows); nothing without a medium."""
+        if self.settings.medium is None:
+            return {}
+        return {"peers": self.table.ages(self.clock())}
 
     def is_peer(self, sender: str) -> bool:
         """Is ``sender`` (of a report) a drone heard on the medium, not the ground station?"""
