@@ -589,6 +589,10 @@ class PeerServices:
             if reporting is not None:
                 self._stop.set()
                 await reporting
+                c = self.reporter.counters
+                log.info("peers: %d messages heard from %d peers, %d receiver reports sent",
+                         c["heard"], len(self.table.peers), c["reports"],
+                         extra={"event": "peers", "counters": dict(c)})
 
     async def _serve(self) -> None:
         if self.http is not None:

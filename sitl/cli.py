@@ -19,7 +19,7 @@ STUDIES: dict[str, tuple[str, str]] = {
     "fig6.2": ("sitl.study.fig62", "thesis figure 6.2: mean backlog vs publishing rate, on Dask"),
     "adaptive-vs-aimd": ("sitl.study.adaptive", "thesis figure 6.5: adaptive constraint vs AIMD"),
     "mcts-vs-baselines": ("sitl.study.baselines", "MCTS vs every baseline, equal budget and bytes"),
-    "peers": ("sitl.study.peers", "peer sharing: freshness and utility at every drone, equal bytes"),
+    "peers": ("sitl.study.peers", "peer sharing: freshness and utility at each drone, equal bytes"),
     "scaling": ("sitl.study.scaling", "fleet-size scaling: decide time, reports, memory, utility"),
 }
 

@@ -49,7 +49,7 @@ from utility_specs.files import builtin_spec
 from utility_specs.message import Message, Version
 from utility_specs.spec import MissionSpec
 
-__all__ = ["FixedRate", "POLICIES", "fleet", "main", "peer_ages", "run_seed", "table"]
+__all__ = ["POLICIES", "FixedRate", "fleet", "main", "peer_ages", "run_seed", "table"]
 
 POLICIES = ("mcts", "send-all", "fixed-rate", "random")
 SPEC = "sync_swarm"
