@@ -65,7 +65,7 @@ IMAGE_VERSIONS = (Version(name="full", size=12_000, quality=1.0),
 SWARM_HZ = 5.0
 IMAGE_HZ = 2.0
 AGE_STEP_S = 0.1
-CALIBRATION_RUNS = 4
+CALIBRATION_RUNS = 8
 """Runs per baseline to match the bytes MCTS delivered (the closest is kept)."""
 
 
@@ -205,21 +205,29 @@ def run_seed(seed: int, *, t_end: float, n: int = 4, iterations: int = 300,
                     budget_bytes_per_s=budget_bytes_per_s, share=1.0)]
     matched = rows[0]["delivered_bytes_per_s"]
     for policy in POLICIES[1:]:
-        # the baseline's knob (budget, or share kept) scaled until its delivered bytes
-        # match: a share of whole 12 kB frames, or a budget known only from deliveries,
-        # misses the target the first time
+        # the baseline's knob (budget, or share kept) searched until its delivered bytes
+        # match (bisection between a knob that delivers too little and one too much;
+        # whole 12 kB frames, or a budget known only from deliveries, make the response
+        # lumpy): the closest run is kept
         knob = matched if policy == "send-all" else min(1.0, matched / offered_bytes_per_s(n))
+        lo, hi = 0.0, None
         best: dict[str, Any] | None = None
         for _ in range(CALIBRATION_RUNS):
             row = run_one(policy, seed=seed, t_end=t_end, n=n, iterations=iterations,
                           budget_bytes_per_s=knob, share=min(1.0, knob))
-            if best is None or abs(row["delivered_bytes_per_s"] - matched) \
-                    < abs(best["delivered_bytes_per_s"] - matched):
-                best = row
             got = row["delivered_bytes_per_s"]
-            if got <= 0 or abs(got - matched) <= 0.03 * matched:
+            if best is None or abs(got - matched) < abs(best["delivered_bytes_per_s"] - matched):
+                best = row
+            if abs(got - matched) <= 0.03 * matched:
                 break
-            knob *= matched / got
+            if got < matched:
+                lo = knob
+                knob = knob * 2.0 if hi is None else (knob + hi) / 2
+            else:
+                hi = knob
+                knob = (lo + knob) / 2
+            if policy != "send-all":
+                knob = min(1.0, knob)
         assert best is not None
         rows.append(best)
     return rows
@@ -299,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     for seed in range(1, seeds + 1):
         for row in run_seed(seed, t_end=t_end, n=args.drones,
-                            iterations=150 if args.quick else 300):
+                            iterations=300):
             rows.append(row)
             print(f"{time.perf_counter() - t0:6.1f} s seed {seed} {row['policy']}: "
                   f"{row['utility_total_pct']:.1f} % total, {row['utility_drones_pct']:.1f} % "
