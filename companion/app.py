@@ -124,7 +124,11 @@ class CompanionApp:
         self.peers = PeerServices(  # peer table, /peers endpoint, ADSB_VEHICLE (docs/peers.md)
             config.peers, own_id=config.drone_id, clock=clock,
             peer_types=(peer_types_of(load_mission_spec(config)) if config.peers.medium
-                        else frozenset()), send_mavlink=self.mavlink.send_message)
+                        else frozenset()), send_mavlink=self.mavlink.send_message,
+            send_report=(getattr(self.transport, "send_report_shared", None)
+                         if config.peers.medium else None),
+            learn=self._learn_heard)
+        self.publisher.status_extra = self.peers.status_fields
         self.telemetry.add_listener(self.publisher.on_sample)
         self.telemetry.add_listener(self._on_link_state)
         self.commands = CommandExecutor(
@@ -217,10 +221,18 @@ class CompanionApp:
 
     def _on_transport_event(self, event: Any) -> None:
         self.peers.on_event(event)  # peers' telemetry heard on the shared medium
-        if isinstance(event, ReportReceived):
-            self.dispatcher.on_report(event)
+        if isinstance(event, ReportReceived):  # the ground's, or a peer's on the medium
+            self.dispatcher.on_report(event, receiver=event.reporter
+                                      if self.peers.is_peer(event.reporter) else "ground")
         elif isinstance(event, CommandReceived):
             self.commands.schedule(event.command)
+
+    def _learn_heard(self, report: Any, now: float) -> None:
+        """What this drone heard from peers is delivered here too: its optimiser learns it."""
+        from companion.middleware.reports import ReceiverReport
+
+        self.dispatcher.on_report(ReceiverReport(entries=report.entries,
+                                                 receiver=self.config.drone_id))
 
     def _send_message(self, message: Message, payload: bytes, now: float) -> int:
         """Types the spec shares with peers go on the shared medium (docs/peers.md)."""

@@ -184,16 +184,19 @@ class Dispatcher:
 
     # -- reports, timers, live parameters ----------------------------------------------------
 
-    def on_report(self, event: Any) -> None:
-        """A receiver report for the decider, handled in its executor."""
+    def on_report(self, event: Any, *, receiver: str = "ground") -> None:
+        """A receiver report (a protocol event, or a ``ReceiverReport`` built here) for the
+        decider, handled in its executor; ``receiver``: who sent the event's report."""
         self.counters["reports"] += 1
         loop = asyncio.get_running_loop()
         from companion.middleware.reports import ReceiverReport
 
-        report = ReceiverReport.from_event(event)
-        for entry in report.entries:
-            if entry.sender == self.config.drone_id:
-                self.health.on_delivered(entry.seq)
+        report = event if isinstance(event, ReceiverReport) \
+            else ReceiverReport.from_event(event, receiver=receiver)
+        if report.receiver == "ground":  # the link health is the link to the station
+            for entry in report.entries:
+                if entry.sender == self.config.drone_id:
+                    self.health.on_delivered(entry.seq)
         future = loop.run_in_executor(self._pool, self.decider.on_report, report, self.clock())
         future.add_done_callback(self._after_call)
 

@@ -39,12 +39,14 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from companion.protocol import MessageReassembled
+from companion.protocol.records import ClockEcho, Report, ReportEntry, entry_from_message
 from utility_specs.message import Message
 
 __all__ = [
     "AdsbInjector",
     "AdsbReport",
     "PeerHttp",
+    "PeerReporter",
     "PeerServices",
     "PeerState",
     "PeerTable",
@@ -67,6 +69,8 @@ ADSB_ALTITUDE_TYPE_GEOMETRIC = 1
 ADSB_EMITTER_TYPE_UAV = 14
 MAX_PEERS = 256
 """Peers kept; a new one beyond this evicts the least recently heard."""
+MAX_STATUS_PEERS = 32
+"""Peers whose ages a status message carries at most (the most recently heard)."""
 _CALLSIGN_DROP = re.compile(r"[^A-Z0-9]")
 
 
@@ -235,6 +239,18 @@ class PeerTable:
         """What ``GET /peers`` returns."""
         return {"drone": self.own_id, "t": now,
                 "peers": [self.peers[d].to_json(now) for d in sorted(self.peers)]}
+
+    def ages(self, now: float, *, limit: int = MAX_STATUS_PEERS) -> dict[str, float]:
+        """Per peer, the age of its position (of its last word when it sent none), 0.1 s
+        resolution: the compact map a status message carries to the dashboard. At most
+        ``limit``, the most recently heard."""
+        out: dict[str, float] = {}
+        for drone, peer in list(self.peers.items())[-limit:]:
+            age = peer.age(peer.t_position, now)
+            if age is None:
+                age = max(0.0, now - peer.t_heard)
+            out[drone] = round(age, 1)
+        return out
 
     def adsb_reports(self, now: float) -> list[AdsbReport]:
         """One ADSB_VEHICLE per peer with a position (module docstring)."""
@@ -436,6 +452,57 @@ class PeerHttp:
         return 404, {"error": "not found"}
 
 
+REPORT_INTERVAL_S = 0.25
+"""A companion reports what it heard from peers this often (the ground station's default)."""
+MAX_REPORT_ENTRIES = 256
+"""Entries held between two reports; beyond, the oldest are dropped (counted)."""
+
+
+class PeerReporter:
+    """This drone as a receiver on the shared medium (issue 15): what it heard from peers.
+
+    Sans-I/O. :meth:`on_message` collects each peer message heard (an entry, and the
+    sender's clock pair as the ground station keeps it); :meth:`take` returns the report of
+    everything since the previous one, in the ground station's format, so every sender
+    learns what this drone holds (its optimiser plans with it, its goodput constraint
+    learns the medium's latency from it) and this drone's own optimiser learns the same
+    deliveries locally (``receiver`` = this drone).
+    """
+
+    def __init__(self, own_id: str, *, max_entries: int = MAX_REPORT_ENTRIES) -> None:
+        self.own_id = own_id
+        self.max_entries = max_entries
+        self._entries: list[ReportEntry] = []
+        self._echoes: dict[str, ClockEcho] = {}
+        self.counters: dict[str, int] = {"heard": 0, "reports": 0, "entries_dropped": 0}
+
+    def on_message(self, message: Message, *, t_rcv: float) -> None:
+        if message.sender == self.own_id:
+            return
+        try:
+            entry = entry_from_message(message, t_rcv=t_rcv)
+        except ValueError:  # a message the report format cannot carry: not reported
+            return
+        self.counters["heard"] += 1
+        self._entries.append(entry)
+        if len(self._entries) > self.max_entries:
+            del self._entries[0]
+            self.counters["entries_dropped"] += 1
+        if message.t_sent is not None:
+            self._echoes[message.sender] = ClockEcho(sender=message.sender,
+                                                     t_sent=message.t_sent, t_rcv=t_rcv)
+
+    def take(self) -> Report | None:
+        """The report since the previous one; None when nothing was heard."""
+        if not self._entries and not self._echoes:
+            return None
+        report = Report(entries=tuple(self._entries), echoes=tuple(self._echoes.values()))
+        self._entries = []
+        self._echoes = {}
+        self.counters["reports"] += 1
+        return report
+
+
 class PeerServices:
     """What the companion runs for peer sharing: the table, the endpoint, the injector.
 
@@ -445,8 +512,19 @@ class PeerServices:
 
     def __init__(self, settings: PeersSettings, *, own_id: str, clock: Callable[[], float],
                  peer_types: frozenset[str] = frozenset(),
-                 send_mavlink: Callable[[Any], None] | None = None) -> None:
+                 send_mavlink: Callable[[Any], None] | None = None,
+                 send_report: Callable[[Report, float], object] | None = None,
+                 learn: Callable[[Report, float], object] | None = None,
+                 report_interval_s: float = REPORT_INTERVAL_S) -> None:
+        """``send_report(report, now)`` puts this drone's receiver report on the medium;
+        ``learn(report, now)`` hands the same deliveries to its own optimiser. Without
+        ``send_report`` (no medium) nothing is reported."""
         self.settings = settings
+        self.own_id = own_id
+        self.reporter = PeerReporter(own_id)
+        self._send_report = send_report
+        self._learn = learn
+        self.report_interval_s = report_interval_s
         self.clock = clock
         self.peer_types = peer_types
         self.table = PeerTable(own_id, forget_after_s=settings.forget_after_s)
@@ -466,9 +544,57 @@ class PeerServices:
 
     def on_event(self, event: Any) -> None:
         if isinstance(event, MessageReassembled):
-            self.table.on_message(event.message, now=self.clock())
+            now = self.clock()
+            self.table.on_message(event.message, now=now)
+            if self._send_report is not None:
+                self.reporter.on_message(event.message, t_rcv=event.message.t_rcv or now)
+
+    def status_fields(self) -> dict[str, Any]:
+        """``peers``: {peer: age of its position, s} for this drone's status messages (the
+        dashboard shows who each drone knows); nothing without a medium."""
+        if self.settings.medium is None:
+            return {}
+        return {"peers": self.table.ages(self.clock())}
+
+    def is_peer(self, sender: str) -> bool:
+        """Is ``sender`` (of a report) a drone heard on the medium, not the ground station?"""
+        return sender != self.own_id and sender in self.table.peers
+
+    def report_now(self) -> bool:
+        """Send the receiver report of what was heard since the last one (if anything)."""
+        report = self.reporter.take()
+        if report is None or self._send_report is None:
+            return False
+        now = self.clock()
+        self._send_report(report, now)
+        if self._learn is not None:
+            self._learn(report, now)
+        return True
+
+    async def _report_loop(self) -> None:
+        while not self._stop.is_set():
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._stop.wait(), self.report_interval_s)
+            try:
+                self.report_now()
+            except Exception:  # a report lost must never stop the drone
+                log.exception("peers: receiver report not sent")
 
     async def run(self) -> None:
+        reporting = (asyncio.ensure_future(self._report_loop())
+                     if self._send_report is not None else None)
+        try:
+            await self._serve()
+        finally:
+            if reporting is not None:
+                self._stop.set()
+                await reporting
+                c = self.reporter.counters
+                log.info("peers: %d messages heard from %d peers, %d receiver reports sent",
+                         c["heard"], len(self.table.peers), c["reports"],
+                         extra={"event": "peers", "counters": dict(c)})
+
+    async def _serve(self) -> None:
         if self.http is not None:
             try:
                 await self.http.start()

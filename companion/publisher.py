@@ -8,7 +8,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from companion.config import TelemetryConfig
@@ -53,6 +53,8 @@ class TelemetryPublisher:
         self._clock = clock
         self._stopping = asyncio.Event()
         self._status_key: tuple[Any, ...] | None = None
+        self.status_extra: Callable[[], Mapping[str, Any]] | None = None
+        """More fields for every status message (set by the app)."""
         self._wake = asyncio.Event()
         self._statustexts: list[StatusTextSample] = []
         self._since: float | None = None
@@ -153,6 +155,8 @@ class TelemetryPublisher:
         fallback = self._dispatcher.fallback_share()
         if fallback is not None:
             data["fallback_share"] = fallback
+        if self.status_extra is not None:  # e.g. the peers' ages (companion.peers)
+            data.update(self.status_extra())
         if self._statustexts:
             worst = min(self._statustexts, key=lambda s: s.severity)
             data["statustext"] = " | ".join(s.text for s in self._statustexts)[:200]

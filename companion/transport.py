@@ -50,6 +50,7 @@ SEND_COUNTERS = (
     "medium_sent",
     "medium_received",
     "medium_own_echo",
+    "medium_reports_sent",
 )
 
 
@@ -314,6 +315,17 @@ class UdpTransport:
     def send_status(self, status: Status, now: float | None = None) -> int:
         now = self._clock() if now is None else now
         return self.send_datagrams([self.encoder.encode_status(status, now)])
+
+    def send_report_shared(self, report: Report, now: float | None = None) -> int:
+        """This drone's receiver report of what it heard from peers, on the shared medium
+        (every peer learns what this drone holds, issue 15); 0 without a medium."""
+        if self.medium is None:
+            return 0
+        now = self._clock() if now is None else now
+        sent = self.send_datagrams(self.encoder.encode_report(report, now), self.medium.target)
+        if sent:
+            self.counters["medium_reports_sent"] += 1
+        return sent
 
     def send_report(self, report: Report, addr: Address, now: float | None = None) -> int:
         """Ground-side helper, handy in tests and tools."""

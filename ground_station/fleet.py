@@ -40,6 +40,14 @@ def _num(data: Mapping[str, Any], *keys: str) -> float | None:
     return None
 
 
+def _peer_ages(state: DroneState, now: float) -> dict[str, float] | None:
+    """Each peer's position age at the drone, now: as reported plus the status's own age."""
+    if state.peers is None:
+        return None
+    since = max(0.0, now - state.field_t.get("peers", now))
+    return {peer: round(age + since, 1) for peer, age in sorted(state.peers.items())}
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Alert:
     """Something an operator should see: autopilot STATUSTEXT, link loss, drops, disk errors."""
@@ -97,6 +105,9 @@ class DroneState:
     failsafe: bool | None = None
     autopilot_connected: bool | None = None
     no_position: bool = False
+    peers: dict[str, float] | None = None
+    """The drone's own peers and the age of each one's position when its status was
+    observed (shared medium, docs/peers.md); None: it reports none."""
     """The newest word on the position is "none" (no fix, no estimator origin)."""
     field_t: dict[str, float] = field(default_factory=dict)
     """Per telemetry field, when the drone observed the value shown (its age's origin)."""
@@ -286,6 +297,11 @@ class FleetView:
         fallback = _num(data, "fallback_share")
         if fallback is not None and 0.0 <= fallback <= 1.0:
             state.fallback_share = fallback
+        peers = data.get("peers")
+        if isinstance(peers, Mapping) and newer("peers"):
+            state.peers = {str(k): float(v) for k, v in list(peers.items())[:64]
+                           if isinstance(v, _NUMBER) and not isinstance(v, bool)
+                           and math.isfinite(v) and v >= 0}
         delta = _num(data, "delta_s", "delta")
         if delta is not None and newer("delta_s"):
             state.delta_s = delta
@@ -435,6 +451,7 @@ class FleetView:
             "failsafe": state.failsafe,
             "autopilot_connected": state.autopilot_connected,
             "no_position": state.no_position,
+            "peers": _peer_ages(state, now),
             "ages": ages,
             "stale_after_s": {name: STALE_AFTER_S.get(name, DEFAULT_STALE_AFTER_S)
                               for name in ages},

@@ -24,6 +24,7 @@ STUDIES: dict[str, tuple[str, str]] = {
     "fig7.4": ("sitl.study.fig74", "thesis figure 7.4: image streaming, background step"),
     "adaptive-vs-aimd": ("sitl.study.adaptive", "thesis figure 6.5: adaptive constraint vs AIMD"),
     "mcts-vs-baselines": ("sitl.study.baselines", "MCTS vs every baseline, equal budget and bytes"),
+    "peers": ("sitl.study.peers", "peer sharing: freshness and utility at each drone, equal bytes"),
     "scaling": ("sitl.study.scaling", "fleet-size scaling: decide time, reports, memory, utility"),
 }
 

@@ -27,7 +27,7 @@ The tables are built once per decision, so the search itself does O(1) work per 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import cast
 
@@ -450,6 +450,39 @@ def _shape_streams(
         nslot[lv[rest][stay], op[rest][stay], sl[rest][stay]] = sl[rest][stay]
 
 
+def _fan_out(
+    spec: MissionSpec,
+    ordered: Sequence[PlanItem],
+    options: Sequence[Sequence[_Variant]],
+    stream: npt.NDArray[np.int64],
+    receivers: Mapping[tuple[str, str | None], Sequence[FixedItem | None]],
+    horizon: float,
+    gain: npt.NDArray[np.float64],
+) -> None:
+    """The utility of a message counts at each of its receivers (eq. 4.2, thesis ch. 4/5).
+
+    One datagram on the shared medium reaches every receiver, so after a message of the
+    tree the stream's previous message is the same at each: a gain from a slot > 0 counts
+    once per receiver. Only the bases differ (what each receiver held before the tree):
+    slot 0 is the sum of each receiver's own gain. The stream's next state (``nslot``) is
+    the first receiver's; the types shared with peers are Markovian (a newer message
+    dominates), where it is the same for all.
+    """
+    for i, it in enumerate(ordered):
+        bases = receivers.get(stream_of(spec, it.message))
+        if not bases:
+            continue
+        info = spec.types[it.message.type]
+        if int(stream[i]) < 0:  # sum: independent items, counted at each receiver
+            gain[i, :, 0] *= len(bases)
+            continue
+        gain[i, :, 1:] *= len(bases)
+        variants = [None if b is None else _Variant(info, b.message, b.rcv_t) for b in bases]
+        for o, variant in enumerate(options[i], start=1):
+            gain[i, o, 0] = info.weight * sum(_pair_gain(p, variant, horizon)[0]
+                                              for p in variants)
+
+
 def build_problem(
     spec: MissionSpec,
     *,
@@ -459,12 +492,15 @@ def build_problem(
     budget_bytes: float,
     window_s: float,
     root_window: Sequence[tuple[float, int]] = (),
+    receivers: Mapping[tuple[str, str | None], Sequence[FixedItem | None]] | None = None,
 ) -> Problem:
     """Tables of one decision: items sorted by send time, gains per (item, option, slot).
 
     ``fixed`` are messages already sent; the newest one per stream is the stream's base.
     ``root_window`` lists (send time, bytes) of the fleet's sends that still count in
-    windows reaching into the tree (eq. 5.7).
+    windows reaching into the tree (eq. 5.7). ``receivers``: streams heard by several
+    receivers (a type shared with peers, issue 15), each receiver's base; see
+    :func:`_fan_out`. Without it every stream has the one receiver of ``fixed``.
     """
     ordered = sorted(items, key=lambda it: (it.send_t, it.message.t_gen, it.message.sender))
     stream_index: dict[tuple[str, str | None], int] = {}
@@ -573,6 +609,8 @@ def build_problem(
                 row[o, slot] = w * g
                 if not moves:
                     nslot[i, o, slot] = slot
+    if receivers:
+        _fan_out(spec, ordered, options, stream, receivers, h, gain)
     decided = [i for i, it in enumerate(ordered) if it.kind == "decide"]
     horizon_floor = min([it.send_t for it in ordered], default=0.0) - window_s
     win = sorted((t, b) for t, b in root_window if t >= horizon_floor)

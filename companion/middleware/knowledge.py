@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Iterable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 from companion.middleware.forecast import LatencyEstimator, StreamForecaster
 from companion.middleware.incremental import FixedItem, PlanItem, stream_of
@@ -44,6 +44,10 @@ class PlanningView:
     fixed: list[FixedItem]
     root_window: list[tuple[float, int]]
     horizon_end: float
+    receivers: dict[tuple[str, str | None], list[FixedItem | None]] = field(default_factory=dict)
+    """Per stream of a type shared with peers: one base per receiver (ground first when the
+    type is for the ground, then every peer; ``None``: that receiver holds nothing), for
+    :func:`~companion.middleware.incremental.build_problem`. Empty for ground-only types."""
 
 
 class FleetKnowledge:
@@ -51,6 +55,8 @@ class FleetKnowledge:
 
     __slots__ = (
         "_delivered",
+        "_fleet",
+        "_held",
         "_inflight",
         "_newest",
         "_seen",
@@ -74,6 +80,10 @@ class FleetKnowledge:
         self._seen_order: deque[tuple[str, int]] = deque()
         self._newest: dict[tuple[str, str | None], Message] = {}
         """Per stream, the newest message generated here: what the sender knows has changed."""
+        self._held: dict[str, dict[tuple[str, str | None], tuple[Message, float]]] = {}
+        """Per peer receiver (a drone), per stream: the newest message it reported holding."""
+        self._fleet: set[str] = {agent}
+        """Every agent known (senders heard of, peers that reported): the peer receivers."""
 
     # --- updates -------------------------------------------------------------------------
     def use_spec(self, spec: MissionSpec) -> None:
@@ -114,7 +124,13 @@ class FleetKnowledge:
         """Learn deliveries (own or other agents'); returns how many were new."""
         new = 0
         for m in messages:
-            if m.t_rcv is None or m.key in self._seen or not usable(self.spec, m):
+            if m.t_rcv is None or not usable(self.spec, m):
+                continue
+            self._fleet.add(m.sender)
+            if m.receiver is not None and m.receiver != "ground" \
+                    and self.spec.types[m.type].for_peers:
+                self._hold(m.receiver, m)
+            if m.key in self._seen:
                 continue
             new += 1
             self._seen.add(m.key)
@@ -131,6 +147,19 @@ class FleetKnowledge:
         while len(self._seen_order) > 4096:
             self._seen.discard(self._seen_order.popleft())
         return new
+
+    def _hold(self, receiver: str, m: Message) -> None:
+        """A peer (``receiver``, a drone) holds ``m``: its own reports or our reception."""
+        self._fleet.add(receiver)
+        held = self._held.setdefault(receiver, {})
+        stream = stream_of(self.spec, m)
+        known = held.get(stream)
+        if known is None or known[0].t_gen < m.t_gen:
+            held[stream] = (m, m.t_rcv if m.t_rcv is not None else m.t_gen)
+
+    def peers_of(self, sender: str) -> list[str]:
+        """The drones a ``peers`` message of ``sender`` is for: every known agent but it."""
+        return sorted(self._fleet - {sender})
 
     def forget(self, *, now: float, keep_s: float) -> None:
         """Drop what no decision can need any more (older than ``keep_s``)."""
@@ -202,7 +231,43 @@ class FleetKnowledge:
                   for m, t in self._inflight.values()]
         root_window = [(t, b) for t, b in self._sends.values() if t >= now - window_s - 1e-9]
         return PlanningView(items=items, fixed=fixed, root_window=root_window,
-                            horizon_end=horizon_end)
+                            horizon_end=horizon_end, receivers=self._receivers(items, fixed))
+
+    def _receivers(self, items: list[PlanItem], fixed: list[FixedItem]
+                   ) -> dict[tuple[str, str | None], list[FixedItem | None]]:
+        """Per stream shared with peers, what each of its receivers holds (issue 15): the
+        ground the newest message known to have arrived or be in flight (the one base of
+        the single-receiver model); a peer what it last reported holding, or what is in
+        flight (a broadcast reaches it too), or, before its first report, the ground's."""
+        out: dict[tuple[str, str | None], list[FixedItem | None]] = {}
+        for it in items:
+            info = self.spec.types[it.message.type]
+            key = stream_of(self.spec, it.message)
+            if not info.for_peers or key in out:
+                continue
+            newest: FixedItem | None = None
+            for f in fixed:
+                if f.message.type in self.spec.types and stream_of(self.spec, f.message) == key \
+                        and (newest is None or f.message.t_gen >= newest.message.t_gen):
+                    newest = f
+            bases: list[FixedItem | None] = [newest] if "ground" in info.receivers else []
+            flying = [FixedItem(message=m, send_t=t, rcv_t=t + self.latency.mean_s)
+                      for m, t in self._inflight.values() if stream_of(self.spec, m) == key]
+            for peer in self.peers_of(it.message.sender):
+                held = self._held.get(peer, {}).get(key)
+                if held is None:
+                    bases.append(newest)
+                    continue
+                m, t_rcv = held
+                base = FixedItem(message=m, send_t=m.t_sent if m.t_sent is not None
+                                 else m.t_gen, rcv_t=t_rcv)
+                for f in flying:
+                    if f.message.t_gen > base.message.t_gen:
+                        base = f
+                bases.append(base)
+            if bases:
+                out[key] = bases
+        return out
 
 
 def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, tuple[float, float]],

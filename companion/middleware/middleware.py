@@ -212,7 +212,7 @@ class Middleware:
                 self.spec, items=view.items, fixed=view.fixed,
                 horizon_end=view.horizon_end + self.config.tail_s,
                 budget_bytes=self.constraint.budget_bytes(now=now), window_s=window_s,
-                root_window=view.root_window,
+                root_window=view.root_window, receivers=view.receivers,
             )
         except UtilitySpecsError as exc:  # bad message data: counted, not a crash
             self.counters["bad_message"] += 1
@@ -239,7 +239,7 @@ class Middleware:
                 self.spec, items=view.items if over else own, fixed=view.fixed,
                 horizon_end=view.horizon_end + self.config.tail_s,
                 budget_bytes=self.constraint.budget_bytes(now=now), window_s=window_s,
-                root_window=() if over else view.root_window,
+                root_window=() if over else view.root_window, receivers=view.receivers,
             )
             relaxed = MCTS(free, c=self.config.c, max_nodes=self.config.max_iterations + 1,
                            knapsack_seed=self.config.knapsack_seed)

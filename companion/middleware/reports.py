@@ -41,10 +41,11 @@ class ReceiverReport:
     """Who received the listed messages."""
 
     @classmethod
-    def from_event(cls, event: ReportReceived) -> ReceiverReport:
-        """The report of one decoded datagram (``companion.protocol``)."""
+    def from_event(cls, event: ReportReceived, *, receiver: str = "ground") -> ReceiverReport:
+        """The report of one decoded datagram (``companion.protocol``); ``receiver``: a
+        peer drone's id when a peer sent it on the shared medium (issue 15)."""
         return cls(entries=event.report.entries, echoes=event.report.echoes,
-                   t_sent=event.t_sent, t_rcv=event.t_rcv)
+                   t_sent=event.t_sent, t_rcv=event.t_rcv, receiver=receiver)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -150,6 +150,7 @@ function tileFor(drone) {
       <tr><td>GPS</td><td class="v-gps"></td><td>heard</td><td class="v-heard"></td></tr>
       <tr><td>position</td><td class="v-pos" colspan="3"></td></tr>
       <tr><td title="decisions not made by the optimiser (greedy fallback or timeout)">fallback</td><td class="v-fallback"></td><td></td><td></td></tr>
+      <tr class="peers-row" hidden><td title="peers this drone knows on the shared medium, with the age of each one's position">peers</td><td class="v-peers" colspan="3"></td></tr>
     </tbody></table>`;
   el.querySelector("header b").textContent = drone;
   el.querySelector("header b").style.color = color(drone);
@@ -208,6 +209,12 @@ function renderTile(d) {
   }
   el.querySelector(".v-heard").textContent = fmt.age(d.age_s);
   el.querySelector(".v-fallback").textContent = d.fallback_share == null ? "–" : (d.fallback_share * 100).toFixed(1) + " %";
+  // Peer sharing (issue 15): which peers the drone knows, and how old each position is.
+  el.querySelector(".peers-row").hidden = d.peers == null;
+  if (d.peers != null) {
+    const names = Object.keys(d.peers);
+    el.querySelector(".v-peers").textContent = names.length ? names.map((p) => `${p} ${fmt.num(d.peers[p] + later, 1)} s`).join(" · ") : "none yet";
+  }
 }
 function renderSummary() {
   const ds = [...state.drones.values()];

@@ -14,6 +14,7 @@ import base64
 import contextlib
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -26,7 +27,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.peers import callsign_for
-from companion.protocol import Decoder, MessageReassembled
+from companion.protocol import Decoder, MessageReassembled, ReportReceived
 from companion.transport import open_medium_socket, parse_medium
 from tests.keys import TEST_COMMAND_PUB
 
@@ -130,11 +131,13 @@ async def test_two_drones_know_each_other_in_companion_and_autopilot(tmp_path: P
         tx = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
         parsers = [mavlink.MAVLink(None), mavlink.MAVLink(None)]
         peers_seen: dict[str, Any] = {}
+        reported: dict[str, set[str]] = {"drone1": set(), "drone2": set()}
+        """Per reporting drone: whose messages its receiver reports on the medium list."""
         t0 = time.monotonic()
 
         def state() -> str:
             return (f"traffic lists {traffic}, ground heard {sorted(ground_heard)}, "
-                    f"/peers {peers_seen}")
+                    f"/peers {peers_seen}, peers' reports {reported}")
 
         deadline = time.monotonic() + 150
         while True:
@@ -162,6 +165,9 @@ async def test_two_drones_know_each_other_in_companion_and_autopilot(tmp_path: P
                 while (ev := decoder.next_event()) is not None:
                     if isinstance(ev, MessageReassembled):
                         ground_heard.add(f"{ev.message.sender}/{ev.message.type}")
+                    elif isinstance(ev, ReportReceived) and ev.reporter in reported:
+                        reported[ev.reporter] |= {e.sender for e in ev.report.entries
+                                                  if e.type == "position"}
             for i, drone in enumerate(("drone1", "drone2")):
                 with contextlib.suppress(OSError):
                     peers_seen[drone] = await get_json(http[i], "/peers")
@@ -169,7 +175,8 @@ async def test_two_drones_know_each_other_in_companion_and_autopilot(tmp_path: P
                     and traffic[1] >= {callsign_for("drone1")}
                     and {"drone1/position", "drone2/position"} <= ground_heard
                     and all(len(p.get("peers", [])) == 1 for p in peers_seen.values())
-                    and len(peers_seen) == 2):
+                    and len(peers_seen) == 2
+                    and reported == {"drone1": {"drone2"}, "drone2": {"drone1"}}):
                 break
             await asyncio.sleep(0.1)
         elapsed = time.monotonic() - t0
@@ -199,6 +206,10 @@ async def test_two_drones_know_each_other_in_companion_and_autopilot(tmp_path: P
         ground_medium.close()
         gs_unicast.close()
     assert "Traceback" not in logs(tmp_path), logs(tmp_path)
+    for drone in ("drone1", "drone2"):  # each reported what it heard from its one peer
+        text = (tmp_path / f"{drone}.err").read_text()
+        assert re.search(r"peers: [1-9]\d* messages heard from 1 peers, [1-9]\d* receiver "
+                         r"reports sent", text), text[-3000:]
 
 
 def logs(folder: Path) -> str:
