@@ -6,7 +6,6 @@ of the summary come from :mod:`sitl.fleet.summary`, which reads the finished log
 
 from __future__ import annotations
 
-import contextlib
 import json
 import urllib.request
 from collections import deque
@@ -16,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from sitl.fleet_config import DroneSlot
+from utility_specs.log import message_from_record
 
 
 @dataclass(slots=True)
@@ -87,14 +87,14 @@ class StationTail:
         for line in lines:
             if b'"type": "image"' not in line and b'"type":"image"' not in line:
                 continue
-            with contextlib.suppress(ValueError, KeyError, TypeError):
-                r = json.loads(line)
-                if r.get("type") != "image" or r.get("t_rcv") is None:
-                    continue
-                sender = str(r["sender"])
-                self.received[sender] = self.received.get(sender, 0) + 1
-                self.recent.setdefault(sender, deque()).append(
-                    (float(r["t_rcv"]), float(r["t_rcv"]) - float(r["t_gen"])))
+            try:
+                m = message_from_record(json.loads(line))
+            except (ValueError, TypeError, RecursionError):  # MessageError is a ValueError
+                continue
+            if m.type != "image" or m.t_rcv is None:
+                continue
+            self.received[m.sender] = self.received.get(m.sender, 0) + 1
+            self.recent.setdefault(m.sender, deque()).append((m.t_rcv, m.t_rcv - m.t_gen))
 
     def rate(self, sender: str, now: float) -> tuple[float, float | None]:
         """Images/s received over the last ``window_s`` and their mean latency (s)."""
