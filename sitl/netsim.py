@@ -10,10 +10,10 @@ and every agent overhears it, so each agent learns what the fleet delivered (its
 knowledge) at the reception time.
 
 Receiver reports: every ``report_interval_s`` (the ground station's default 0.25 s) each
-agent whose messages arrived since the last report gets them as link samples
-(:class:`~companion.middleware.constraint.LinkSample`, like the entries of a real receiver
-report) through its policy's ``constraint.on_samples``, so an adaptive constraint learns in
-every simulated run. Policies without a constraint ignore them.
+agent whose messages arrived since the last report gets them as a receiver report
+(:class:`~companion.middleware.reports.ReceiverReport`, the entries a real ground station
+would send) fed to its policy's constraint by ``companion.middleware.reports.feed_link``, so
+an adaptive constraint learns in every simulated run. Policies without a constraint ignore them.
 """
 
 from __future__ import annotations
@@ -28,8 +28,10 @@ from typing import Any
 import numpy as np
 
 from companion.middleware.baselines import Policy
-from companion.middleware.constraint import LinkSample
+from companion.middleware.constraints.base import GoodputConstraint
 from companion.middleware.incremental import option_message, window_violations
+from companion.middleware.reports import ReceiverReport, feed_link
+from companion.protocol.records import entry_from_message
 from utility_specs.message import Message, Version
 
 __all__ = ["ChannelConfig", "SimAgent", "SimResult", "StreamConfig", "ideal_copies", "simulate"]
@@ -125,17 +127,15 @@ _GEN, _TX_END, _DELIVER, _REPORT = 0, 1, 2, 3
 
 
 def _report(agent: SimAgent, messages: list[Message], now: float) -> int:
-    """Hand ``messages`` (this agent's, delivered) to its policy's constraint as link samples,
-    the way the companion turns a receiver report's entries into samples."""
+    """Hand ``messages`` (this agent's, delivered) to its policy's constraint as a receiver
+    report, through the middleware's one report-to-link-sample path."""
     constraint = getattr(agent.policy, "constraint", None)
-    on_samples = getattr(constraint, "on_samples", None)
-    if on_samples is None or not messages:
+    if not isinstance(constraint, GoodputConstraint) or not messages:
         return 0
-    samples = [LinkSample(t_sent=m.t_sent, t_rcv=m.t_rcv, size=m.size, sender=m.sender,
-                          seq=m.seq)
-               for m in messages if m.t_sent is not None and m.t_rcv is not None]
-    on_samples(samples, now=now)
-    return len(samples)
+    entries = tuple(entry_from_message(m, t_rcv=m.t_rcv) for m in messages
+                    if m.t_sent is not None and m.t_rcv is not None)
+    report = ReceiverReport(entries=entries)
+    return feed_link(constraint, report, agent=agent.name, now=now).link_samples
 
 
 def simulate(

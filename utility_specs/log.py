@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Collection, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import IO, Any
 
@@ -48,6 +48,9 @@ class MissionLog:
     crash or power loss); every complete record before it counts."""
     bounds: list[tuple[float | None, float | None]] = field(default_factory=list)
     """Every mission record's (t_start, t_end) in file order (see ``utility_specs.intervals``)."""
+    extras: dict[int, dict[str, Any]] = field(default_factory=dict)
+    """Index in ``messages`` -> the extra keys :func:`parse_log` was asked to ``keep``
+    (``decision``...: not the model's, but a run summary counts them)."""
 
 
 def message_to_record(m: Message, **extra: Any) -> dict[str, Any]:
@@ -128,12 +131,17 @@ def message_from_record(record: Mapping[str, Any]) -> Message:
 
 
 def parse_log(
-    lines: Iterable[str], *, source: str = "<log>", allow_torn_tail: bool = False
+    lines: Iterable[str],
+    *,
+    source: str = "<log>",
+    allow_torn_tail: bool = False,
+    keep: Collection[str] = (),
 ) -> MissionLog:
     """Parse JSON Lines; errors name the source and the line number.
 
     With ``allow_torn_tail`` (``lines`` keep their newlines, as a file's do), a last line that
     has no newline and is not valid JSON is skipped and noted in ``torn_last_line``.
+    The ``keep`` keys of a message record, where present, go to ``extras``.
     """
     log = MissionLog()
     state_records: dict[str, list[tuple[float, Mapping[str, Any]]]] = {}
@@ -168,6 +176,9 @@ def parse_log(
                 state_records.setdefault(state["agent"], []).append((t, fields))
             else:
                 log.messages.append(message_from_record(record))
+                kept = {k: record[k] for k in keep if k in record}
+                if kept:
+                    log.extras[len(log.messages) - 1] = kept
         except RecursionError:
             raise LogError(f"{source}:{number}: JSON nested too deeply") from None
         except (json.JSONDecodeError, MessageError) as exc:

@@ -23,37 +23,35 @@ from typing import TYPE_CHECKING, TextIO
 from sitl.linkemu.namespaces import RECEIVER_ADDR, SENDER_ADDR
 
 if TYPE_CHECKING:
-    from companion.middleware.constraint import LinkSample
-    from companion.middleware.linkstats import RoundTrip
+    from companion.middleware.reports import ReceiverReport
 
 _DATA = struct.Struct("!4sIdI")
 _MAGIC = b"UAVP"
 MAX_ARRIVALS_PER_REPORT = 20
+PROBE = "probe"
+"""The probe sender's agent name, and the type of its messages."""
 
 
-def report_link_samples(payload: bytes, *, now: float) -> tuple[list[LinkSample], RoundTrip | None]:
-    """A probe receiver report (JSON) as link samples and the round trip of its last arrival.
+def probe_report(payload: bytes, *, now: float) -> ReceiverReport:
+    """A probe receiver report (JSON) as the middleware's typed report: every arrival an
+    entry of the probe, the last one its clock echo, sent at ``t_report``, received ``now``.
 
-    The one place in the link emulation where a receiver report becomes link samples (the
-    middleware's typed report entry point can replace it). Raises ValueError, KeyError or
-    TypeError on a malformed report.
+    Raises ValueError, KeyError or TypeError on a malformed report (one impossible arrival,
+    e.g. a non-finite time, makes the whole report bad).
     """
-    from companion.middleware.constraint import LinkSample
-    from companion.middleware.linkstats import RoundTrip
+    from companion.middleware.reports import ReceiverReport
+    from companion.protocol.records import ClockEcho, ReportEntry
 
     report = json.loads(payload)
     t_report = float(report["t_report"])
-    samples = [
-        LinkSample(t_sent=float(t_sent), t_rcv=float(t_rcv), size=int(sz), sender="probe",
-                   seq=int(seq_r))
-        for seq_r, t_sent, t_rcv, sz in report["arrivals"]
-    ]
-    round_trip = (
-        RoundTrip(t_sent=samples[-1].t_sent, t_remote_rcv=samples[-1].t_rcv,
-                  t_remote_sent=t_report, t_rcv=now)
-        if samples else None
-    )
-    return samples, round_trip
+    arrivals = [(int(seq), float(t_sent), float(t_rcv), int(size))
+                for seq, t_sent, t_rcv, size in report["arrivals"]]
+    entries = tuple(ReportEntry(sender=PROBE, type=PROBE, seq=seq, t_gen=t_sent,
+                                t_sent=t_sent, t_rcv=t_rcv, size=size)
+                    for seq, t_sent, t_rcv, size in arrivals)
+    echoes = (ClockEcho(sender=PROBE, t_sent=arrivals[-1][1], t_rcv=arrivals[-1][2]),
+              ) if arrivals else ()
+    return ReceiverReport(entries=entries, echoes=echoes, t_sent=t_report, t_rcv=now)
 
 
 def _probe_receiver(args: argparse.Namespace) -> int:
@@ -108,6 +106,7 @@ def _probe_sender(args: argparse.Namespace) -> int:
     """Offer ``demand`` bytes/s of probe messages; send those the constraint admits."""
     from companion.middleware.constraints import make_constraint
     from companion.middleware.linkstats import LinkStats
+    from companion.middleware.reports import feed_link, link_observations
 
     params = json.loads(args.params)
     constraint = make_constraint(args.constraint, **params)
@@ -144,17 +143,17 @@ def _probe_sender(args: argparse.Namespace) -> int:
                     except BlockingIOError:
                         break
                     try:
-                        samples, round_trip = report_link_samples(payload, now=now)
+                        report = probe_report(payload, now=now)
                     except (ValueError, KeyError, TypeError) as exc:
                         bad_reports += 1  # malformed report: counted and dropped
                         log.write(f"B,{now!r},{type(exc).__name__}\n")
                         continue
-                    if round_trip is not None:
-                        observe.on_round_trip(round_trip)
-                        constraint.on_round_trip(round_trip, now=now)
-                        for sample in samples:
-                            observe.update(sample, now=now)
-                        constraint.on_samples(samples, now=now)
+                    samples, trips, _ = link_observations(report, agent=PROBE)
+                    for trip in trips:
+                        observe.on_round_trip(trip)
+                    for sample in samples:
+                        observe.update(sample, now=now)
+                    feed_link(constraint, report, agent=PROBE, now=now)
                     stats = observe.get()
                     offset = observe.clock.get()
                     xi = constraint.limit_bytes_per_s(now=now)

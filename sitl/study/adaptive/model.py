@@ -9,14 +9,19 @@ from __future__ import annotations
 import bisect
 import heapq
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from companion.middleware.adaptive import LinkStatsConstraint
-from companion.middleware.constraint import GoodputConstraint, LinkSample
+from companion.middleware.constraint import GoodputConstraint
 from companion.middleware.linkstats import WindowStats
+from companion.middleware.reports import ReceiverReport, feed_link
+from companion.protocol.records import ReportEntry
+
+SIM = "sim"
+"""The simulated sender's agent name, and the type of its messages."""
 
 Rate = Callable[[float], float]
 """A rate (bytes per second) as a function of time (s)."""
@@ -151,12 +156,13 @@ def simulate(
         t, _, kind, idx = heapq.heappop(events)
         if kind == "report":
             t_written = idx * link.report_interval_s
-            samples = []
+            entries = []
             while deliveries and deliveries[0][0] <= t_written:
                 t_rcv, s, sz = heapq.heappop(deliveries)
-                samples.append(LinkSample(t_sent=t_sent_of.pop(s), t_rcv=t_rcv, size=sz,
-                                          sender="sim", seq=s))
-            _feed(constraint, samples, now=t)
+                t_sent = t_sent_of.pop(s)
+                entries.append(ReportEntry(sender=SIM, type=SIM, seq=s, t_gen=t_sent,
+                                           t_sent=t_sent, t_rcv=t_rcv, size=sz))
+            feed_link(constraint, ReceiverReport(entries=entries), agent=SIM, now=t)
             xi = constraint.limit_bytes_per_s(now=t)
             stats = getattr(constraint, "last_stats", None)
             trace.t.append(t)
@@ -206,15 +212,6 @@ class ObservedConstant(LinkStatsConstraint):
 
     def _learn(self, observations: list[WindowStats]) -> None:
         self.observed.extend(observations)
-
-
-def _feed(constraint: GoodputConstraint, samples: Sequence[LinkSample], *, now: float) -> None:
-    batch = getattr(constraint, "on_samples", None)
-    if batch is not None:
-        batch(samples, now=now)
-    else:
-        for sample in samples:
-            constraint.on_sample(sample, now=now)
 
 
 def _max_of(rate: Rate, duration_s: float) -> float:

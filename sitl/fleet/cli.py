@@ -1,0 +1,159 @@
+"""``uav-sitl fleet`` command line: argparse, and the exit codes of :func:`main`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from sitl.fleet.link import (
+    RELAY_BACKGROUND_SHARE,
+    RELAY_QUEUE_BYTES,
+    RELAY_RATE_BIT_S,
+    WIFI_G_DELAY_MS,
+    WIFI_G_LOSS_PERCENT,
+    WIFI_G_RATE_BIT_S,
+    Background,
+    parse_background,
+)
+from sitl.fleet.plan import POLICIES
+from sitl.fleet.processes import FleetError
+from sitl.fleet.run import run
+
+
+def parse_args(argv: Sequence[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="uav-sitl fleet",
+        description="Run N simulated drones (vehicle + synthetic camera + uav-companion) and a "
+                    "uav-ground-station on one machine; print a summary at the end.")
+    p.add_argument("--drones", type=int, default=4, help="number of drones (default 4)")
+    p.add_argument("--scene", default="demo", help="scene name (sitl/scenes) or TOML path")
+    p.add_argument("--duration", type=float, default=0.0,
+                   help="seconds of mission after the start; 0 = until Ctrl-C (default)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="run folder (default out/fleet/YYYYmmdd-HHMMSS)")
+    p.add_argument("--summary-json", type=Path, default=None, help="also write the summary here")
+    p.add_argument("--policy", choices=POLICIES, default="mcts",
+                   help="what decides which messages go out (default mcts)")
+    p.add_argument("--drop-probability", type=float, default=0.5,
+                   help="--policy random: probability of dropping each message (default 0.5)")
+    p.add_argument("--constraint", choices=("constant", "adaptive", "aimd"), default=None,
+                   help="goodput constraint (default: constant on loopback, adaptive with "
+                        "--netns)")
+    p.add_argument("--goodput", type=float, default=None,
+                   help="constant constraint: fleet goodput limit in bytes/s (default 40000; "
+                        "given alone, it selects the constant constraint)")
+    p.add_argument("--window", type=float, default=2.0,
+                   help="constant constraint: window T in s (default 2)")
+    p.add_argument("--rate", type=float, default=5.0, help="camera frames/s per drone")
+    p.add_argument("--size", default="640x480", help="camera frame size WxH (default 640x480)")
+    p.add_argument("--mcts-iterations", type=int, default=300)
+    p.add_argument("--time-budget", type=float, default=0.05,
+                   help="wall time per middleware decision in s (default 0.05)")
+    p.add_argument("--alpha", type=float, default=None, help="α of eq. 7.1 (default: spec's)")
+    p.add_argument("--spec", default="image_streaming", help="mission spec name or TOML path")
+    p.add_argument("--speedup", type=float, default=1.0, help="vehicle simulation speed-up")
+    p.add_argument("--flavour", choices=("px4", "ardupilot"), default="px4")
+    p.add_argument("--first-fix", type=float, default=2.0, metavar="S",
+                   help="vehicle seconds from boot to a GPS fix; until then no position and"
+                        " no arming, as on a real autopilot (default 2; `uav-sitl vehicle`"
+                        " defaults to an ArduCopter-like 15)")
+    p.add_argument("--pattern", choices=("survey", "orbit"), default="survey")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--ready-timeout", type=float, default=90.0,
+                   help="seconds to wait for every drone to be heard (default 90)")
+    p.add_argument("--start-delay", type=float, default=1.0,
+                   help="the mission starts this many seconds after the command (default 1)")
+    p.add_argument("--http-port", type=int, default=0,
+                   help="dashboard port (default: a free one)")
+    p.add_argument("--netns", action="store_true",
+                   help="(root) each drone in its own network namespace, all joined to the "
+                        "ground station's through one shaped shared link (tc)")
+    p.add_argument("--link-rate", type=float, default=WIFI_G_RATE_BIT_S,
+                   help="--netns: link rate in bit/s (default 6e6, 802.11g-like)")
+    p.add_argument("--link-delay", type=float, default=WIFI_G_DELAY_MS, metavar="MS",
+                   help=f"--netns: one-way delay in ms (default {WIFI_G_DELAY_MS:g}; needs "
+                        "netem in the kernel, else reported as not emulated)")
+    p.add_argument("--link-loss", type=float, default=WIFI_G_LOSS_PERCENT, metavar="PCT",
+                   help=f"--netns: loss per datagram in %% (default {WIFI_G_LOSS_PERCENT:g}; "
+                        "needs netem)")
+    p.add_argument("--background", default=None, metavar="BITS[@T[+D]]",
+                   help="background traffic of BITS bit/s from T s after the start for D s "
+                        "(default from the start, to the end; thesis fig 7.4): iperf3 with "
+                        "--netns, in the relay's queue otherwise (relay default: 40%% of its "
+                        "rate from mid-mission; 'off' for none)")
+    p.add_argument("--relay-rate", type=float, default=RELAY_RATE_BIT_S, metavar="BITS",
+                   help="without --netns: the shaped relay's rate in bit/s between the drones "
+                        f"and the station (default {RELAY_RATE_BIT_S:g}); 0 = no relay, "
+                        "straight over loopback")
+    p.add_argument("--relay-queue", type=int, default=RELAY_QUEUE_BYTES, metavar="BYTES",
+                   help=f"the relay's queue limit in bytes (default {RELAY_QUEUE_BYTES})")
+    p.add_argument("--quiet", action="store_true", help="no live progress line")
+    p.add_argument("--peers", action="store_true",
+                   help="peer sharing (docs/peers.md): a loopback broadcast medium, each "
+                        "drone's peers in its autopilot (ADSB_VEHICLE) and at GET /peers; "
+                        "use a spec with receivers = [\"peers\"] (--spec peer_sharing)")
+    args = p.parse_args(list(argv))
+    if args.peers and args.netns:
+        p.error("--peers runs on loopback; it does not combine with --netns yet")
+    if not 1 <= args.drones <= 64:
+        p.error("--drones must be in 1..64")
+    if args.duration < 0:
+        p.error("--duration must be >= 0")
+    if not 0.0 <= args.first_fix < 1e6:
+        p.error("--first-fix must be a number of seconds >= 0")
+    if not 0.0 <= args.drop_probability <= 1.0:
+        p.error("--drop-probability must be in [0, 1]")
+    if args.link_rate <= 0:
+        p.error("--link-rate must be > 0")
+    if args.link_delay < 0:
+        p.error("--link-delay must be >= 0")
+    if not 0.0 <= args.link_loss < 100.0:
+        p.error("--link-loss must be in [0, 100)")
+    try:
+        w, h = (int(x) for x in args.size.lower().split("x"))
+    except ValueError:
+        p.error(f"--size: expected WxH, got {args.size!r}")
+    args.width, args.height = w, h
+    if args.relay_rate < 0 or args.relay_queue <= 0:
+        p.error("--relay-rate must be >= 0 and --relay-queue > 0")
+    args.relay = not args.netns and args.relay_rate > 0
+    if args.background == "off":
+        args.background = None
+    elif args.background is not None:
+        try:
+            args.background = parse_background(args.background)
+        except ValueError as exc:
+            p.error(f"--background: {exc}")
+        if not (args.netns or args.relay):
+            p.error("--background needs --netns or the relay (the traffic must share the "
+                    "shaped link)")
+    elif args.relay:  # thesis fig 7.4: a step of cross traffic at mid-mission
+        args.background = Background(RELAY_BACKGROUND_SHARE * args.relay_rate,
+                                     args.duration / 2 if args.duration else 60.0)
+    if args.constraint is None:
+        shaped = args.netns or args.relay
+        args.constraint = "adaptive" if shaped and args.goodput is None else "constant"
+    if args.goodput is None:
+        args.goodput = 40_000.0
+    return args
+
+
+def main(argv: list[str]) -> int:
+    args = parse_args(argv)
+    if args.netns:
+        from sitl.linkemu import missing_requirements
+
+        reason = missing_requirements()
+        if reason is not None:
+            print(f"uav-sitl fleet: --netns: {reason}", file=sys.stderr)
+            return 2
+    try:
+        return run(args)
+    except FleetError as exc:
+        print(f"uav-sitl fleet: {exc}", file=sys.stderr)
+        return 1
+    except (ValueError, OSError) as exc:  # scene errors, unwritable run folder...
+        print(f"uav-sitl fleet: {exc}", file=sys.stderr)
+        return 2
