@@ -13,7 +13,7 @@ import math
 import struct
 from collections import OrderedDict, deque
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 from companion.protocol.errors import (
@@ -52,8 +52,9 @@ from companion.protocol.wire import (
     PacketKind,
     check_key,
     decode_id,
+    keyed_mac,
     loads_json_object,
-    unpack_datagram,
+    unpack_header,
 )
 from utility_specs.errors import MessageError
 from utility_specs.message import Message, Version
@@ -83,6 +84,11 @@ COUNTER_NAMES = (
     "events_overflow",
 )
 """Every key of ``Decoder.counters`` (all start at 0)."""
+
+_DATA_FIXED_UNPACK = DATA_FIXED.unpack_from
+_DATA_FIXED_SIZE = DATA_FIXED.size
+_METADATA_LEN_UNPACK = METADATA_LEN.unpack_from
+_MAX_NAMES = 1024
 
 MessageKey = tuple[str, int, float]
 """(sender, seq, t_gen): t_gen tells a restarted sender's seq 0 from the previous run's."""
@@ -198,10 +204,14 @@ class _Floor:
 class _Partial:
     key: MessageKey
     type: str
+    type_raw: bytes
     count: int
     total: int
     deadline: float
-    chunks: dict[int, bytes] = field(default_factory=dict)
+    chunks: list[memoryview | None]
+    """Per fragment index: its payload, a view into the authenticated datagram (no copy
+    until the one ``join`` that builds the message)."""
+    received: int = 0
     buffered: int = 0
     """Payload plus metadata bytes held."""
     payload_bytes: int = 0
@@ -285,6 +295,9 @@ class Decoder:
         self.epoch = epoch
         self._floors: dict[str, _Floor] = {}
         self._window_mask = (1 << self.limits.replay_window) - 1
+        self._mac = keyed_mac(self._key)
+        self._names: dict[bytes, str] = {}
+        """Authenticated sender ids and message types, raw -> decoded (bounded)."""
 
     # -- outputs -------------------------------------------------------------------------
 
@@ -323,30 +336,36 @@ class Decoder:
         """Take one UDP payload; results come out of ``next_event``."""
         self.counters["datagrams"] += 1
         try:
-            header, body = unpack_datagram(
+            if type(data) is not bytes:  # the body is kept as views into it: no mutable buffer
+                data = bytes(data)
+            header, start = unpack_header(
                 data,
-                key=self._key,
+                mac=self._mac,
                 fleet_id=self.fleet_id,
                 max_datagram_bytes=self.limits.max_datagram_bytes,
+                names=self._names,
             )
+            body = memoryview(data)[start : len(data) - TAG_BYTES]
+            kind = header.kind
             windows = self._windows
-            if header.kind is PacketKind.COMMAND:
+            if kind is PacketKind.COMMAND:
                 body = self._verify_command(data, body)
                 windows = self._command_windows
             if self._floors:
                 self._check_floor(header, now)
-            self._check_fresh(header, now)
+            skew = self.limits.max_clock_skew_s
+            if skew is not None and abs(header.t_sent - now) > skew:
+                self._check_fresh(header, now)
             self._check_replay(header, now, windows)
             self.counters["accepted"] += 1
-            reader = _Reader(body)
-            if header.kind is PacketKind.DATA:
-                self._receive_data(header, reader, addr, now)
-            elif header.kind is PacketKind.REPORT:
-                self._receive_report(header, reader, addr, now)
-            elif header.kind is PacketKind.COMMAND:
-                self._receive_command(header, reader, addr, now)
+            if kind is PacketKind.DATA:
+                self._receive_data(header, body, addr, now)
+            elif kind is PacketKind.REPORT:
+                self._receive_report(header, _Reader(body), addr, now)
+            elif kind is PacketKind.COMMAND:
+                self._receive_command(header, _Reader(body), addr, now)
             else:
-                self._receive_status(header, reader, addr, now)
+                self._receive_status(header, _Reader(body), addr, now)
         except RemoteProtocolError as exc:
             self._drop(exc.reason, str(exc), addr)
 
@@ -468,10 +487,23 @@ class Decoder:
 
     # -- DATA ----------------------------------------------------------------------------
 
-    def _receive_data(self, header: Header, reader: _Reader, addr: Address, now: float) -> None:
+    def _receive_data(
+        self, header: Header, body: memoryview, addr: Address, now: float
+    ) -> None:
+        """One DATA fragment. The per-datagram hot path of a ground station (27 per 30 KB
+        image): reads with precompiled structs straight from the body, keeps the payload as
+        a view, and builds nothing per fragment but the reassembly key."""
         limits = self.limits
-        seq, t_gen, index, count, total, type_len = reader.unpack(DATA_FIXED)
-        msg_type = reader.short_id(type_len, "message type")
+        size = len(body)
+        if size < _DATA_FIXED_SIZE:
+            raise MalformedPacket("body too short")
+        seq, t_gen, index, count, total, type_len = _DATA_FIXED_UNPACK(body, 0)
+        if not 1 <= type_len <= MAX_ID_BYTES:
+            raise MalformedPacket(f"message type length {type_len} not in 1..{MAX_ID_BYTES}")
+        offset = _DATA_FIXED_SIZE + type_len
+        if offset > size:
+            raise MalformedPacket("body too short")
+        type_raw = body[_DATA_FIXED_SIZE:offset]
         if not math.isfinite(t_gen):
             raise MalformedPacket("t_gen is not finite")
         if not 0 <= index < count:
@@ -483,58 +515,83 @@ class Decoder:
         meta_len = 0
         metadata = b""
         if index == 0:
-            (meta_len,) = reader.unpack(METADATA_LEN)
-            metadata = reader.take(meta_len)
-        chunk = reader.rest()
-        if len(chunk) > total:
-            raise MalformedPacket(f"fragment of {len(chunk)} bytes > message of {total}")
+            if offset + 2 > size:
+                raise MalformedPacket("body too short")
+            (meta_len,) = _METADATA_LEN_UNPACK(body, offset)
+            offset += 2
+            if offset + meta_len > size:
+                raise MalformedPacket("body too short")
+            metadata = bytes(body[offset : offset + meta_len])
+            offset += meta_len
+        chunk = body[offset:]
+        chunk_len = size - offset
+        if chunk_len > total:
+            raise MalformedPacket(f"fragment of {chunk_len} bytes > message of {total}")
         key: MessageKey = (header.sender, seq, t_gen)
         if key in self._recent:
             self._drop("late_fragment", str(key), addr)
             return
+        partial = self._partials.get(key)
+        if partial is not None and index != 0 and partial.type_raw == type_raw:
+            msg_type = partial.type  # the common case: a later fragment of a known message
+        else:
+            msg_type = self._name(type_raw, "message type")
         # the metadata is parsed once, after the late check; a lone fragment is the message
         prototype = None
         if index == 0:
             prototype = self._prototype(header, seq, msg_type, t_gen, metadata,
                                         t_rcv=max(now, t_gen) if count == 1 else None)
         if count == 1:
-            if len(chunk) != total or prototype is None:
+            if chunk_len != total or prototype is None:
                 raise MalformedPacket("single fragment does not hold the whole message")
-            self._emit_message(prototype, chunk, addr, now, fragments=1)
+            self._emit_message(prototype, bytes(chunk), addr, now, fragments=1)
             self._remember(key)
             return
-        partial = self._partials.get(key)
         if partial is None:
-            partial = self._new_partial(key, msg_type, count, total, now)
+            partial = self._new_partial(key, msg_type, bytes(type_raw), count, total, now)
         elif partial.count != count or partial.total != total or partial.type != msg_type:
             self._discard(key, evicted=False)
             raise MalformedPacket(f"fragment of {key} disagrees with the earlier ones")
-        if index in partial.chunks:
+        chunks = partial.chunks
+        if chunks[index] is not None:
             self._drop("duplicate_fragment", str(key), addr)
             return
-        if partial.payload_bytes + len(chunk) > total:
+        if partial.payload_bytes + chunk_len > total:
             self._discard(key, evicted=False)
             raise MalformedPacket(f"fragments of {key} exceed the declared {total} bytes")
-        cost = len(chunk) + meta_len
-        partial.chunks[index] = chunk
+        cost = chunk_len + meta_len
+        chunks[index] = chunk
+        partial.received += 1
         partial.buffered += cost
-        partial.payload_bytes += len(chunk)
+        partial.payload_bytes += chunk_len
         self._buffered += cost
         partial.deadline = now + limits.reassembly_timeout_s
         self._partials.move_to_end(key)
         if prototype is not None:
             partial.prototype = prototype
-        self._enforce_buffer_bound(keep=key)
-        if key not in self._partials:
-            return
-        if len(partial.chunks) == partial.count:
-            payload = b"".join(partial.chunks[i] for i in range(partial.count))
+        if self._buffered > limits.max_buffered_bytes:
+            self._enforce_buffer_bound(keep=key)
+            if key not in self._partials:
+                return
+        if partial.received == count:
+            # one copy: the views of the datagrams straight into the message's bytes
+            payload = b"".join(chunks)  # type: ignore[arg-type]  # all set: received == count
             self._release(key)
             self._remember(key)
             if len(payload) != partial.total or partial.prototype is None:
                 raise MalformedPacket(f"fragments of {key} add up to {len(payload)} bytes")
             message = replace(partial.prototype, t_rcv=max(now, partial.prototype.t_gen))
-            self._emit_message(message, payload, addr, now, fragments=partial.count)
+            self._emit_message(message, payload, addr, now, fragments=count)
+
+    def _name(self, raw: memoryview, what: str) -> str:
+        """A short authenticated identifier (message type), decoded once per process."""
+        name: str | None = self._names.get(raw)  # type: ignore[call-overload]  # bytes-equal
+        if name is None:
+            name = decode_id(bytes(raw), what)
+            if len(self._names) >= _MAX_NAMES:
+                self._names.clear()
+            self._names[bytes(raw)] = name
+        return name
 
     def _prototype(
         self, header: Header, seq: int, msg_type: str, t_gen: float, raw: bytes,
@@ -563,7 +620,8 @@ class Decoder:
             raise MalformedPacket(f"metadata describes an invalid message: {exc}") from exc
 
     def _new_partial(
-        self, key: MessageKey, msg_type: str, count: int, total: int, now: float
+        self, key: MessageKey, msg_type: str, type_raw: bytes, count: int, total: int,
+        now: float,
     ) -> _Partial:
         while len(self._partials) >= self.limits.max_partials:
             oldest = next(iter(self._partials))
@@ -571,9 +629,11 @@ class Decoder:
         partial = _Partial(
             key=key,
             type=msg_type,
+            type_raw=type_raw,
             count=count,
             total=total,
             deadline=now + self.limits.reassembly_timeout_s,
+            chunks=[None] * count,
         )
         self._partials[key] = partial
         return partial
@@ -609,7 +669,7 @@ class Decoder:
                 sender=sender,
                 seq=seq,
                 type=partial.type,
-                fragments_missing=partial.count - len(partial.chunks),
+                fragments_missing=partial.count - partial.received,
                 fragment_count=partial.count,
                 evicted=evicted,
             )
