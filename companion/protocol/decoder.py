@@ -9,15 +9,17 @@ reason in ``counters`` and turned into a ``PacketDropped`` event. Memory is boun
 
 from __future__ import annotations
 
+import hmac
 import math
 import struct
 from collections import OrderedDict, deque
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
 from companion.protocol.errors import (
     BadSignature,
+    BadTag,
     MalformedPacket,
     OversizePacket,
     RemoteProtocolError,
@@ -40,9 +42,13 @@ from companion.protocol.signing import CommandVerifier
 from companion.protocol.wire import (
     COMMAND_FIXED,
     DATA_FIXED,
+    HEADER,
+    MAGIC,
     MAX_DATAGRAM_BYTES,
     MAX_ID_BYTES,
     METADATA_LEN,
+    OVERHEAD_BYTES,
+    PROTOCOL_VERSION,
     REPORT_FIXED,
     SIGNATURE_BYTES,
     STATUS_FIXED,
@@ -89,6 +95,11 @@ _DATA_FIXED_UNPACK = DATA_FIXED.unpack_from
 _DATA_FIXED_SIZE = DATA_FIXED.size
 _METADATA_LEN_UNPACK = METADATA_LEN.unpack_from
 _MAX_NAMES = 1024
+_HEADER_UNPACK = HEADER.unpack_from
+_HEADER_SIZE = HEADER.size
+_OVERHEAD_BYTES = OVERHEAD_BYTES
+_DATA = int(PacketKind.DATA)
+_COMPARE = hmac.compare_digest
 
 MessageKey = tuple[str, int, float]
 """(sender, seq, t_gen): t_gen tells a restarted sender's seq 0 from the previous run's."""
@@ -334,48 +345,113 @@ class Decoder:
 
     def receive_datagram(self, data: bytes, addr: Address, now: float) -> None:
         """Take one UDP payload; results come out of ``next_event``."""
-        self.counters["datagrams"] += 1
-        try:
-            if type(data) is not bytes:  # the body is kept as views into it: no mutable buffer
-                data = bytes(data)
-            header, start = unpack_header(
-                data,
-                mac=self._mac,
-                fleet_id=self.fleet_id,
-                max_datagram_bytes=self.limits.max_datagram_bytes,
-                names=self._names,
-            )
-            body = memoryview(data)[start : len(data) - TAG_BYTES]
-            kind = header.kind
-            windows = self._windows
-            if kind is PacketKind.COMMAND:
-                body = self._verify_command(data, body)
-                windows = self._command_windows
-            if self._floors:
-                self._check_floor(header, now)
-            skew = self.limits.max_clock_skew_s
-            if skew is not None and abs(header.t_sent - now) > skew:
-                self._check_fresh(header, now)
-            self._check_replay(header, now, windows)
-            self.counters["accepted"] += 1
-            if kind is PacketKind.DATA:
-                self._receive_data(header, body, addr, now)
-            elif kind is PacketKind.REPORT:
-                self._receive_report(header, _Reader(body), addr, now)
-            elif kind is PacketKind.COMMAND:
-                self._receive_command(header, _Reader(body), addr, now)
-            else:
-                self._receive_status(header, _Reader(body), addr, now)
-        except RemoteProtocolError as exc:
-            self._drop(exc.reason, str(exc), addr)
+        self.receive_datagrams(((data, addr),), now)
+
+    def receive_datagrams(self, datagrams: Sequence[tuple[bytes, Address]], now: float) -> None:
+        """Take a burst of UDP payloads that arrived together (what one socket read-ready
+        drains); the same as :meth:`receive_datagram` on each, in order.
+
+        This is a ground station's hot loop (13,500 datagrams/s at 50 drones x 10 images/s):
+        a DATA datagram from a sender heard before, in order, takes the inlined path below
+        (the same checks in the same order as :meth:`_receive_one`, without a call per
+        check); everything else, including every error, goes through :meth:`_receive_one`.
+        """
+        counters = self.counters
+        counters["datagrams"] += len(datagrams)
+        limits = self.limits
+        max_bytes = limits.max_datagram_bytes
+        fleet_id = self.fleet_id
+        mac = self._mac
+        names = self._names
+        windows = self._windows
+        skew = limits.max_clock_skew_s
+        forget_after = math.inf if skew is None else 2 * skew
+        replay_bits = limits.replay_window
+        mask = self._window_mask
+        receive_data = self._receive_data
+        for data, addr in datagrams:
+            try:
+                if type(data) is not bytes:  # the body is kept as views: no mutable buffer
+                    data = bytes(data)
+                n = len(data)
+                if n > max_bytes or n <= _OVERHEAD_BYTES or self._floors:
+                    self._receive_one(data, addr, now)
+                    continue
+                magic, version, kind, fleet, pn, t_sent, body_len, sender_len = (
+                    _HEADER_UNPACK(data, 0))
+                if (kind != _DATA or magic != MAGIC or version != PROTOCOL_VERSION
+                        or fleet != fleet_id or not 1 <= sender_len <= MAX_ID_BYTES
+                        or n != _OVERHEAD_BYTES + sender_len + body_len):
+                    self._receive_one(data, addr, now)
+                    continue
+                end = n - TAG_BYTES
+                view = memoryview(data)
+                check = mac.copy()
+                check.update(view[:end])
+                if not _COMPARE(check.digest()[:TAG_BYTES], view[end:]):
+                    raise BadTag("HMAC tag does not match")
+                start = _HEADER_SIZE + sender_len
+                sender = names.get(data[_HEADER_SIZE:start])
+                if sender is None or not math.isfinite(t_sent):
+                    self._receive_one(data, addr, now)  # first datagram of a sender
+                    continue
+                if skew is not None and abs(t_sent - now) > skew:
+                    self._check_fresh(t_sent, now)
+                window = windows.get(sender)
+                if (window is not None and pn > window.highest
+                        and now - window.last_accept <= forget_after):
+                    shift = pn - window.highest
+                    window.seen = (((window.seen << shift) | 1) & mask
+                                   if shift < replay_bits else 1)
+                    window.highest = pn
+                    window.last_accept = now
+                    if t_sent - now > window.offset_max:
+                        window.offset_max = t_sent - now
+                    windows.move_to_end(sender)
+                else:
+                    self._check_replay(Header(PacketKind.DATA, fleet, pn, t_sent, sender),
+                                       now, windows)
+                counters["accepted"] += 1
+                receive_data(sender, t_sent, view[start:end], addr, now)
+            except RemoteProtocolError as exc:
+                self._drop(exc.reason, str(exc), addr)
+
+    def _receive_one(self, data: bytes, addr: Address, now: float) -> None:
+        """Every check, for any kind of datagram (errors escape to the caller)."""
+        header, start = unpack_header(
+            data,
+            mac=self._mac,
+            fleet_id=self.fleet_id,
+            max_datagram_bytes=self.limits.max_datagram_bytes,
+            names=self._names,
+        )
+        body = memoryview(data)[start : len(data) - TAG_BYTES]
+        kind = header.kind
+        windows = self._windows
+        if kind is PacketKind.COMMAND:
+            body = self._verify_command(data, body)
+            windows = self._command_windows
+        if self._floors:
+            self._check_floor(header, now)
+        self._check_fresh(header.t_sent, now)
+        self._check_replay(header, now, windows)
+        self.counters["accepted"] += 1
+        if kind is PacketKind.DATA:
+            self._receive_data(header.sender, header.t_sent, body, addr, now)
+        elif kind is PacketKind.REPORT:
+            self._receive_report(header, _Reader(body), addr, now)
+        elif kind is PacketKind.COMMAND:
+            self._receive_command(header, _Reader(body), addr, now)
+        else:
+            self._receive_status(header, _Reader(body), addr, now)
 
     # -- checks --------------------------------------------------------------------------
 
-    def _check_fresh(self, header: Header, now: float) -> None:
+    def _check_fresh(self, t_sent: float, now: float) -> None:
         skew = self.limits.max_clock_skew_s
-        if skew is not None and abs(header.t_sent - now) > skew:
+        if skew is not None and abs(t_sent - now) > skew:
             raise StalePacket(
-                f"t_sent {header.t_sent:.3f} is {header.t_sent - now:+.3f} s from now "
+                f"t_sent {t_sent:.3f} is {t_sent - now:+.3f} s from now "
                 f"(allowed ±{skew} s)"
             )
 
@@ -488,7 +564,7 @@ class Decoder:
     # -- DATA ----------------------------------------------------------------------------
 
     def _receive_data(
-        self, header: Header, body: memoryview, addr: Address, now: float
+        self, sender: str, t_sent: float, body: memoryview, addr: Address, now: float
     ) -> None:
         """One DATA fragment. The per-datagram hot path of a ground station (27 per 30 KB
         image): reads with precompiled structs straight from the body, keeps the payload as
@@ -527,7 +603,7 @@ class Decoder:
         chunk_len = size - offset
         if chunk_len > total:
             raise MalformedPacket(f"fragment of {chunk_len} bytes > message of {total}")
-        key: MessageKey = (header.sender, seq, t_gen)
+        key: MessageKey = (sender, seq, t_gen)
         if key in self._recent:
             self._drop("late_fragment", str(key), addr)
             return
@@ -539,7 +615,7 @@ class Decoder:
         # the metadata is parsed once, after the late check; a lone fragment is the message
         prototype = None
         if index == 0:
-            prototype = self._prototype(header, seq, msg_type, t_gen, metadata,
+            prototype = self._prototype(sender, t_sent, seq, msg_type, t_gen, metadata,
                                         t_rcv=max(now, t_gen) if count == 1 else None)
         if count == 1:
             if chunk_len != total or prototype is None:
@@ -594,7 +670,7 @@ class Decoder:
         return name
 
     def _prototype(
-        self, header: Header, seq: int, msg_type: str, t_gen: float, raw: bytes,
+        self, sender: str, t_sent: float, seq: int, msg_type: str, t_gen: float, raw: bytes,
         *, t_rcv: float | None,
     ) -> Message:
         meta = loads_json_object(raw, "message metadata")
@@ -604,13 +680,13 @@ class Decoder:
             versions = _versions(meta.get("v", []))
             version = meta.get("i")
             return Message(
-                sender=header.sender,
+                sender=sender,
                 seq=seq,
                 type=msg_type,
                 t_gen=t_gen,
                 size=size,
                 receiver=self.local_id,
-                t_sent=header.t_sent,
+                t_sent=t_sent,
                 t_rcv=t_rcv,
                 data=data,
                 versions=versions,
