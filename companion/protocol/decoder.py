@@ -215,7 +215,6 @@ class _Floor:
 class _Partial:
     key: MessageKey
     type: str
-    type_raw: bytes
     count: int
     total: int
     deadline: float
@@ -580,6 +579,9 @@ class Decoder:
         if offset > size:
             raise MalformedPacket("body too short")
         type_raw = body[_DATA_FIXED_SIZE:offset]
+        msg_type: str | None = self._names.get(type_raw)  # type: ignore[call-overload]
+        if msg_type is None:
+            msg_type = self._name(type_raw, "message type")
         if not math.isfinite(t_gen):
             raise MalformedPacket("t_gen is not finite")
         if not 0 <= index < count:
@@ -608,10 +610,6 @@ class Decoder:
             self._drop("late_fragment", str(key), addr)
             return
         partial = self._partials.get(key)
-        if partial is not None and index != 0 and partial.type_raw == type_raw:
-            msg_type = partial.type  # the common case: a later fragment of a known message
-        else:
-            msg_type = self._name(type_raw, "message type")
         # the metadata is parsed once, after the late check; a lone fragment is the message
         prototype = None
         if index == 0:
@@ -624,7 +622,7 @@ class Decoder:
             self._remember(key)
             return
         if partial is None:
-            partial = self._new_partial(key, msg_type, bytes(type_raw), count, total, now)
+            partial = self._new_partial(key, msg_type, count, total, now)
         elif partial.count != count or partial.total != total or partial.type != msg_type:
             self._discard(key, evicted=False)
             raise MalformedPacket(f"fragment of {key} disagrees with the earlier ones")
@@ -660,13 +658,12 @@ class Decoder:
             self._emit_message(message, payload, addr, now, fragments=count)
 
     def _name(self, raw: memoryview, what: str) -> str:
-        """A short authenticated identifier (message type), decoded once per process."""
-        name: str | None = self._names.get(raw)  # type: ignore[call-overload]  # bytes-equal
-        if name is None:
-            name = decode_id(bytes(raw), what)
-            if len(self._names) >= _MAX_NAMES:
-                self._names.clear()
-            self._names[bytes(raw)] = name
+        """Decode a short authenticated identifier (message type) and remember it, so the
+        next datagrams find it in ``_names`` (a memoryview hashes and compares as its bytes)."""
+        name = decode_id(bytes(raw), what)
+        if len(self._names) >= _MAX_NAMES:
+            self._names.clear()
+        self._names[bytes(raw)] = name
         return name
 
     def _prototype(
@@ -696,8 +693,7 @@ class Decoder:
             raise MalformedPacket(f"metadata describes an invalid message: {exc}") from exc
 
     def _new_partial(
-        self, key: MessageKey, msg_type: str, type_raw: bytes, count: int, total: int,
-        now: float,
+        self, key: MessageKey, msg_type: str, count: int, total: int, now: float
     ) -> _Partial:
         while len(self._partials) >= self.limits.max_partials:
             oldest = next(iter(self._partials))
@@ -705,7 +701,6 @@ class Decoder:
         partial = _Partial(
             key=key,
             type=msg_type,
-            type_raw=type_raw,
             count=count,
             total=total,
             deadline=now + self.limits.reassembly_timeout_s,
