@@ -196,9 +196,7 @@ class GroundLink:
     def datagrams_received(self, datagrams: Sequence[tuple[bytes, Address]]) -> None:
         """A burst from the transport: decoded together, then events handled once."""
         now = self.clock()
-        receive = self.decoder.receive_datagram
-        for data, addr in datagrams:
-            receive(data, addr, now)
+        self.decoder.receive_datagrams(datagrams, now)
         self._process_events(now)
         self._arm()
 

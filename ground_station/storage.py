@@ -243,6 +243,9 @@ class Storage:
             self.removed_temp_files = self._remove_temp_files()
         self._logs: dict[str, Any] = {}
         self._files = ThreadPoolExecutor(FILE_WRITERS, thread_name_prefix="gs-image-file")
+        self._made_dirs: set[Path] = set()
+        """Image folders this process created or found: no mkdir syscall per image (about
+        50 us of kernel time each on the 2-core test machine, 500 times a second)."""
         self._last_rcv: dict[str, float] = {}
         """Per mission written to in this process, the newest t_rcv (for the log's t_end)."""
         self._ended: set[str] = set()
@@ -301,9 +304,17 @@ class Storage:
 
     def _write_file(self, relpath: Path, payload: bytes) -> None:
         final = self.root / relpath
-        final.parent.mkdir(parents=True, exist_ok=True)
+        folder = final.parent
+        if folder not in self._made_dirs:
+            folder.mkdir(parents=True, exist_ok=True)
+            self._made_dirs.add(folder)
         tmp = final.with_name(f".{final.name}.tmp")
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        except FileNotFoundError:  # the folder was removed while running: make it again
+            self._made_dirs.discard(folder)
+            folder.mkdir(parents=True, exist_ok=True)
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         try:
             view = memoryview(payload)
             while view:

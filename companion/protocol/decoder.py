@@ -9,15 +9,17 @@ reason in ``counters`` and turned into a ``PacketDropped`` event. Memory is boun
 
 from __future__ import annotations
 
+import hmac
 import math
 import struct
 from collections import OrderedDict, deque
-from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 from typing import Any
 
 from companion.protocol.errors import (
     BadSignature,
+    BadTag,
     MalformedPacket,
     OversizePacket,
     RemoteProtocolError,
@@ -40,9 +42,13 @@ from companion.protocol.signing import CommandVerifier
 from companion.protocol.wire import (
     COMMAND_FIXED,
     DATA_FIXED,
+    HEADER,
+    MAGIC,
     MAX_DATAGRAM_BYTES,
     MAX_ID_BYTES,
     METADATA_LEN,
+    OVERHEAD_BYTES,
+    PROTOCOL_VERSION,
     REPORT_FIXED,
     SIGNATURE_BYTES,
     STATUS_FIXED,
@@ -52,8 +58,9 @@ from companion.protocol.wire import (
     PacketKind,
     check_key,
     decode_id,
+    keyed_mac,
     loads_json_object,
-    unpack_datagram,
+    unpack_header,
 )
 from utility_specs.errors import MessageError
 from utility_specs.message import Message, Version
@@ -83,6 +90,16 @@ COUNTER_NAMES = (
     "events_overflow",
 )
 """Every key of ``Decoder.counters`` (all start at 0)."""
+
+_DATA_FIXED_UNPACK = DATA_FIXED.unpack_from
+_DATA_FIXED_SIZE = DATA_FIXED.size
+_METADATA_LEN_UNPACK = METADATA_LEN.unpack_from
+_MAX_NAMES = 1024
+_HEADER_UNPACK = HEADER.unpack_from
+_HEADER_SIZE = HEADER.size
+_OVERHEAD_BYTES = OVERHEAD_BYTES
+_DATA = int(PacketKind.DATA)
+_COMPARE = hmac.compare_digest
 
 MessageKey = tuple[str, int, float]
 """(sender, seq, t_gen): t_gen tells a restarted sender's seq 0 from the previous run's."""
@@ -201,7 +218,10 @@ class _Partial:
     count: int
     total: int
     deadline: float
-    chunks: dict[int, bytes] = field(default_factory=dict)
+    chunks: list[memoryview | None]
+    """Per fragment index: its payload, a view into the authenticated datagram (no copy
+    until the one ``join`` that builds the message)."""
+    received: int = 0
     buffered: int = 0
     """Payload plus metadata bytes held."""
     payload_bytes: int = 0
@@ -285,6 +305,9 @@ class Decoder:
         self.epoch = epoch
         self._floors: dict[str, _Floor] = {}
         self._window_mask = (1 << self.limits.replay_window) - 1
+        self._mac = keyed_mac(self._key)
+        self._names: dict[bytes, str] = {}
+        """Authenticated sender ids and message types, raw -> decoded (bounded)."""
 
     # -- outputs -------------------------------------------------------------------------
 
@@ -321,42 +344,113 @@ class Decoder:
 
     def receive_datagram(self, data: bytes, addr: Address, now: float) -> None:
         """Take one UDP payload; results come out of ``next_event``."""
-        self.counters["datagrams"] += 1
-        try:
-            header, body = unpack_datagram(
-                data,
-                key=self._key,
-                fleet_id=self.fleet_id,
-                max_datagram_bytes=self.limits.max_datagram_bytes,
-            )
-            windows = self._windows
-            if header.kind is PacketKind.COMMAND:
-                body = self._verify_command(data, body)
-                windows = self._command_windows
-            if self._floors:
-                self._check_floor(header, now)
-            self._check_fresh(header, now)
-            self._check_replay(header, now, windows)
-            self.counters["accepted"] += 1
-            reader = _Reader(body)
-            if header.kind is PacketKind.DATA:
-                self._receive_data(header, reader, addr, now)
-            elif header.kind is PacketKind.REPORT:
-                self._receive_report(header, reader, addr, now)
-            elif header.kind is PacketKind.COMMAND:
-                self._receive_command(header, reader, addr, now)
-            else:
-                self._receive_status(header, reader, addr, now)
-        except RemoteProtocolError as exc:
-            self._drop(exc.reason, str(exc), addr)
+        self.receive_datagrams(((data, addr),), now)
+
+    def receive_datagrams(self, datagrams: Sequence[tuple[bytes, Address]], now: float) -> None:
+        """Take a burst of UDP payloads that arrived together (what one socket read-ready
+        drains); the same as :meth:`receive_datagram` on each, in order.
+
+        This is a ground station's hot loop (13,500 datagrams/s at 50 drones x 10 images/s):
+        a DATA datagram from a sender heard before, in order, takes the inlined path below
+        (the same checks in the same order as :meth:`_receive_one`, without a call per
+        check); everything else, including every error, goes through :meth:`_receive_one`.
+        """
+        counters = self.counters
+        counters["datagrams"] += len(datagrams)
+        limits = self.limits
+        max_bytes = limits.max_datagram_bytes
+        fleet_id = self.fleet_id
+        mac = self._mac
+        names = self._names
+        windows = self._windows
+        skew = limits.max_clock_skew_s
+        forget_after = math.inf if skew is None else 2 * skew
+        replay_bits = limits.replay_window
+        mask = self._window_mask
+        receive_data = self._receive_data
+        for data, addr in datagrams:
+            try:
+                if type(data) is not bytes:  # the body is kept as views: no mutable buffer
+                    data = bytes(data)
+                n = len(data)
+                if n > max_bytes or n <= _OVERHEAD_BYTES or self._floors:
+                    self._receive_one(data, addr, now)
+                    continue
+                magic, version, kind, fleet, pn, t_sent, body_len, sender_len = (
+                    _HEADER_UNPACK(data, 0))
+                if (kind != _DATA or magic != MAGIC or version != PROTOCOL_VERSION
+                        or fleet != fleet_id or not 1 <= sender_len <= MAX_ID_BYTES
+                        or n != _OVERHEAD_BYTES + sender_len + body_len):
+                    self._receive_one(data, addr, now)
+                    continue
+                end = n - TAG_BYTES
+                view = memoryview(data)
+                check = mac.copy()
+                check.update(view[:end])
+                if not _COMPARE(check.digest()[:TAG_BYTES], view[end:]):
+                    raise BadTag("HMAC tag does not match")
+                start = _HEADER_SIZE + sender_len
+                sender = names.get(data[_HEADER_SIZE:start])
+                if sender is None or not math.isfinite(t_sent):
+                    self._receive_one(data, addr, now)  # first datagram of a sender
+                    continue
+                if skew is not None and abs(t_sent - now) > skew:
+                    self._check_fresh(t_sent, now)
+                window = windows.get(sender)
+                if (window is not None and pn > window.highest
+                        and now - window.last_accept <= forget_after):
+                    shift = pn - window.highest
+                    window.seen = (((window.seen << shift) | 1) & mask
+                                   if shift < replay_bits else 1)
+                    window.highest = pn
+                    window.last_accept = now
+                    if t_sent - now > window.offset_max:
+                        window.offset_max = t_sent - now
+                    windows.move_to_end(sender)
+                else:
+                    self._check_replay(Header(PacketKind.DATA, fleet, pn, t_sent, sender),
+                                       now, windows)
+                counters["accepted"] += 1
+                receive_data(sender, t_sent, view[start:end], addr, now)
+            except RemoteProtocolError as exc:
+                self._drop(exc.reason, str(exc), addr)
+
+    def _receive_one(self, data: bytes, addr: Address, now: float) -> None:
+        """Every check, for any kind of datagram (errors escape to the caller)."""
+        header, start = unpack_header(
+            data,
+            mac=self._mac,
+            fleet_id=self.fleet_id,
+            max_datagram_bytes=self.limits.max_datagram_bytes,
+            names=self._names,
+        )
+        body = memoryview(data)[start : len(data) - TAG_BYTES]
+        kind = header.kind
+        windows = self._windows
+        if kind is PacketKind.COMMAND:
+            body = self._verify_command(data, body)
+            windows = self._command_windows
+        if self._floors:
+            self._check_floor(header, now)
+        self._check_fresh(header.t_sent, now)
+        self._check_replay(header, now, windows)
+        self.counters["accepted"] += 1
+        if kind is PacketKind.DATA:
+            self._receive_data(header.sender, header.t_sent, body, addr, now)
+        elif kind is PacketKind.REPORT:
+            self._receive_report(header, _Reader(body), addr, now)
+        elif kind is PacketKind.COMMAND:
+            self._receive_command(header, _Reader(body), addr, now)
+        else:
+            self._receive_status(header, _Reader(body), addr, now)
 
     # -- checks --------------------------------------------------------------------------
 
-    def _check_fresh(self, header: Header, now: float) -> None:
+    def _check_fresh(self, t_sent: float, now: float) -> None:
         skew = self.limits.max_clock_skew_s
-        if skew is not None and abs(header.t_sent - now) > skew:
+        if skew is not None and abs(t_sent - now) > skew:
             raise StalePacket(
-                f"t_sent {header.t_sent:.3f} is {header.t_sent - now:+.3f} s from now "
+                f"t_sent {t_sent:.3f} is {t_sent - now:+.3f} s from now "
                 f"(allowed ±{skew} s)"
             )
 
@@ -468,10 +562,26 @@ class Decoder:
 
     # -- DATA ----------------------------------------------------------------------------
 
-    def _receive_data(self, header: Header, reader: _Reader, addr: Address, now: float) -> None:
+    def _receive_data(
+        self, sender: str, t_sent: float, body: memoryview, addr: Address, now: float
+    ) -> None:
+        """One DATA fragment. The per-datagram hot path of a ground station (27 per 30 KB
+        image): reads with precompiled structs straight from the body, keeps the payload as
+        a view, and builds nothing per fragment but the reassembly key."""
         limits = self.limits
-        seq, t_gen, index, count, total, type_len = reader.unpack(DATA_FIXED)
-        msg_type = reader.short_id(type_len, "message type")
+        size = len(body)
+        if size < _DATA_FIXED_SIZE:
+            raise MalformedPacket("body too short")
+        seq, t_gen, index, count, total, type_len = _DATA_FIXED_UNPACK(body, 0)
+        if not 1 <= type_len <= MAX_ID_BYTES:
+            raise MalformedPacket(f"message type length {type_len} not in 1..{MAX_ID_BYTES}")
+        offset = _DATA_FIXED_SIZE + type_len
+        if offset > size:
+            raise MalformedPacket("body too short")
+        type_raw = body[_DATA_FIXED_SIZE:offset]
+        msg_type: str | None = self._names.get(type_raw)  # type: ignore[call-overload]
+        if msg_type is None:
+            msg_type = self._name(type_raw, "message type")
         if not math.isfinite(t_gen):
             raise MalformedPacket("t_gen is not finite")
         if not 0 <= index < count:
@@ -483,61 +593,81 @@ class Decoder:
         meta_len = 0
         metadata = b""
         if index == 0:
-            (meta_len,) = reader.unpack(METADATA_LEN)
-            metadata = reader.take(meta_len)
-        chunk = reader.rest()
-        if len(chunk) > total:
-            raise MalformedPacket(f"fragment of {len(chunk)} bytes > message of {total}")
-        key: MessageKey = (header.sender, seq, t_gen)
+            if offset + 2 > size:
+                raise MalformedPacket("body too short")
+            (meta_len,) = _METADATA_LEN_UNPACK(body, offset)
+            offset += 2
+            if offset + meta_len > size:
+                raise MalformedPacket("body too short")
+            metadata = bytes(body[offset : offset + meta_len])
+            offset += meta_len
+        chunk = body[offset:]
+        chunk_len = size - offset
+        if chunk_len > total:
+            raise MalformedPacket(f"fragment of {chunk_len} bytes > message of {total}")
+        key: MessageKey = (sender, seq, t_gen)
         if key in self._recent:
             self._drop("late_fragment", str(key), addr)
             return
+        partial = self._partials.get(key)
         # the metadata is parsed once, after the late check; a lone fragment is the message
         prototype = None
         if index == 0:
-            prototype = self._prototype(header, seq, msg_type, t_gen, metadata,
+            prototype = self._prototype(sender, t_sent, seq, msg_type, t_gen, metadata,
                                         t_rcv=max(now, t_gen) if count == 1 else None)
         if count == 1:
-            if len(chunk) != total or prototype is None:
+            if chunk_len != total or prototype is None:
                 raise MalformedPacket("single fragment does not hold the whole message")
-            self._emit_message(prototype, chunk, addr, now, fragments=1)
+            self._emit_message(prototype, bytes(chunk), addr, now, fragments=1)
             self._remember(key)
             return
-        partial = self._partials.get(key)
         if partial is None:
             partial = self._new_partial(key, msg_type, count, total, now)
         elif partial.count != count or partial.total != total or partial.type != msg_type:
             self._discard(key, evicted=False)
             raise MalformedPacket(f"fragment of {key} disagrees with the earlier ones")
-        if index in partial.chunks:
+        chunks = partial.chunks
+        if chunks[index] is not None:
             self._drop("duplicate_fragment", str(key), addr)
             return
-        if partial.payload_bytes + len(chunk) > total:
+        if partial.payload_bytes + chunk_len > total:
             self._discard(key, evicted=False)
             raise MalformedPacket(f"fragments of {key} exceed the declared {total} bytes")
-        cost = len(chunk) + meta_len
-        partial.chunks[index] = chunk
+        cost = chunk_len + meta_len
+        chunks[index] = chunk
+        partial.received += 1
         partial.buffered += cost
-        partial.payload_bytes += len(chunk)
+        partial.payload_bytes += chunk_len
         self._buffered += cost
         partial.deadline = now + limits.reassembly_timeout_s
         self._partials.move_to_end(key)
         if prototype is not None:
             partial.prototype = prototype
-        self._enforce_buffer_bound(keep=key)
-        if key not in self._partials:
-            return
-        if len(partial.chunks) == partial.count:
-            payload = b"".join(partial.chunks[i] for i in range(partial.count))
+        if self._buffered > limits.max_buffered_bytes:
+            self._enforce_buffer_bound(keep=key)
+            if key not in self._partials:
+                return
+        if partial.received == count:
+            # one copy: the views of the datagrams straight into the message's bytes
+            payload = b"".join(chunks)  # type: ignore[arg-type]  # all set: received == count
             self._release(key)
             self._remember(key)
             if len(payload) != partial.total or partial.prototype is None:
                 raise MalformedPacket(f"fragments of {key} add up to {len(payload)} bytes")
             message = replace(partial.prototype, t_rcv=max(now, partial.prototype.t_gen))
-            self._emit_message(message, payload, addr, now, fragments=partial.count)
+            self._emit_message(message, payload, addr, now, fragments=count)
+
+    def _name(self, raw: memoryview, what: str) -> str:
+        """Decode a short authenticated identifier (message type) and remember it, so the
+        next datagrams find it in ``_names`` (a memoryview hashes and compares as its bytes)."""
+        name = decode_id(bytes(raw), what)
+        if len(self._names) >= _MAX_NAMES:
+            self._names.clear()
+        self._names[bytes(raw)] = name
+        return name
 
     def _prototype(
-        self, header: Header, seq: int, msg_type: str, t_gen: float, raw: bytes,
+        self, sender: str, t_sent: float, seq: int, msg_type: str, t_gen: float, raw: bytes,
         *, t_rcv: float | None,
     ) -> Message:
         meta = loads_json_object(raw, "message metadata")
@@ -547,13 +677,13 @@ class Decoder:
             versions = _versions(meta.get("v", []))
             version = meta.get("i")
             return Message(
-                sender=header.sender,
+                sender=sender,
                 seq=seq,
                 type=msg_type,
                 t_gen=t_gen,
                 size=size,
                 receiver=self.local_id,
-                t_sent=header.t_sent,
+                t_sent=t_sent,
                 t_rcv=t_rcv,
                 data=data,
                 versions=versions,
@@ -574,6 +704,7 @@ class Decoder:
             count=count,
             total=total,
             deadline=now + self.limits.reassembly_timeout_s,
+            chunks=[None] * count,
         )
         self._partials[key] = partial
         return partial
@@ -609,7 +740,7 @@ class Decoder:
                 sender=sender,
                 seq=seq,
                 type=partial.type,
-                fragments_missing=partial.count - len(partial.chunks),
+                fragments_missing=partial.count - partial.received,
                 fragment_count=partial.count,
                 evicted=evicted,
             )

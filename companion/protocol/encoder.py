@@ -14,17 +14,22 @@ from companion.protocol.signing import CommandSigner
 from companion.protocol.wire import (
     COMMAND_FIXED,
     DATA_FIXED,
+    HEADER,
+    MAGIC,
     MAX_DATAGRAM_BYTES,
     METADATA_LEN,
     OVERHEAD_BYTES,
+    PROTOCOL_VERSION,
     REPORT_FIXED,
     SIGNATURE_BYTES,
     STATUS_FIXED,
+    TAG_BYTES,
     U8,
     PacketKind,
     check_key,
     dumps_json,
     encode_id,
+    keyed_mac,
     pack_datagram,
 )
 from utility_specs.message import Message
@@ -149,16 +154,37 @@ class Encoder:
         count = 1 + -(-rest // capacity)
         if count > _MAX_U16:
             raise LocalProtocolError(f"payload of {total} bytes needs {count} > 65535 fragments")
+        if not math.isfinite(now):
+            raise LocalProtocolError(f"now must be finite, got {now}")
+        if self._next_packet_number is None:
+            self._next_packet_number = max(0, int(now)) << 32
+        first_pn = self._next_packet_number
+        self._next_packet_number += count
+        # what pack_datagram does per datagram, inlined: a fleet sends ~27 per 30 KB image
         view = memoryview(payload)
+        sender_raw, mac = self._sender_raw, keyed_mac(self._key)
+        header_pack, fixed_pack = HEADER.pack, DATA_FIXED.pack
+        seq, t_gen, type_len = message.seq, message.t_gen, len(type_raw)
+        lead = DATA_FIXED.size + type_len
+        meta = METADATA_LEN.pack(len(metadata)) + metadata
         datagrams = []
         start = 0
         for index in range(count):
             end = min(total, start + (first_capacity if index == 0 else capacity))
-            fixed = DATA_FIXED.pack(message.seq, message.t_gen, index, count, total, len(type_raw))
-            prefix = fixed + type_raw
-            if index == 0:
-                prefix += METADATA_LEN.pack(len(metadata)) + metadata
-            datagrams.append(self._pack(PacketKind.DATA, prefix + view[start:end], now))
+            extra = meta if index == 0 else b""
+            signed = b"".join((
+                header_pack(MAGIC, PROTOCOL_VERSION, PacketKind.DATA, self.fleet_id,
+                            (first_pn + index) & _MAX_U64, now,
+                            lead + len(extra) + end - start, len(sender_raw)),
+                sender_raw,
+                fixed_pack(seq, t_gen, index, count, total, type_len),
+                type_raw,
+                extra,
+                view[start:end],
+            ))
+            check = mac.copy()
+            check.update(signed)
+            datagrams.append(signed + check.digest()[:TAG_BYTES])
             start = end
         return datagrams
 
