@@ -47,10 +47,7 @@ from companion.mavlink_commands import (
 )
 from companion.mavlink_convert import MavlinkConverter, decode_param_value
 from companion.mavlink_reader import Clock, MavlinkReader
-from companion.telemetry import (
-    Sample,
-    TelemetryState,
-)
+from companion.telemetry import Sample, TelemetryState
 
 __all__ = [
     "DEFAULT_STREAM_RATES_HZ",

@@ -13,26 +13,20 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl.vehicle.autopilot import (
+from sitl.vehicle.autopilot import FlightController
+from sitl.vehicle.autopilot_events import (
     ACCEPTED,
     DENIED,
     FAILED,
     UNSUPPORTED,
     CommandResult,
-    FlightController,
     GuidedTarget,
 )
 from sitl.vehicle.fields import finite_field, int_field, lat_lon_field, text_field
 from sitl.vehicle.flavour import Flavour, decode_param_value, encode_param_value
-from sitl.vehicle.mission import (
-    commanded_alt_rel_m,
-)
+from sitl.vehicle.mission import commanded_alt_rel_m
 from sitl.vehicle.params import ParamTable
-from sitl.vehicle.telemetry import (
-    DEFAULT_INTERVALS_S,
-    PX4_EXTRA_INTERVALS_S,
-    Telemetry,
-)
+from sitl.vehicle.telemetry import DEFAULT_INTERVALS_S, PX4_EXTRA_INTERVALS_S, Telemetry
 
 
 class CommandHandlers:

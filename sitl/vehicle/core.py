@@ -24,10 +24,10 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sitl.geo import GeoPoint, enu_from_geo
-from sitl.vehicle.autopilot import (
+from sitl.vehicle.autopilot import FlightController
+from sitl.vehicle.autopilot_events import (
     CurrentItemChanged,
     FixAcquired,
-    FlightController,
     HomeChanged,
     ItemReached,
     ModeChanged,
@@ -36,9 +36,7 @@ from sitl.vehicle.autopilot import (
 from sitl.vehicle.commands import CommandHandlers
 from sitl.vehicle.fields import BadField
 from sitl.vehicle.flavour import PX4, Flavour, Mode
-from sitl.vehicle.mission import (
-    MissionItem,
-)
+from sitl.vehicle.mission import MissionItem
 from sitl.vehicle.mission_protocol import MISSION_CANCELLED, MissionProtocol, _Upload
 from sitl.vehicle.params import ParamTable
 from sitl.vehicle.physics import Airframe

@@ -9,11 +9,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from sitl.vehicle.mission import (
-    GLOBAL_FRAMES,
-    RELATIVE_FRAMES,
-    is_nav_command,
-)
+from sitl.vehicle.mission import GLOBAL_FRAMES, RELATIVE_FRAMES, is_nav_command
 
 
 class BadField(ValueError):

@@ -9,16 +9,10 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sitl.vehicle.autopilot import (
-    FlightController,
-)
+from sitl.vehicle.autopilot import FlightController
 from sitl.vehicle.fields import mission_item_error
-from sitl.vehicle.mission import (
-    MissionItem,
-)
-from sitl.vehicle.telemetry import (
-    Telemetry,
-)
+from sitl.vehicle.mission import MissionItem
+from sitl.vehicle.telemetry import Telemetry
 
 # MAV_MISSION_RESULT
 MISSION_ACCEPTED = 0
