@@ -26,7 +26,8 @@ from sitl.vehicle.fields import finite_field, int_field, lat_lon_field, text_fie
 from sitl.vehicle.flavour import Flavour, decode_param_value, encode_param_value
 from sitl.vehicle.mission import commanded_alt_rel_m
 from sitl.vehicle.params import ParamTable
-from sitl.vehicle.telemetry import DEFAULT_INTERVALS_S, PX4_EXTRA_INTERVALS_S, Telemetry
+from sitl.vehicle.stream_tables import DEFAULT_INTERVALS_S, PX4_EXTRA_INTERVALS_S
+from sitl.vehicle.telemetry import Telemetry
 
 
 class CommandHandlers:

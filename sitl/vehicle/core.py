@@ -40,13 +40,13 @@ from sitl.vehicle.mission import MissionItem
 from sitl.vehicle.mission_protocol import MISSION_CANCELLED, MissionProtocol, _Upload
 from sitl.vehicle.params import ParamTable
 from sitl.vehicle.physics import Airframe
-from sitl.vehicle.telemetry import (
+from sitl.vehicle.stream_tables import (
     DEFAULT_INTERVALS_S,
     MSG_HEARTBEAT,
     PX4_EXTRA_INTERVALS_S,
     STREAM_GROUPS,
-    Telemetry,
 )
+from sitl.vehicle.telemetry import Telemetry
 from sitl.vehicle.traffic import TrafficAwareness, TrafficList
 
 __all__ = ["DEFAULT_FIRST_FIX_S", "DEFAULT_HOME", "VehicleConfig", "VehicleCore"]
