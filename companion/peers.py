@@ -58,7 +58,7 @@ class PeersSettings:
 
 def parse_peers_settings(raw: Mapping[str, Any]) -> PeersSettings:
     """Validate the ``[peers]`` table; ValueError names the key and what was expected."""
-    from companion.transport import parse_medium
+    from companion.medium import parse_medium
 
     known = {"medium", "adsb_rate_hz", "http", "forget_after_s"}
     unknown = sorted(set(raw) - known)
