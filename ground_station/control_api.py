@@ -21,7 +21,7 @@ from ground_station.keys import (
     MISSIONS,
     STORAGE,
 )
-from ground_station.missions import MissionError, parse_params, parse_when
+from ground_station.mission_input import MissionError, parse_params, parse_when
 
 __all__ = ["api_end", "api_params", "api_report", "api_reset_reports", "api_start"]
 
