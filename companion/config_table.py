@@ -5,11 +5,11 @@ value and what was found.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
 from companion.protocol.wire import MAX_ID_BYTES
+from utility_specs.data_fields import is_number
 
 __all__ = ["ConfigError", "Table", "is_mavlink_url", "is_number", "is_sender_id"]
 
@@ -75,11 +75,6 @@ class Table:
         unknown = sorted(set(self.raw) - self.used)
         if unknown:
             self.fail(unknown[0], f"one of {sorted(self.used)}", self.raw[unknown[0]])
-
-
-def is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(
-        value)
 
 
 def is_sender_id(value: Any) -> bool:

@@ -35,6 +35,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from utility_specs.data_fields import first_number
 from utility_specs.message import Message
 
 __all__ = ["AdsbReport", "PeerState", "PeerTable", "callsign_for", "icao_for"]
@@ -62,15 +63,6 @@ def icao_for(drone_id: str) -> int:
 def callsign_for(drone_id: str) -> str:
     """ADS-B callsign of a drone: A-Z, 0-9, at most 8 characters."""
     return _CALLSIGN_DROP.sub("", drone_id.upper())[:8] or "UAV"
-
-
-def _num(data: Mapping[str, Any], *keys: str) -> float | None:
-    for key in keys:
-        value = data.get(key)
-        if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(
-                value):
-            return float(value)
-    return None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -165,10 +157,11 @@ class PeerTable:
             log.info("peer %s heard", message.sender)
         peer = replace(peer, t_heard=max(peer.t_heard, now))
         t_obs = message.t_gen
-        if message.type == "position" or _num(data, "lat_deg") is not None:
-            peer = self._position(peer, data, t_obs - max(0.0, _num(data, "pose_age_s") or 0.0))
+        if message.type == "position" or first_number(data, "lat_deg") is not None:
+            pose_age = max(0.0, first_number(data, "pose_age_s") or 0.0)
+            peer = self._position(peer, data, t_obs - pose_age)
         if message.type == "battery":
-            level = _num(data, "level")
+            level = first_number(data, "level")
             if level is not None and (peer.t_battery is None or t_obs >= peer.t_battery):
                 peer = replace(peer, battery=level, t_battery=t_obs)
         if message.type == "status" and (peer.t_status is None or t_obs >= peer.t_status):
@@ -181,7 +174,7 @@ class PeerTable:
                     else "other")
 
     def _position(self, peer: PeerState, data: Mapping[str, Any], t_obs: float) -> PeerState:
-        lat, lon = _num(data, "lat_deg"), _num(data, "lon_deg")
+        lat, lon = first_number(data, "lat_deg"), first_number(data, "lon_deg")
         if lat is None or lon is None or not (abs(lat) <= 90 and abs(lon) <= 180):
             self._count("no_position")
             return peer
@@ -189,8 +182,8 @@ class PeerTable:
             self._count("older_position")
             return peer
         velocity: tuple[float, float, float] | None = None
-        vn, ve, vd = (_num(data, k) for k in ("vn_m_s", "ve_m_s", "vd_m_s"))
-        alt_rel = _num(data, "alt_rel_m", "alt_m")
+        vn, ve, vd = (first_number(data, k) for k in ("vn_m_s", "ve_m_s", "vd_m_s"))
+        alt_rel = first_number(data, "alt_rel_m", "alt_m")
         if vn is not None and ve is not None:
             velocity = (vn, ve, vd or 0.0)
         elif (peer.t_position is not None and peer.lat_deg is not None
@@ -204,8 +197,8 @@ class PeerTable:
                 dd = -(alt_rel - peer.alt_rel_m)
             velocity = (dn / dt, de / dt, dd / dt)
         return replace(peer, lat_deg=lat, lon_deg=lon, alt_rel_m=alt_rel,
-                       alt_amsl_m=_num(data, "alt_amsl_m"),
-                       heading_deg=_num(data, "heading_deg"), velocity_ned_m_s=velocity,
+                       alt_amsl_m=first_number(data, "alt_amsl_m"),
+                       heading_deg=first_number(data, "heading_deg"), velocity_ned_m_s=velocity,
                        t_position=t_obs)
 
     def forget_silent(self, now: float) -> list[str]:

@@ -23,20 +23,10 @@ from ground_station.drone_state import (
     DroneState,
     LatestImage,
 )
+from utility_specs.data_fields import first_number
 from utility_specs.message import Message
 
 __all__ = ["RATE_WINDOW_S", "Alert", "DroneState", "FleetView", "LatestImage"]
-
-_NUMBER = (int, float)
-
-
-def _num(data: Mapping[str, Any], *keys: str) -> float | None:
-    for key in keys:
-        value = data.get(key)
-        if isinstance(value, _NUMBER) and not isinstance(value, bool) and math.isfinite(value):
-            return float(value)
-    return None
-
 
 class FleetView:
     """Per-drone live state, fleet-wide link series and the alert list.
@@ -136,7 +126,7 @@ class FleetView:
                 t_rcv=t_rcv,
                 size=message.size,
                 utility=utility,
-                red=_num(message.data, "red"),
+                red=first_number(message.data, "red"),
                 object=bool(obj) if isinstance(obj, bool | int | float) else False,
                 high=self.is_high(utility),
             )
@@ -160,7 +150,7 @@ class FleetView:
             state.field_t[name] = at
             return True
 
-        battery = _num(data, "level", "battery", "battery_level", "battery_remaining")
+        battery = first_number(data, "level", "battery", "battery_level", "battery_remaining")
         if battery is not None and newer("battery"):
             state.battery = battery / 100.0 if battery > 1.0 else battery
         mode = data.get("mode")
@@ -175,11 +165,11 @@ class FleetView:
         connected = data.get("connected")
         if isinstance(connected, bool) and newer("autopilot_connected"):
             state.autopilot_connected = connected
-        fix = _num(data, "gps_fix", "fix_type", "fix")
+        fix = first_number(data, "gps_fix", "fix_type", "fix")
         if fix is not None and newer("gps_fix"):
             state.gps_fix = int(fix)
-        t_pose = t - max(0.0, _num(data, "pose_age_s") or 0.0)
-        lat, lon = _num(data, "lat_deg", "lat"), _num(data, "lon_deg", "lon")
+        t_pose = t - max(0.0, first_number(data, "pose_age_s") or 0.0)
+        lat, lon = first_number(data, "lat_deg", "lat"), first_number(data, "lon_deg", "lon")
         if data.get("position") == "none":
             if newer("position", t_pose):
                 state.no_position = True
@@ -187,30 +177,31 @@ class FleetView:
             state.no_position = False
             state.lat_deg, state.lon_deg = lat, lon
             state.x_m, state.y_m = self._local(lat, lon)
-        x, y = _num(data, "x_m", "x"), _num(data, "y_m", "y")
+        x, y = first_number(data, "x_m", "x"), first_number(data, "y_m", "y")
         if x is not None and y is not None and lat is None and newer("position", t_pose):
             state.x_m, state.y_m = x, y
-        alt = _num(data, "alt_m", "alt_rel_m", "alt", "relative_alt_m")
+        alt = first_number(data, "alt_m", "alt_rel_m", "alt", "relative_alt_m")
         if alt is not None and newer("alt_m", t_pose):
             state.alt_m = alt
-        heading = _num(data, "heading_deg", "yaw_deg", "hdg_deg")
+        heading = first_number(data, "heading_deg", "yaw_deg", "hdg_deg")
         if heading is not None and newer("heading_deg", t_pose):
             state.heading_deg = heading
-        xi = _num(data, "xi_bytes_per_s", "xi", "constraint_bytes_per_s", "limit_bytes_per_s")
+        xi = first_number(data, "xi_bytes_per_s", "xi", "constraint_bytes_per_s",
+                          "limit_bytes_per_s")
         if xi is not None and newer("xi_bytes_per_s"):
             state.xi_bytes_per_s = xi
-        fallback = _num(data, "fallback_share")
+        fallback = first_number(data, "fallback_share")
         if fallback is not None and 0.0 <= fallback <= 1.0:
             state.fallback_share = fallback
-        delta = _num(data, "delta_s", "delta")
+        delta = first_number(data, "delta_s", "delta")
         if delta is not None and newer("delta_s"):
             state.delta_s = delta
-        loss = _num(data, "loss", "loss_share", "loss_rate")
+        loss = first_number(data, "loss", "loss_share", "loss_rate")
         if loss is not None and newer("loss"):
             state.loss = loss
         text = data.get("statustext", data.get("text"))
         if isinstance(text, str) and text:
-            severity = _num(data, "severity")
+            severity = first_number(data, "severity")
             level = "error" if severity is not None and severity <= 3 else "warning"
             if severity is not None and severity >= 6:
                 level = "info"

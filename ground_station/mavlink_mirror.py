@@ -43,6 +43,8 @@ from typing import Any, cast
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from utility_specs.data_fields import first_number
+
 __all__ = ["Addr", "MavlinkMirror", "parse_endpoint", "system_id_for"]
 
 log = logging.getLogger("ground_station.mavlink_out")  # one logger name for the endpoint
@@ -90,15 +92,6 @@ def parse_endpoint(text: str) -> Addr:
     if not sep or not host or not port_text.isdigit() or not 0 <= int(port_text) < 65536:
         raise ValueError(f"expected HOST:PORT with a port 0..65535, got {text!r}")
     return host, int(port_text)
-
-
-def _num(data: Mapping[str, Any], *keys: str) -> float | None:
-    for key in keys:
-        value = data.get(key)
-        if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(
-                value):
-            return float(value)
-    return None
 
 
 def _clamp_int(value: float, low: int, high: int) -> int:
@@ -178,11 +171,11 @@ class MavlinkMirror:
             state.data[key] = value
         text = data.get("statustext", data.get("text"))
         if isinstance(text, str) and text:
-            severity = _num(data, "severity")
+            severity = first_number(data, "severity")
             state.texts.append((_clamp_int(severity if severity is not None else 6, 0, 7),
                                 text))
             del state.texts[:-20]
-        if _num(data, "lat_deg") is not None and _num(data, "lon_deg") is not None:
+        if first_number(data, "lat_deg") is not None and first_number(data, "lon_deg") is not None:
             state.position_new = True
         self._emit_due(now)
 
@@ -285,14 +278,14 @@ class MavlinkMirror:
 
     def _position(self, state: _Drone, now: float) -> None:
         data = state.data
-        lat, lon = _num(data, "lat_deg"), _num(data, "lon_deg")
+        lat, lon = first_number(data, "lat_deg"), first_number(data, "lon_deg")
         if lat is None or lon is None:
             return
-        rel = _num(data, "alt_rel_m", "alt_m") or 0.0
-        amsl = _num(data, "alt_amsl_m")
+        rel = first_number(data, "alt_rel_m", "alt_m") or 0.0
+        amsl = first_number(data, "alt_amsl_m")
         amsl = rel if amsl is None else amsl
-        heading = _num(data, "heading_deg")
-        vn, ve, vd = (_num(data, k) or 0.0 for k in ("vn_m_s", "ve_m_s", "vd_m_s"))
+        heading = first_number(data, "heading_deg")
+        vn, ve, vd = (first_number(data, k) or 0.0 for k in ("vn_m_s", "ve_m_s", "vd_m_s"))
         self._send(state, mavlink.MAVLink_global_position_int_message(
             _boot_ms(now), _clamp_int(lat * 1e7, -900000000, 900000000),
             _clamp_int(lon * 1e7, -1800000000, 1800000000),
@@ -304,9 +297,9 @@ class MavlinkMirror:
 
     def _attitude(self, state: _Drone, now: float) -> None:
         data = state.data
-        roll, pitch = _num(data, "roll_rad"), _num(data, "pitch_rad")
-        yaw = _num(data, "yaw_rad")
-        if yaw is None and (heading := _num(data, "heading_deg")) is not None:
+        roll, pitch = first_number(data, "roll_rad"), first_number(data, "pitch_rad")
+        yaw = first_number(data, "yaw_rad")
+        if yaw is None and (heading := first_number(data, "heading_deg")) is not None:
             yaw = math.radians(heading)
         if roll is None and pitch is None and yaw is None:
             return
@@ -316,28 +309,28 @@ class MavlinkMirror:
             _boot_ms(now), roll or 0.0, pitch or 0.0, yaw, 0.0, 0.0, 0.0))
 
     def _level(self, state: _Drone) -> int:
-        level = _num(state.data, "level", "battery")
+        level = first_number(state.data, "level", "battery")
         if level is None:
             return -1
         return _clamp_int(level if level > 1.0 else level * 100, 0, 100)
 
     def _sys_status(self, state: _Drone) -> None:
-        volts = _num(state.data, "battery_v")
+        volts = first_number(state.data, "battery_v")
         mv = UINT16_MAX if volts is None else _clamp_int(volts * 1000, 0, UINT16_MAX - 1)
         self._send(state, mavlink.MAVLink_sys_status_message(
             0, 0, 0, 0, mv, -1, self._level(state), 0, 0, 0, 0, 0, 0))
 
     def _battery(self, state: _Drone) -> None:
-        volts = _num(state.data, "battery_v")
+        volts = first_number(state.data, "battery_v")
         mv = UINT16_MAX if volts is None else _clamp_int(volts * 1000, 0, UINT16_MAX - 1)
         self._send(state, mavlink.MAVLink_battery_status_message(
             0, 0, 0, INT16_MAX, [mv] + [UINT16_MAX] * 9, -1, -1, -1, self._level(state)))
 
     def _gps(self, state: _Drone) -> None:
         data = state.data
-        fix = _num(data, "fix_type", "gps_fix")
-        lat, lon = _num(data, "lat_deg"), _num(data, "lon_deg")
-        amsl = _num(data, "alt_amsl_m", "alt_rel_m") or 0.0
+        fix = first_number(data, "fix_type", "gps_fix")
+        lat, lon = first_number(data, "lat_deg"), first_number(data, "lon_deg")
+        amsl = first_number(data, "alt_amsl_m", "alt_rel_m") or 0.0
         self._send(state, mavlink.MAVLink_gps_raw_int_message(
             0, _clamp_int(fix or 0, 0, 8),
             0 if lat is None else _clamp_int(lat * 1e7, -900000000, 900000000),
