@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -40,18 +40,19 @@ class CommandHandlers:
     counters: Counter[str]
     telemetry: Telemetry
 
-    def _send(self, msg: Any) -> None:
-        raise NotImplementedError
+    if TYPE_CHECKING:  # provided by VehicleCore
+        def _send(self, msg: Any) -> None:
+            raise NotImplementedError
 
-    def statustext(self, severity: int, text: str) -> None:
-        raise NotImplementedError
+        def statustext(self, severity: int, text: str) -> None:
+            raise NotImplementedError
 
-    def set_interval(self, msg_id: int, interval_s: float | None, now: float) -> bool:
-        raise NotImplementedError
+        def set_interval(self, msg_id: int, interval_s: float | None, now: float) -> bool:
+            raise NotImplementedError
 
-    def _geo_to_ned(self, lat_deg: float, lon_deg: float, alt_rel_m: float
-                    ) -> tuple[float, float, float]:
-        raise NotImplementedError
+        def _geo_to_ned(self, lat_deg: float, lon_deg: float, alt_rel_m: float
+                        ) -> tuple[float, float, float]:
+            raise NotImplementedError
 
     def _ack(self, msg: Any, command: int, res: CommandResult) -> None:
         if res.text:

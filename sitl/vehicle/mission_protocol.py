@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -41,11 +41,12 @@ class MissionProtocol:
     _stored: dict[int, list[MissionItem]]
     _upload: _Upload | None
 
-    def _send(self, msg: Any) -> None:
-        raise NotImplementedError
+    if TYPE_CHECKING:  # provided by VehicleCore
+        def _send(self, msg: Any) -> None:
+            raise NotImplementedError
 
-    def statustext(self, severity: int, text: str) -> None:
-        raise NotImplementedError
+        def statustext(self, severity: int, text: str) -> None:
+            raise NotImplementedError
 
     def _on_mission_count(self, msg: Any, now: float) -> None:
         mtype = getattr(msg, "mission_type", 0)
