@@ -9,13 +9,13 @@ See ``examples/companion.toml`` for every key with its default.
 
 from __future__ import annotations
 
-import math
 import tomllib
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from companion.config_table import ConfigError, Table, is_mavlink_url, is_number, is_sender_id
 from companion.mavlink import DEFAULT_STREAM_RATES_HZ, MavlinkSettings
 from companion.peers import PeersSettings, parse_peers_settings
 from companion.protocol.errors import LocalProtocolError
@@ -40,10 +40,6 @@ __all__ = [
 ]
 
 DEFAULT_CONFIG_PATH = Path("/etc/uav-companion/config.toml")
-
-
-class ConfigError(ValueError):
-    """A configuration that cannot be used; the text names file, key and expected value."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -132,65 +128,6 @@ class CompanionConfig:
     source: str = "<memory>"
 
 
-class _Table:
-    """Typed reads from one TOML table; errors name ``source: prefix.key``."""
-
-    def __init__(self, raw: Any, source: str, prefix: str) -> None:
-        self.source = source
-        self.prefix = prefix
-        if not isinstance(raw, Mapping):
-            self.fail("", "a table", raw)
-        self.raw: Mapping[str, Any] = raw
-        self.used: set[str] = set()
-
-    def key(self, name: str) -> str:
-        return f"{self.prefix}.{name}" if self.prefix and name else (self.prefix or name)
-
-    def fail(self, name: str, expected: str, got: Any) -> None:
-        raise ConfigError(f"{self.source}: {self.key(name)}: expected {expected}, got {got!r}")
-
-    def get(self, name: str, default: Any, expected: str, ok: Callable[[Any], bool]) -> Any:
-        self.used.add(name)
-        if name not in self.raw:
-            return default
-        value = self.raw[name]
-        if not ok(value):
-            self.fail(name, expected, value)
-        return value
-
-    def string(self, name: str, default: str | None, *, required: bool = False) -> Any:
-        if required and name not in self.raw:
-            self.fail(name, "a non-empty string", None)
-        return self.get(name, default, "a non-empty string",
-                        lambda v: isinstance(v, str) and bool(v))
-
-    def number(self, name: str, default: float, *, minimum: float = 0.0,
-               strict: bool = True) -> float:
-        rule = f"a number {'>' if strict else '>='} {minimum:g}"
-        return float(self.get(name, default, rule, lambda v: _is_number(v) and (
-            v > minimum if strict else v >= minimum)))
-
-    def integer(self, name: str, default: int, *, low: int, high: int) -> int:
-        return int(self.get(name, default, f"an integer in {low}..{high}",
-                            lambda v: isinstance(v, int) and not isinstance(v, bool)
-                            and low <= v <= high))
-
-    def boolean(self, name: str, default: bool) -> bool:
-        return bool(self.get(name, default, "true or false", lambda v: isinstance(v, bool)))
-
-    def table(self, name: str) -> _Table:
-        self.used.add(name)
-        return _Table(self.raw.get(name, {}), self.source, self.key(name))
-
-    def mapping(self, name: str) -> dict[str, Any]:
-        return dict(self.get(name, {}, "a table", lambda v: isinstance(v, Mapping)))
-
-    def done(self) -> None:
-        unknown = sorted(set(self.raw) - self.used)
-        if unknown:
-            self.fail(unknown[0], f"one of {sorted(self.used)}", self.raw[unknown[0]])
-
-
 def _check_policy(name: Any, source: str) -> None:
     """``[middleware] policy`` must name a registered decision policy."""
     from companion.middleware.policies import DECIDERS
@@ -200,45 +137,13 @@ def _check_policy(name: Any, source: str) -> None:
                           f"{', '.join(sorted(DECIDERS))}, got {name!r}")
 
 
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(
-        value)
-
-
-def _is_sender_id(value: Any) -> bool:
-    """What the wire protocol can carry (and ``run`` would otherwise refuse later)."""
-    if not isinstance(value, str) or not value or not value.isprintable():
-        return False
-    return len(value.encode("utf-8", "surrogatepass")) <= MAX_ID_BYTES
-
-
-_NETWORK_SCHEMES = ("udpin", "udpout", "udp", "udpbcast", "tcp", "tcpin")
-_OTHER_SCHEMES = ("mcast", "ws", "wsserver", "wss")
-
-
-def _is_mavlink_url(value: Any) -> bool:
-    """A network URL with a real port, or a serial device path (``PATH[,BAUD]``)."""
-    if not isinstance(value, str) or not value or not value.isprintable():
-        return False
-    scheme, sep, rest = value.partition(":")
-    if sep and scheme in _NETWORK_SCHEMES:
-        host, sep, port = rest.rpartition(":")
-        return bool(sep and host and port.isdigit() and 1 <= int(port) <= 65535)
-    if sep and scheme in _OTHER_SCHEMES:
-        return True
-    if value.startswith(("/", "COM")):  # serial: /dev/serial0, /dev/ttyACM0,921600
-        _path, _, baud = value.partition(",")
-        return not baud or (baud.isdigit() and 0 < int(baud) <= 12_000_000)
-    return False
-
-
 def _resolve(path: str, base: Path) -> Path:
     """A path from the file, relative to the file's folder."""
     p = Path(path).expanduser()
     return p if p.is_absolute() else base / p
 
 
-def _command_public_key(t: _Table, base: Path) -> bytes | None:
+def _command_public_key(t: Table, base: Path) -> bytes | None:
     key_file = t.string("command_public_key_file", None)
     key_text = t.string("command_public_key", None)
     name = "command_public_key_file" if key_file is not None else "command_public_key"
@@ -271,7 +176,7 @@ def missing_keys(config: CompanionConfig) -> str | None:
             "ground_station.fleet_key_file and ground_station.command_public_key_file")
 
 
-def _fleet_key(t: _Table, base: Path) -> bytes | None:
+def _fleet_key(t: Table, base: Path) -> bytes | None:
     key_file = t.string("fleet_key_file", None)
     key_text = t.string("fleet_key", None)
     if key_file is not None:
@@ -291,23 +196,23 @@ def _fleet_key(t: _Table, base: Path) -> bytes | None:
 
 def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> CompanionConfig:
     """Validate a parsed TOML mapping into a :class:`CompanionConfig`."""
-    root = _Table(raw, source, "")
+    root = Table(raw, source, "")
     base = Path(source).parent if source != "<memory>" else Path.cwd()
 
     drone = root.table("drone")
     drone_id = str(drone.string("id", None, required=True))
-    if not _is_sender_id(drone_id):  # what the wire carries; `run` would refuse it later
+    if not is_sender_id(drone_id):  # what the wire carries; `run` would refuse it later
         drone.fail("id", f"a printable sender id of 1..{MAX_ID_BYTES} UTF-8 bytes", drone_id)
     drone.done()
 
     mav = root.table("mavlink")
     url = mav.get("url", "udpin:0.0.0.0:14550", "a pymavlink URL: udpin:HOST:PORT, "
                   "udpout:HOST:PORT, tcp:HOST:PORT (port 1..65535) or a serial device "
-                  "path like /dev/serial0", _is_mavlink_url)
+                  "path like /dev/serial0", is_mavlink_url)
     rates = mav.get("stream_rates_hz", dict(DEFAULT_STREAM_RATES_HZ),
                     f"a table of message names ({', '.join(DEFAULT_STREAM_RATES_HZ)}) to Hz",
                     lambda v: isinstance(v, Mapping) and all(
-                        k in DEFAULT_STREAM_RATES_HZ and _is_number(x) and x >= 0
+                        k in DEFAULT_STREAM_RATES_HZ and is_number(x) and x >= 0
                         for k, x in v.items()))
     mavlink = MavlinkSettings(
         url=url,

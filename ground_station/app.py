@@ -3,7 +3,8 @@
 ``create_app(config)`` wires everything (aiohttp "app factory"); ``web.run_app`` runs it and
 tests import the same factory. The UDP endpoint and the storage are one-``yield`` cleanup
 contexts, WebSockets sit in a ``WeakSet`` closed at shutdown, and one middleware checks the
-control token.
+control token. The read API and the WebSocket are here; the token middleware and the login in
+:mod:`ground_station.auth`, the control API in :mod:`ground_station.control_api`.
 """
 
 from __future__ import annotations
@@ -14,16 +15,23 @@ import json
 import logging
 import time
 import weakref
-from collections.abc import AsyncIterator, Awaitable, Callable
-from pathlib import Path
+from collections.abc import AsyncIterator, Callable
 from typing import Any
 
 from aiohttp import WSCloseCode, WSMsgType, web
 
+from ground_station.auth import LOGIN_CODES, STATIC_DIR, api_login, index, token_middleware
 from ground_station.broadcast import Broadcaster
 from ground_station.config import GroundConfig
-from ground_station.fleet import RATE_WINDOW_S, Alert, FleetView, LatestImage
-from ground_station.http_guard import add_security_headers, same_origin
+from ground_station.control_api import (
+    api_end,
+    api_params,
+    api_report,
+    api_reset_reports,
+    api_start,
+)
+from ground_station.fleet import RATE_WINDOW_S, FleetView, LatestImage
+from ground_station.http_guard import add_security_headers, json_reply, same_origin
 from ground_station.keys import (
     BROADCASTER,
     CLOCK,
@@ -37,110 +45,26 @@ from ground_station.keys import (
     TOKEN,
     WEBSOCKETS,
 )
-from ground_station.missions import MissionError, MissionManager, parse_params, parse_when
+from ground_station.missions import MissionManager
 from ground_station.receiver import GroundLink
 from ground_station.scene_map import load_scene_map
 from ground_station.storage import ImageRow, Storage
 from ground_station.store_service import StorageService
-from ground_station.token import (
-    SESSION_COOKIE,
-    LoginCodes,
-    ensure_token,
-    session_value,
-    token_matches,
-)
+from ground_station.token import LoginCodes, ensure_token
 from ground_station.utility import image_utility_from_spec
 
 __all__ = ["STATIC_DIR", "create_app"]
 
 log = logging.getLogger(__name__)
 
-STATIC_DIR = Path(__file__).parent / "static"
-LOGIN_CODES: web.AppKey[LoginCodes] = web.AppKey("login_codes")
 SCENE_MAP: web.AppKey[dict[str, Any] | None] = web.AppKey("scene_map")
-Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
-
-
-def _json(data: Any, status: int = 200) -> web.Response:
-    return web.json_response(data, status=status, dumps=lambda v: json.dumps(v, default=str))
-
-
-def _header_token(request: web.Request) -> str | None:
-    """The token from a header; never from the URL (URLs end up in logs and histories)."""
-    auth = request.headers.get("Authorization", "")
-    if auth.startswith("Bearer "):
-        return auth[7:].strip()
-    return request.headers.get("X-GS-Token")
-
-
-def _authorized(request: web.Request, *, control: bool) -> bool:
-    """A header token, or the dashboard's HttpOnly session cookie. With the cookie, control
-    requests must also come from this origin (a SameSite=Strict cookie plus an Origin check:
-    no cross-site request forgery)."""
-    token = request.app[TOKEN]
-    given = _header_token(request)
-    if given is not None:
-        return token_matches(token, given)
-    cookie = request.cookies.get(SESSION_COOKIE)
-    if cookie is None or not token_matches(session_value(token), cookie):
-        return False
-    return not control or same_origin(request)
-
-
-def _is_control(request: web.Request) -> bool:
-    return request.path.startswith("/api/") and request.method not in ("GET", "HEAD", "OPTIONS")
-
-
-def _is_data_read(request: web.Request) -> bool:
-    return request.path.startswith("/api/") or request.path == "/ws"
-
-
-@web.middleware
-async def token_middleware(request: web.Request, handler: Handler) -> web.StreamResponse:
-    """The single place the control token is checked (control routes; reads unless public)."""
-    app = request.app
-    control = _is_control(request)
-    needs = control or (_is_data_read(request) and not app[CONFIG].public_read)
-    if needs and not _authorized(request, control=control):
-        return _json(
-            {"error": "unauthorized", "hint": "send 'Authorization: Bearer <token>'"}, status=401
-        )
-    return await handler(request)
-
-
-# -- pages ---------------------------------------------------------------------------------
-def _set_session(response: web.StreamResponse, request: web.Request) -> None:
-    response.set_cookie(SESSION_COOKIE, session_value(request.app[TOKEN]), path="/",
-                        httponly=True, samesite="Strict", secure=request.secure)
-
-
-async def index(request: web.Request) -> web.StreamResponse:
-    """The dashboard. ``?login=CODE`` (one-time) is exchanged for the session cookie and
-    removed from the address bar by a redirect; a token in the URL is never accepted."""
-    if "login" in request.query or "token" in request.query:
-        code = request.query.get("login")
-        kept = [(k, v) for k, v in request.query.items() if k not in ("login", "token")]
-        target = request.rel_url.with_query(kept)
-        response = web.HTTPSeeOther(location=str(target))
-        if code is not None and request.app[LOGIN_CODES].redeem(code, now=request.app[CLOCK]()):
-            _set_session(response, request)
-        raise response
-    return web.FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
-
-
-async def api_login(request: web.Request) -> web.Response:
-    """The token box: the token comes in a header (checked by the middleware), the browser
-    gets the HttpOnly session cookie and JavaScript never keeps the token."""
-    response = web.Response(status=204)
-    _set_session(response, request)
-    return response
 
 
 # -- read API ------------------------------------------------------------------------------
 async def api_stats(request: web.Request) -> web.Response:
     app = request.app
     now = app[CLOCK]()
-    return _json(
+    return json_reply(
         {"station": app[CONFIG].station_id, "mission": app[CONFIG].mission}
         | app[LINK].stats(now=now)
     )
@@ -153,7 +77,7 @@ async def api_fleet(request: web.Request) -> web.Response:
     snap["mission"] = app[MISSIONS].state(now=now)
     snap["config"] = {"station_id": app[CONFIG].station_id, "alpha": app[CONFIG].alpha} | (
         _dashboard_config(app))
-    return _json(snap)
+    return json_reply(snap)
 
 
 def _dashboard_config(app: web.Application) -> dict[str, Any]:
@@ -176,11 +100,11 @@ def _dashboard_config(app: web.Application) -> dict[str, Any]:
 
 async def api_mission(request: web.Request) -> web.Response:
     app = request.app
-    return _json(app[MISSIONS].state(now=app[CLOCK]()))
+    return json_reply(app[MISSIONS].state(now=app[CLOCK]()))
 
 
 async def api_missions(request: web.Request) -> web.Response:
-    return _json(await request.app[STORAGE].read(lambda s: s.missions()))
+    return json_reply(await request.app[STORAGE].read(lambda s: s.missions()))
 
 
 def _image_json(row: ImageRow) -> dict[str, Any]:
@@ -199,7 +123,7 @@ async def api_images(request: web.Request) -> web.Response:
     try:
         limit = int(q.get("limit", "24"))
     except ValueError:
-        return _json({"error": "limit must be an integer"}, status=400)
+        return json_reply({"error": "limit must be an integer"}, status=400)
 
     senders = list(app[FLEET].drones)
 
@@ -210,7 +134,7 @@ async def api_images(request: web.Request) -> web.Response:
             mission, r, senders, window_s=RATE_WINDOW_S)} for r in rows]
 
     images = await app[STORAGE].read(query)
-    return _json({"mission": mission, "images": images, "window_s": RATE_WINDOW_S})
+    return json_reply({"mission": mission, "images": images, "window_s": RATE_WINDOW_S})
 
 
 async def api_image_file(request: web.Request) -> web.StreamResponse:
@@ -242,7 +166,7 @@ async def api_alerts(request: web.Request) -> web.Response:
     app = request.app
     mission = request.query.get("mission", app[CONFIG].mission)
     stored = await app[STORAGE].read(lambda s: s.alerts(mission))
-    return _json({"alerts": stored})
+    return json_reply({"alerts": stored})
 
 
 async def api_telemetry(request: web.Request) -> web.Response:
@@ -250,113 +174,7 @@ async def api_telemetry(request: web.Request) -> web.Response:
     mission = request.query.get("mission", app[CONFIG].mission)
     drone = request.query.get("drone") or None
     rows = await app[STORAGE].read(lambda s: s.telemetry(mission, sender=drone))
-    return _json({"messages": rows})
-
-
-# -- control API ---------------------------------------------------------------------------
-async def _body(request: web.Request) -> dict[str, Any]:
-    if not request.can_read_body:
-        return {}
-    try:
-        body = await request.json()
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        raise web.HTTPBadRequest(
-            text=json.dumps({"error": "body must be a JSON object"}),
-            content_type="application/json",
-        ) from None
-    if not isinstance(body, dict):
-        raise web.HTTPBadRequest(
-            text=json.dumps({"error": "body must be a JSON object"}),
-            content_type="application/json",
-        )
-    return body
-
-
-def _t_exec(body: dict[str, Any], now: float) -> float:
-    if "t_exec" in body:
-        value = body["t_exec"]
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise MissionError("t_exec: expected a number (fleet clock, Unix seconds)")
-        return float(value)
-    if "delay_s" in body:
-        value = body["delay_s"]
-        if isinstance(value, bool) or not isinstance(value, int | float) or value < 0:
-            raise MissionError("delay_s: expected a number of seconds >= 0")
-        return now + float(value)
-    when = body.get("when")
-    if when is not None and not isinstance(when, str):
-        raise MissionError("when: expected text like 'in 5 s' or 'at 14:00'")
-    return parse_when(when, now=now)
-
-
-async def _issue(request: web.Request, verb: str) -> web.Response:
-    app = request.app
-    now = app[CLOCK]()
-    body = await _body(request)
-    try:
-        t_exec = _t_exec(body, now)
-        args: dict[str, Any] = {}
-        if verb == "params":
-            raw = body.get("params")
-            if isinstance(raw, str):
-                args = parse_params(raw)
-            elif isinstance(raw, dict) and raw:
-                args = dict(raw)
-            else:
-                raise MissionError("params: expected an object or 'NAME=VALUE,...' text")
-        elif isinstance(body.get("args"), dict):
-            args = dict(body["args"])
-        issued = app[MISSIONS].issue(verb, t_exec=t_exec, now=now, args=args)
-    except MissionError as exc:
-        return _json({"error": str(exc)}, status=400)
-    mission = app[CONFIG].mission
-    fleet = app[FLEET]
-    try:  # the command is issued either way; a storage failure is shown, not a 500
-        if verb == "start":
-            await app[STORAGE].call_writer(
-                lambda s: s.mark_mission(mission, now=now, t_start=t_exec))
-        elif verb == "end":
-            await app[STORAGE].call_writer(lambda s: s.mark_mission(mission, now=now, t_end=t_exec))
-    except Exception as exc:  # full disk, SQLite errors...
-        fleet.alert(Alert(t=now, level="error", kind="storage",
-                          text=f"mission {verb} not stored: {exc}"))
-    fleet.alert(
-        Alert(
-            t=now,
-            level="info",
-            kind="mission",
-            text=f"{issued.command.name} at {time.strftime('%H:%M:%S', time.localtime(t_exec))}"
-            f" sent to {len(app[MISSIONS].drones)} drone(s)",
-        )
-    )
-    link = app[LINK]
-    link.kick()
-    link._flush_alerts()
-    state = app[MISSIONS].state(now=now)
-    app[BROADCASTER].publish("mission", {"mission": state})
-    return _json({"command": issued.as_json(now), "mission": state})
-
-
-async def api_start(request: web.Request) -> web.Response:
-    return await _issue(request, "start")
-
-
-async def api_end(request: web.Request) -> web.Response:
-    return await _issue(request, "end")
-
-
-async def api_params(request: web.Request) -> web.Response:
-    return await _issue(request, "params")
-
-
-async def api_report(request: web.Request) -> web.Response:
-    return await _issue(request, "report")
-
-
-async def api_reset_reports(request: web.Request) -> web.Response:
-    app = request.app
-    app[MISSIONS].reset_reports()
-    return _json(app[MISSIONS].state(now=app[CLOCK]()))
+    return json_reply({"messages": rows})
 
 
 # -- WebSocket -----------------------------------------------------------------------------

@@ -144,7 +144,7 @@ class GroundConfig:
                 except ValueError:
                     raise ConfigError("<config>", key, "HOST:PORT", value) from None
         if self.shared_medium is not None:
-            from companion.transport import parse_medium
+            from companion.medium import parse_medium
             try:
                 parse_medium(self.shared_medium)
             except ValueError:

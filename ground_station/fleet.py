@@ -10,34 +10,23 @@ from __future__ import annotations
 import math
 from collections import Counter, deque
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from typing import Any
 
 from companion.protocol import Address
+from ground_station.drone_state import (
+    DEFAULT_STALE_AFTER_S,
+    RATE_WINDOW_S,
+    SNAPSHOT_SERIES_VALUES,
+    STALE_AFTER_S,
+    Alert,
+    DroneState,
+    LatestImage,
+)
+from utility_specs.data_fields import first_number
 from utility_specs.message import Message
 
-__all__ = ["Alert", "DroneState", "FleetView", "LatestImage"]
-
-RATE_WINDOW_S = 5.0
-"""Frames per second and goodput share are measured over this trailing window."""
-
-SNAPSHOT_SERIES_VALUES = 1800
-"""Per-drone chart values a snapshot carries at most (bounds ``/api/fleet`` by fleet size;
-120 points for up to 15 drones: 128 full tiles and the history stay under 300 kB)."""
-STALE_AFTER_S: Mapping[str, float] = {"position": 3.0, "alt_m": 3.0, "heading_deg": 3.0}
-"""A field older than this is marked stale on the dashboard (position 1 Hz: three missed)."""
-DEFAULT_STALE_AFTER_S = 12.0
-"""Every other field (status every 5 s, battery every 5 s): two missed and some slack."""
-
-_NUMBER = (int, float)
-
-
-def _num(data: Mapping[str, Any], *keys: str) -> float | None:
-    for key in keys:
-        value = data.get(key)
-        if isinstance(value, _NUMBER) and not isinstance(value, bool) and math.isfinite(value):
-            return float(value)
-    return None
+__all__ = ["RATE_WINDOW_S", "Alert", "DroneState", "FleetView", "LatestImage"]
 
 
 def _peer_ages(state: DroneState, now: float) -> dict[str, float] | None:
@@ -46,91 +35,6 @@ def _peer_ages(state: DroneState, now: float) -> dict[str, float] | None:
         return None
     since = max(0.0, now - state.field_t.get("peers", now))
     return {peer: round(age + since, 1) for peer, age in sorted(state.peers.items())}
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Alert:
-    """Something an operator should see: autopilot STATUSTEXT, link loss, drops, disk errors."""
-
-    t: float
-    level: str
-    """``info``, ``warning`` or ``error``."""
-    text: str
-    drone: str | None = None
-    kind: str = "info"
-    """``statustext``, ``link``, ``drop``, ``storage``, ``mission``..."""
-
-
-@dataclass(slots=True, kw_only=True)
-class LatestImage:
-    image_id: int | None
-    seq: int
-    t_gen: float
-    t_rcv: float
-    size: int
-    utility: float
-    red: float | None
-    object: bool
-    high: bool
-
-
-@dataclass(slots=True, kw_only=True)
-class DroneState:
-    """One tile of the dashboard."""
-
-    drone: str
-    first_heard: float
-    last_heard: float
-    addr: Address | None = None
-    messages: int = 0
-    images: int = 0
-    bytes_total: int = 0
-    latency_s: float | None = None
-    battery: float | None = None
-    mode: str | None = None
-    armed: bool | None = None
-    gps_fix: int | None = None
-    lat_deg: float | None = None
-    lon_deg: float | None = None
-    alt_m: float | None = None
-    x_m: float | None = None
-    y_m: float | None = None
-    heading_deg: float | None = None
-    xi_bytes_per_s: float | None = None
-    fallback_share: float | None = None
-    """Share of the drone's decisions not made by its optimiser (greedy fallback, timeout)."""
-    delta_s: float | None = None
-    loss: float | None = None
-    link_lost: bool = False
-    failsafe: bool | None = None
-    autopilot_connected: bool | None = None
-    no_position: bool = False
-    peers: dict[str, float] | None = None
-    """The drone's own peers and the age of each one's position when its status was
-    observed (shared medium, docs/peers.md); None: it reports none."""
-    """The newest word on the position is "none" (no fix, no estimator origin)."""
-    field_t: dict[str, float] = field(default_factory=dict)
-    """Per telemetry field, when the drone observed the value shown (its age's origin)."""
-    reports: list[str] = field(default_factory=list)
-    latest_image: LatestImage | None = None
-    _image_times: deque[float] = field(default_factory=deque)
-    _byte_times: deque[tuple[float, int]] = field(default_factory=deque)
-    _window_bytes: int = 0
-
-    def prune(self, now: float) -> None:
-        horizon = now - RATE_WINDOW_S
-        while self._image_times and self._image_times[0] <= horizon:
-            self._image_times.popleft()
-        while self._byte_times and self._byte_times[0][0] <= horizon:
-            self._window_bytes -= self._byte_times.popleft()[1]
-
-    def fps(self, now: float) -> float:
-        self.prune(now)
-        return len(self._image_times) / RATE_WINDOW_S
-
-    def goodput_bytes_per_s(self, now: float) -> float:
-        self.prune(now)
-        return self._window_bytes / RATE_WINDOW_S
 
 
 class FleetView:
@@ -231,7 +135,7 @@ class FleetView:
                 t_rcv=t_rcv,
                 size=message.size,
                 utility=utility,
-                red=_num(message.data, "red"),
+                red=first_number(message.data, "red"),
                 object=bool(obj) if isinstance(obj, bool | int | float) else False,
                 high=self.is_high(utility),
             )
@@ -255,7 +159,7 @@ class FleetView:
             state.field_t[name] = at
             return True
 
-        battery = _num(data, "level", "battery", "battery_level", "battery_remaining")
+        battery = first_number(data, "level", "battery", "battery_level", "battery_remaining")
         if battery is not None and newer("battery"):
             state.battery = battery / 100.0 if battery > 1.0 else battery
         mode = data.get("mode")
@@ -270,11 +174,11 @@ class FleetView:
         connected = data.get("connected")
         if isinstance(connected, bool) and newer("autopilot_connected"):
             state.autopilot_connected = connected
-        fix = _num(data, "gps_fix", "fix_type", "fix")
+        fix = first_number(data, "gps_fix", "fix_type", "fix")
         if fix is not None and newer("gps_fix"):
             state.gps_fix = int(fix)
-        t_pose = t - max(0.0, _num(data, "pose_age_s") or 0.0)
-        lat, lon = _num(data, "lat_deg", "lat"), _num(data, "lon_deg", "lon")
+        t_pose = t - max(0.0, first_number(data, "pose_age_s") or 0.0)
+        lat, lon = first_number(data, "lat_deg", "lat"), first_number(data, "lon_deg", "lon")
         if data.get("position") == "none":
             if newer("position", t_pose):
                 state.no_position = True
@@ -282,35 +186,36 @@ class FleetView:
             state.no_position = False
             state.lat_deg, state.lon_deg = lat, lon
             state.x_m, state.y_m = self._local(lat, lon)
-        x, y = _num(data, "x_m", "x"), _num(data, "y_m", "y")
+        x, y = first_number(data, "x_m", "x"), first_number(data, "y_m", "y")
         if x is not None and y is not None and lat is None and newer("position", t_pose):
             state.x_m, state.y_m = x, y
-        alt = _num(data, "alt_m", "alt_rel_m", "alt", "relative_alt_m")
+        alt = first_number(data, "alt_m", "alt_rel_m", "alt", "relative_alt_m")
         if alt is not None and newer("alt_m", t_pose):
             state.alt_m = alt
-        heading = _num(data, "heading_deg", "yaw_deg", "hdg_deg")
+        heading = first_number(data, "heading_deg", "yaw_deg", "hdg_deg")
         if heading is not None and newer("heading_deg", t_pose):
             state.heading_deg = heading
-        xi = _num(data, "xi_bytes_per_s", "xi", "constraint_bytes_per_s", "limit_bytes_per_s")
+        xi = first_number(data, "xi_bytes_per_s", "xi", "constraint_bytes_per_s",
+                          "limit_bytes_per_s")
         if xi is not None and newer("xi_bytes_per_s"):
             state.xi_bytes_per_s = xi
-        fallback = _num(data, "fallback_share")
+        fallback = first_number(data, "fallback_share")
         if fallback is not None and 0.0 <= fallback <= 1.0:
             state.fallback_share = fallback
         peers = data.get("peers")
         if isinstance(peers, Mapping) and newer("peers"):
             state.peers = {str(k): float(v) for k, v in list(peers.items())[:64]
-                           if isinstance(v, _NUMBER) and not isinstance(v, bool)
+                           if isinstance(v, int | float) and not isinstance(v, bool)
                            and math.isfinite(v) and v >= 0}
-        delta = _num(data, "delta_s", "delta")
+        delta = first_number(data, "delta_s", "delta")
         if delta is not None and newer("delta_s"):
             state.delta_s = delta
-        loss = _num(data, "loss", "loss_share", "loss_rate")
+        loss = first_number(data, "loss", "loss_share", "loss_rate")
         if loss is not None and newer("loss"):
             state.loss = loss
         text = data.get("statustext", data.get("text"))
         if isinstance(text, str) and text:
-            severity = _num(data, "severity")
+            severity = first_number(data, "severity")
             level = "error" if severity is not None and severity <= 3 else "warning"
             if severity is not None and severity >= 6:
                 level = "info"

@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import re
 import time
@@ -26,6 +27,7 @@ __all__ = [
     "LimitedSite",
     "RedactingAccessLogger",
     "add_security_headers",
+    "json_reply",
     "raise_open_file_limit",
     "redact",
     "same_origin",
@@ -185,3 +187,8 @@ def serve(app: web.Application, *, host: str, port: int, max_connections: int,
         asyncio.run(main())
     except (web.GracefulExit, KeyboardInterrupt):
         log.debug("HTTP server stopped after %.1f s", time.monotonic() - t0)
+
+
+def json_reply(data: Any, status: int = 200) -> web.Response:
+    """JSON with anything unusual (paths, times) as text: the API's one reply shape."""
+    return web.json_response(data, status=status, dumps=lambda v: json.dumps(v, default=str))

@@ -18,7 +18,7 @@ from typing import Any, TextIO
 
 import aiohttp
 
-from ground_station.missions import HELP, MissionError, ShellCommand, parse_shell_line
+from ground_station.mission_input import HELP, MissionError, ShellCommand, parse_shell_line
 
 __all__ = ["ApiClient", "MissionShell", "run_shell"]
 

@@ -24,50 +24,35 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sitl.geo import GeoPoint, enu_from_geo
-from sitl.vehicle.autopilot import (
-    ACCEPTED,
-    DENIED,
-    FAILED,
-    UNSUPPORTED,
-    CommandResult,
+from sitl.vehicle.autopilot import FlightController
+from sitl.vehicle.autopilot_events import (
     CurrentItemChanged,
     FixAcquired,
-    FlightController,
-    GuidedTarget,
     HomeChanged,
     ItemReached,
     ModeChanged,
     StatusText,
 )
-from sitl.vehicle.flavour import PX4, Flavour, Mode, decode_param_value, encode_param_value
-from sitl.vehicle.mission import (
-    GLOBAL_FRAMES,
-    RELATIVE_FRAMES,
-    MissionItem,
-    commanded_alt_rel_m,
-    is_nav_command,
-)
+from sitl.vehicle.commands import CommandHandlers
+from sitl.vehicle.fields import BadField
+from sitl.vehicle.flavour import PX4, Flavour, Mode
+from sitl.vehicle.mission import MissionItem
+from sitl.vehicle.mission_protocol import MISSION_CANCELLED, MissionProtocol, _Upload
 from sitl.vehicle.params import ParamTable
 from sitl.vehicle.physics import Airframe
-from sitl.vehicle.telemetry import (
+from sitl.vehicle.stream_tables import (
     DEFAULT_INTERVALS_S,
     MSG_HEARTBEAT,
     PX4_EXTRA_INTERVALS_S,
     STREAM_GROUPS,
-    Telemetry,
 )
+from sitl.vehicle.telemetry import Telemetry
 from sitl.vehicle.traffic import TrafficAwareness, TrafficList
 
 __all__ = ["DEFAULT_FIRST_FIX_S", "DEFAULT_HOME", "VehicleConfig", "VehicleCore"]
 
 DEFAULT_HOME = GeoPoint(lat_deg=47.397742, lon_deg=8.545594, alt_m=488.0)
 
-# MAV_MISSION_RESULT
-MISSION_ACCEPTED = 0
-MISSION_NO_SPACE = 4
-MISSION_INVALID_SEQUENCE = 13
-MISSION_CANCELLED = 15
-MAX_MISSION_ITEMS = 1000
 
 DEFAULT_FIRST_FIX_S = 15.0
 """ArduCopter SITL reports an EKF origin 10-20 s after boot; PX4 SIH in a similar time."""
@@ -120,61 +105,8 @@ class VehicleConfig:
             raise ValueError(f"first_fix_s must be >= 0, got {self.first_fix_s}")
 
 
-@dataclass(slots=True, kw_only=True)
-class _Upload:
-    mission_type: int
-    count: int
-    peer: tuple[int, int]
-    items: list[MissionItem] = field(default_factory=list)
-    deadline: float = 0.0
-    retries: int = 0
 
-
-class BadField(ValueError):
-    """A field of a received message that is NaN, infinite or out of range."""
-
-
-def _int(value: float, name: str) -> int:
-    """An integer-valued command parameter; NaN/inf are bad input, not a crash."""
-    if not math.isfinite(value) or abs(value) > 2**31:
-        raise BadField(f"{name} must be a finite integer, got {value}")
-    return int(value)
-
-
-def _finite(values: tuple[float, ...], name: str) -> tuple[float, ...]:
-    if not all(math.isfinite(v) for v in values):
-        raise BadField(f"{name} must be finite, got {values}")
-    return values
-
-
-def _lat_lon(lat_deg: float, lon_deg: float) -> tuple[float, float]:
-    if not (math.isfinite(lat_deg) and -90.0 <= lat_deg <= 90.0 and math.isfinite(lon_deg)
-            and -180.0 <= lon_deg <= 180.0):
-        raise BadField(f"latitude/longitude out of range: {lat_deg}, {lon_deg}")
-    return lat_deg, lon_deg
-
-
-def _text(value: Any) -> str:
-    if isinstance(value, bytes):
-        value = value.decode("utf-8", "replace")
-    return str(value).split("\x00", 1)[0]
-
-
-def _item_error(msg: Any, scale: float) -> int | None:
-    """MAV_MISSION_RESULT for an item no vehicle could fly, or None when it is acceptable."""
-    if (msg.frame in GLOBAL_FRAMES | RELATIVE_FRAMES and is_nav_command(msg.command)
-            and not (msg.x == 0 and msg.y == 0)):
-        lat, lon = msg.x * scale, msg.y * scale
-        if not (math.isfinite(lat) and -90.0 <= lat <= 90.0):
-            return 10  # MAV_MISSION_INVALID_PARAM5_X
-        if not (math.isfinite(lon) and -180.0 <= lon <= 180.0):
-            return 11  # MAV_MISSION_INVALID_PARAM6_Y
-    if is_nav_command(msg.command) and msg.command != 20 and not math.isfinite(msg.z):
-        return 12  # MAV_MISSION_INVALID_PARAM7
-    return None
-
-
-class VehicleCore:
+class VehicleCore(CommandHandlers, MissionProtocol):
     """One simulated vehicle's MAVLink endpoint (see module docstring)."""
 
     def __init__(self, config: VehicleConfig, *, now: float = 0.0) -> None:
@@ -393,316 +325,7 @@ class VehicleCore:
     def _on_heartbeat(self, msg: Any, now: float) -> None:
         self.gcs_heard = True
 
-    def _ack(self, msg: Any, command: int, res: CommandResult) -> None:
-        if res.text:
-            self.statustext(4 if not res.ok else 6, res.text)
-        self._send(mavlink.MAVLink_command_ack_message(
-            command, res.result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
-
-    def _on_command_long(self, msg: Any, now: float) -> None:
-        params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6,
-                  msg.param7]
-        self._command(msg, msg.command, params, frame=None, now=now)
-
-    def _on_command_int(self, msg: Any, now: float) -> None:
-        params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.x / 1e7, msg.y / 1e7,
-                  msg.z]
-        self._command(msg, msg.command, params, frame=msg.frame, now=now)
-
-    def _command(self, msg: Any, command: int, p: list[float], *, frame: int | None,
-                 now: float) -> None:
-        fc = self.fc
-        follow_up: Any = None
-        res: CommandResult
-        if command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
-            force = abs(p[1] - 21196.0) < 0.5
-            res = fc.arm(force=force) if p[0] >= 0.5 else fc.disarm(force=force)
-        elif command == mavlink.MAV_CMD_NAV_TAKEOFF:
-            alt: float | None = p[6] if math.isfinite(p[6]) else None
-            if alt is not None and self.flavour.takeoff_param7_amsl:
-                alt = commanded_alt_rel_m(frame, alt, self.config.home)
-            res = fc.takeoff(alt)
-        elif command == mavlink.MAV_CMD_NAV_LAND:
-            res = fc.land()
-        elif command == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
-            res = fc.return_to_launch()
-        elif command == mavlink.MAV_CMD_DO_SET_MODE:
-            res = self._set_mode_from(_int(p[0], "base_mode"), _int(p[1], "custom_mode"),
-                                      _int(p[2], "custom_sub_mode") if math.isfinite(p[2])
-                                      else 0)
-        elif command == mavlink.MAV_CMD_MISSION_START:
-            res = fc.start_mission(_int(p[0], "first_item") if p[0] > 0 else None)
-        elif command == mavlink.MAV_CMD_DO_SET_MISSION_CURRENT:
-            res = fc.set_current_item(_int(p[0], "seq"))
-        elif command == mavlink.MAV_CMD_DO_CHANGE_SPEED:
-            res = fc.set_speed(p[1])
-        elif command == mavlink.MAV_CMD_DO_REPOSITION:
-            here = fc.state.position_ned_m
-            if math.isfinite(p[4]) and math.isfinite(p[5]):
-                _lat_lon(p[4], p[5])
-                alt_rel = -here[2]
-                if math.isfinite(p[6]):
-                    alt_rel = commanded_alt_rel_m(frame, p[6], self.config.home)
-                target = self._geo_to_ned(p[4], p[5], alt_rel)
-            else:
-                target = here
-            res = fc.reposition(target)
-        elif command == mavlink.MAV_CMD_DO_SET_ROI_LOCATION:
-            lat, lon = _lat_lon(p[4], p[5])
-            alt_rel = 0.0
-            if math.isfinite(p[6]):
-                alt_rel = commanded_alt_rel_m(frame, p[6], self.config.home)
-            res = fc.set_roi(self._geo_to_ned(lat, lon, alt_rel))
-        elif command == mavlink.MAV_CMD_DO_SET_ROI_NONE:
-            res = fc.set_roi(None)
-        elif command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
-            msg_id, interval_us = _int(p[0], "message_id"), _int(p[1], "interval_us")
-            if interval_us < 0:
-                interval: float | None = None
-            elif interval_us == 0:
-                interval = {**DEFAULT_INTERVALS_S, **PX4_EXTRA_INTERVALS_S}.get(msg_id, 1.0)
-            else:
-                interval = interval_us / 1e6
-            ok = self.set_interval(msg_id, interval, now)
-            res = CommandResult(result=ACCEPTED if ok else UNSUPPORTED)
-        elif command == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
-            msg_id = _int(p[0], "message_id")
-            if msg_id in self._builders:
-                iv = self._intervals.get(msg_id)
-                follow_up = mavlink.MAVLink_message_interval_message(
-                    msg_id, -1 if iv is None else int(iv * 1e6))
-                res = CommandResult(result=ACCEPTED)
-            else:
-                res = CommandResult(result=UNSUPPORTED)
-        elif command == mavlink.MAV_CMD_REQUEST_MESSAGE:
-            builder = self._builders.get(_int(p[0], "message_id"))
-            follow_up = builder(now) if builder else None
-            res = CommandResult(result=UNSUPPORTED if builder is None else
-                                FAILED if follow_up is None else ACCEPTED)
-        elif command == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
-            res = CommandResult(result=ACCEPTED)
-            follow_up = self.telemetry.autopilot_version(now)
-        elif command == mavlink.MAV_CMD_GET_HOME_POSITION:
-            follow_up = self.telemetry.home_position(now)
-            res = CommandResult(result=FAILED if follow_up is None else ACCEPTED)
-        elif command in self.flavour.accepted_commands:
-            res = self._peripheral_command(command, p, frame)
-        else:
-            self.counters["unsupported_command"] += 1
-            res = CommandResult(result=UNSUPPORTED)
-        self._ack(msg, command, res)
-        if follow_up is not None:
-            self._send(follow_up)
-
-    def _peripheral_command(self, command: int, p: list[float], frame: int | None
-                            ) -> CommandResult:
-        """Servo, relay, yaw, home, camera and fence commands (``Flavour.accepted_commands``)."""
-        fc = self.fc
-        if command == mavlink.MAV_CMD_DO_SET_SERVO:
-            return fc.set_servo(_int(p[0], "instance"), _int(p[1], "pwm"))
-        if command == mavlink.MAV_CMD_DO_SET_RELAY:
-            return fc.set_relay(_int(p[0], "instance"), p[1] >= 0.5)
-        if command == mavlink.MAV_CMD_CONDITION_YAW:
-            if not math.isfinite(p[3]) or p[3] not in (0.0, 1.0):
-                return CommandResult(result=FAILED)
-            return fc.condition_yaw(p[0], p[2], relative=p[3] == 1.0)
-        if command == mavlink.MAV_CMD_DO_SET_HOME:
-            # param1 = 1, or lat/lon both 0: here (as ArduPilot reads it).
-            if p[0] >= 0.5 or (p[4] == 0.0 and p[5] == 0.0):
-                return fc.set_home(None)
-            lat, lon = _lat_lon(p[4], p[5])
-            alt_amsl = p[6] if math.isfinite(p[6]) else self.config.home.alt_m
-            return fc.set_home(self._geo_to_ned(lat, lon, alt_amsl - self.config.home.alt_m))
-        if command == mavlink.MAV_CMD_DO_DIGICAM_CONTROL:
-            return fc.trigger_camera()
-        if command == mavlink.MAV_CMD_DO_FENCE_ENABLE:
-            action = _int(p[0], "enable")
-            if action not in (0, 1, 2):
-                return CommandResult(result=FAILED)
-            self.params.set("FENCE_ENABLE", 1.0 if action == 1 else 0.0)
-            return CommandResult(result=ACCEPTED)
-        return CommandResult(result=UNSUPPORTED)
-
-    def _set_mode_from(self, base_mode: int, custom: int, sub: int) -> CommandResult:
-        if not base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-            return CommandResult(result=UNSUPPORTED, text="Mode: only custom modes")
-        if self.flavour.name == "px4":
-            custom = (custom << 16) | (sub << 24)
-        mode = self.flavour.mode_from_custom(custom)
-        if mode is None:
-            return CommandResult(result=DENIED if self.flavour.name == "px4" else FAILED,
-                                 text=f"Mode: unknown custom mode {custom}")
-        return self.fc.set_mode(mode)
-
-    def _on_set_mode(self, msg: Any, now: float) -> None:
-        if self.flavour.name == "px4":
-            mode = self.flavour.mode_from_custom(msg.custom_mode)
-            res = self.fc.set_mode(mode) if mode else CommandResult(result=DENIED)
-        else:
-            res = self._set_mode_from(msg.base_mode, msg.custom_mode, 0)
-        # SET_MODE is acknowledged as DO_SET_MODE by both autopilots.
-        self._ack(msg, mavlink.MAV_CMD_DO_SET_MODE, res)
-
-    # ---------------------------------------------------------------------- parameters
-
-    def _param_value(self, name: str) -> Any:
-        spec = self.params.spec(name)
-        raw = encode_param_value(self.params.get(name), spec.param_type,
-                                 bytewise=self.flavour.param_bytewise)
-        return mavlink.MAVLink_param_value_message(
-            name.encode(), raw, spec.param_type, len(self.params), self.params.index(name))
-
-    def _on_param_request_list(self, msg: Any, now: float) -> None:
-        for name in self.params.names:
-            self._send(self._param_value(name))
-
-    def _on_param_request_read(self, msg: Any, now: float) -> None:
-        name = self.params.name_at(msg.param_index) if msg.param_index >= 0 else _text(
-            msg.param_id)
-        if name is None or name not in self.params:
-            self.counters["unknown_param"] += 1
-            if self.flavour.unknown_param_read_text and msg.param_index >= 0:
-                self.statustext(6, f"[pm] unknown param ID: {msg.param_index}")
-            return
-        self._send(self._param_value(name))
-
-    def _on_param_set(self, msg: Any, now: float) -> None:
-        name = _text(msg.param_id)
-        if name not in self.params:
-            self.counters["unknown_param"] += 1
-            if self.flavour.unknown_param_read_text:
-                self.statustext(6, f"[pm] unknown param: {name}")
-            return
-        spec = self.params.spec(name)
-        value = decode_param_value(msg.param_value, spec.param_type,
-                                   bytewise=self.flavour.param_bytewise)
-        if not math.isfinite(value):
-            self.counters["bad_param_value"] += 1
-            return
-        self.params.set(name, value)
-        self.fc.on_params_changed()
-        self._send(self._param_value(name))
-
-    # ------------------------------------------------------------------------- missions
-
-    def _on_mission_count(self, msg: Any, now: float) -> None:
-        mtype = getattr(msg, "mission_type", 0)
-        peer = (msg.get_srcSystem(), msg.get_srcComponent())
-        if mtype not in self._stored:
-            self._send(mavlink.MAVLink_mission_ack_message(*peer, 3, mtype))
-            return
-        if msg.count > MAX_MISSION_ITEMS:
-            self._send(mavlink.MAVLink_mission_ack_message(*peer, MISSION_NO_SPACE, mtype))
-            return
-        if msg.count == 0:
-            self._upload = None
-            self._store(mtype, [])
-            self._send(mavlink.MAVLink_mission_ack_message(*peer, MISSION_ACCEPTED, mtype))
-            return
-        self._upload = _Upload(mission_type=mtype, count=msg.count, peer=peer)
-        self._request_item(self._upload, now)
-
-    def _request_item(self, up: _Upload, now: float) -> None:
-        up.deadline = now + self.config.protocol_timeout_s * self.config.speedup
-        self._send(mavlink.MAVLink_mission_request_int_message(
-            up.peer[0], up.peer[1], len(up.items), up.mission_type))
-
-    def _on_mission_item(self, msg: Any, now: float) -> None:
-        up = self._upload
-        mtype = getattr(msg, "mission_type", 0)
-        if up is None or mtype != up.mission_type:
-            self.counters["mission_item_unexpected"] += 1
-            return
-        if msg.seq != len(up.items):
-            self.counters["mission_item_out_of_sequence"] += 1
-            self._request_item(up, now)
-            return
-        is_int = msg.get_type() == "MISSION_ITEM_INT"
-        scale = 1e-7 if is_int else 1.0
-        item_error = _item_error(msg, scale)
-        if item_error is not None:
-            self.counters["mission_item_invalid"] += 1
-            self._upload = None
-            self._send(mavlink.MAVLink_mission_ack_message(*up.peer, item_error, mtype))
-            return
-        up.items.append(MissionItem(
-            seq=msg.seq, frame=msg.frame, command=msg.command, current=msg.current,
-            autocontinue=msg.autocontinue, param1=msg.param1, param2=msg.param2,
-            param3=msg.param3, param4=msg.param4, lat_deg=msg.x * scale, lon_deg=msg.y * scale,
-            z_m=msg.z, mission_type=mtype))
-        up.retries = 0
-        if len(up.items) < up.count:
-            self._request_item(up, now)
-            return
-        self._upload = None
-        self._store(mtype, up.items)
-        self._send(mavlink.MAVLink_mission_ack_message(*up.peer, MISSION_ACCEPTED, mtype))
-
-    def _store(self, mission_type: int, items: list[MissionItem]) -> None:
-        self._stored[mission_type] = list(items)
-        if mission_type == 0:
-            self.fc.set_mission(list(items))
-
-    def _download_item(self, mission_type: int, seq: int) -> MissionItem | None:
-        items = self._stored.get(mission_type, [])
-        if not 0 <= seq < len(items):
-            return None
-        if mission_type == 0 and seq == 0 and self.flavour.mission_item0_is_home:
-            home = self.config.home
-            return MissionItem(seq=0, frame=0, command=16, lat_deg=home.lat_deg,
-                               lon_deg=home.lon_deg, z_m=home.alt_m)
-        return items[seq]
-
-    def _on_mission_request_list(self, msg: Any, now: float) -> None:
-        mtype = getattr(msg, "mission_type", 0)
-        count = len(self._stored.get(mtype, []))
-        self._send(mavlink.MAVLink_mission_count_message(
-            msg.get_srcSystem(), msg.get_srcComponent(), count, mtype))
-
-    def _on_mission_request(self, msg: Any, now: float) -> None:
-        mtype = getattr(msg, "mission_type", 0)
-        src = (msg.get_srcSystem(), msg.get_srcComponent())
-        item = self._download_item(mtype, msg.seq)
-        if item is None:
-            self._send(mavlink.MAVLink_mission_ack_message(*src, MISSION_INVALID_SEQUENCE,
-                                                           mtype))
-            return
-        current = int(item.seq == self.fc.mission_current and mtype == 0)
-        if msg.get_type() == "MISSION_REQUEST_INT":
-            self._send(mavlink.MAVLink_mission_item_int_message(
-                *src, item.seq, item.frame, item.command, current, item.autocontinue,
-                item.param1, item.param2, item.param3, item.param4,
-                round(item.lat_deg * 1e7), round(item.lon_deg * 1e7), item.z_m,
-                mtype))
-        else:
-            self._send(mavlink.MAVLink_mission_item_message(
-                *src, item.seq, item.frame, item.command, current, item.autocontinue,
-                item.param1, item.param2, item.param3, item.param4, item.lat_deg,
-                item.lon_deg, item.z_m, mtype))
-
-    def _on_mission_ack(self, msg: Any, now: float) -> None:
-        if self._upload is not None and msg.type != MISSION_ACCEPTED:
-            self.counters["mission_upload_cancelled"] += 1
-            self._upload = None
-
-    def _on_mission_clear_all(self, msg: Any, now: float) -> None:
-        mtype = getattr(msg, "mission_type", 0)
-        self._upload = None
-        if mtype == 255:  # MAV_MISSION_TYPE_ALL
-            for key in self._stored:
-                self._store(key, [])
-        elif mtype in self._stored:
-            self._store(mtype, [])
-        self._send(mavlink.MAVLink_mission_ack_message(
-            msg.get_srcSystem(), msg.get_srcComponent(), MISSION_ACCEPTED, mtype))
-
-    def _on_mission_set_current(self, msg: Any, now: float) -> None:
-        res = self.fc.set_current_item(msg.seq)
-        if not res.ok:
-            self.statustext(4, res.text or "Mission: bad item")
-        self._send(self.telemetry.mission_current(now))
-
-    # ------------------------------------------------------------------ streams, guided
+    # ------------------------------------------------------------------- data streams
 
     def _on_request_data_stream(self, msg: Any, now: float) -> None:
         if self.flavour.name != "ardupilot":
@@ -713,49 +336,6 @@ class VehicleCore:
             for msg_id in STREAM_GROUPS.get(group, ()):
                 on = msg.start_stop and msg.req_message_rate > 0
                 self.set_interval(msg_id, 1.0 / msg.req_message_rate if on else None, now)
-
-    def _guided_from_mask(self, mask: int, pos: tuple[float, float, float] | None,
-                          vel: tuple[float, float, float], yaw: float, now: float) -> None:
-        use_pos = pos is not None and not mask & 0b111
-        use_vel = not mask & 0b111000
-        if use_pos and pos is not None:
-            _finite(pos, "position")
-        if use_vel:
-            _finite(vel, "velocity")
-        target = GuidedTarget(
-            position_ned_m=pos if use_pos else None,
-            velocity_ned_m_s=vel if use_vel and not use_pos else None,
-            yaw_rad=None if mask & 1024 or not math.isfinite(yaw) else yaw,
-            t_s=now,
-        )
-        if target.position_ned_m is None and target.velocity_ned_m_s is None:
-            self.counters["position_target_ignored"] += 1
-            return
-        self.fc.set_guided_target(target)
-
-    def _on_position_target_local(self, msg: Any, now: float) -> None:
-        frame = msg.coordinate_frame
-        st = self.fc.state
-        pos = (msg.x, msg.y, msg.z)
-        vel = (msg.vx, msg.vy, msg.vz)
-        if frame in (mavlink.MAV_FRAME_BODY_NED, mavlink.MAV_FRAME_BODY_OFFSET_NED,
-                     mavlink.MAV_FRAME_BODY_FRD):
-            c, s = math.cos(st.yaw_rad), math.sin(st.yaw_rad)
-            pos = (c * pos[0] - s * pos[1], s * pos[0] + c * pos[1], pos[2])
-            vel = (c * vel[0] - s * vel[1], s * vel[0] + c * vel[1], vel[2])
-        if frame in (mavlink.MAV_FRAME_LOCAL_OFFSET_NED, mavlink.MAV_FRAME_BODY_NED,
-                     mavlink.MAV_FRAME_BODY_OFFSET_NED, mavlink.MAV_FRAME_BODY_FRD):
-            here = st.position_ned_m
-            pos = (here[0] + pos[0], here[1] + pos[1], here[2] + pos[2])
-        self._guided_from_mask(msg.type_mask, pos, vel, msg.yaw, now)
-
-    def _on_position_target_global(self, msg: Any, now: float) -> None:
-        alt_rel = commanded_alt_rel_m(msg.coordinate_frame, msg.alt, self.config.home)
-        pos = None
-        if not msg.type_mask & 0b111:
-            lat, lon = _lat_lon(msg.lat_int / 1e7, msg.lon_int / 1e7)
-            pos = self._geo_to_ned(lat, lon, _finite((alt_rel,), "alt")[0])
-        self._guided_from_mask(msg.type_mask, pos, (msg.vx, msg.vy, msg.vz), msg.yaw, now)
 
     # ------------------------------------------------------------ ADS-B traffic (peers)
 

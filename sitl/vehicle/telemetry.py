@@ -19,81 +19,41 @@ from sitl.geo import Enu, GeoPoint, geo_from_enu
 from sitl.vehicle.autopilot import FlightController
 from sitl.vehicle.flavour import Flavour, Mode
 from sitl.vehicle.physics import gps_reading
+from sitl.vehicle.stream_tables import (
+    ARDUPILOT_ONLY,
+    MSG_AHRS,
+    MSG_AHRS2,
+    MSG_ATTITUDE,
+    MSG_AUTOPILOT_VERSION,
+    MSG_BATTERY_STATUS,
+    MSG_EKF_STATUS_REPORT,
+    MSG_ESTIMATOR_STATUS,
+    MSG_EXTENDED_SYS_STATE,
+    MSG_FENCE_STATUS,
+    MSG_GLOBAL_POSITION_INT,
+    MSG_GPS_GLOBAL_ORIGIN,
+    MSG_GPS_RAW_INT,
+    MSG_HEARTBEAT,
+    MSG_HOME_POSITION,
+    MSG_LOCAL_POSITION_NED,
+    MSG_MEMINFO,
+    MSG_MISSION_CURRENT,
+    MSG_NAV_CONTROLLER_OUTPUT,
+    MSG_POWER_STATUS,
+    MSG_RAW_IMU,
+    MSG_RC_CHANNELS,
+    MSG_SCALED_PRESSURE,
+    MSG_SERVO_OUTPUT_RAW,
+    MSG_SYS_STATUS,
+    MSG_SYSTEM_TIME,
+    MSG_VFR_HUD,
+    MSG_VIBRATION,
+    MSG_WIND,
+)
 
-__all__ = ["DEFAULT_INTERVALS_S", "MSG_HEARTBEAT", "PX4_EXTRA_INTERVALS_S", "STREAM_GROUPS",
-           "Telemetry"]
+__all__ = ["Telemetry"]
 
-MSG_HEARTBEAT = 0
-MSG_SYS_STATUS = 1
-MSG_SYSTEM_TIME = 2
-MSG_GPS_RAW_INT = 24
-MSG_ATTITUDE = 30
-MSG_LOCAL_POSITION_NED = 32
-MSG_GLOBAL_POSITION_INT = 33
-MSG_MISSION_CURRENT = 42
-MSG_VFR_HUD = 74
-MSG_BATTERY_STATUS = 147
-MSG_AUTOPILOT_VERSION = 148
-MSG_HOME_POSITION = 242
-MSG_EXTENDED_SYS_STATE = 245
-MSG_RAW_IMU = 27
-MSG_SCALED_PRESSURE = 29
-MSG_SERVO_OUTPUT_RAW = 36
-MSG_GPS_GLOBAL_ORIGIN = 49
-MSG_NAV_CONTROLLER_OUTPUT = 62
-MSG_RC_CHANNELS = 65
-MSG_POWER_STATUS = 125
-MSG_MEMINFO = 152
-MSG_FENCE_STATUS = 162
-MSG_AHRS = 163
-MSG_WIND = 168
-MSG_AHRS2 = 178
-MSG_EKF_STATUS_REPORT = 193
-MSG_ESTIMATOR_STATUS = 230
-MSG_VIBRATION = 241
 
-# Default rates (interval in s) of a PX4 "normal" link; also what interval 0 restores.
-DEFAULT_INTERVALS_S: Mapping[int, float] = {
-    MSG_HEARTBEAT: 1.0,
-    MSG_SYS_STATUS: 1.0,
-    MSG_SYSTEM_TIME: 1.0,
-    MSG_GPS_RAW_INT: 1.0,
-    MSG_ATTITUDE: 0.1,
-    MSG_LOCAL_POSITION_NED: 0.2,
-    MSG_GLOBAL_POSITION_INT: 0.2,
-    MSG_MISSION_CURRENT: 1.0,
-    MSG_VFR_HUD: 0.25,
-    MSG_BATTERY_STATUS: 2.0,
-    MSG_HOME_POSITION: 2.0,
-    MSG_EXTENDED_SYS_STATE: 1.0,
-}
-
-# ArduCopter's REQUEST_DATA_STREAM groups (MAV_DATA_STREAM, its GCS_Mavlink.cpp stream tables)
-# -> the messages we have of each.
-STREAM_GROUPS: Mapping[int, tuple[int, ...]] = {
-    1: (MSG_RAW_IMU, MSG_SCALED_PRESSURE),
-    2: (MSG_SYS_STATUS, MSG_POWER_STATUS, MSG_MEMINFO, MSG_MISSION_CURRENT, MSG_GPS_RAW_INT,
-        MSG_NAV_CONTROLLER_OUTPUT, MSG_FENCE_STATUS, MSG_EXTENDED_SYS_STATE),
-    3: (MSG_SERVO_OUTPUT_RAW, MSG_RC_CHANNELS),
-    6: (MSG_GLOBAL_POSITION_INT, MSG_LOCAL_POSITION_NED),
-    10: (MSG_ATTITUDE, MSG_AHRS2),
-    11: (MSG_VFR_HUD,),
-    12: (MSG_AHRS, MSG_SYSTEM_TIME, MSG_WIND, MSG_BATTERY_STATUS, MSG_EKF_STATUS_REPORT,
-         MSG_VIBRATION),
-}
-
-# PX4's "normal" link streams beyond DEFAULT_INTERVALS_S (interval in s).
-PX4_EXTRA_INTERVALS_S: Mapping[int, float] = {
-    MSG_ESTIMATOR_STATUS: 2.0,
-    MSG_NAV_CONTROLLER_OUTPUT: 1.0,
-    MSG_RC_CHANNELS: 0.2,
-    MSG_SERVO_OUTPUT_RAW: 1.0,
-    MSG_VIBRATION: 2.0,
-}
-
-# ArduPilot-only messages (ardupilotmega.xml): a PX4 vehicle has no builder for them.
-_ARDUPILOT_ONLY = frozenset({MSG_MEMINFO, MSG_FENCE_STATUS, MSG_AHRS, MSG_WIND, MSG_AHRS2,
-                             MSG_EKF_STATUS_REPORT, MSG_POWER_STATUS})
 
 _SENSOR_GPS = 32
 _SENSOR_AHRS = 1 << 21
@@ -162,7 +122,7 @@ class Telemetry:
             MSG_VIBRATION: self.vibration,
         }
         if flavour.name == "px4":
-            for msg_id in _ARDUPILOT_ONLY:
+            for msg_id in ARDUPILOT_ONLY:
                 del builders[msg_id]
         else:
             del builders[MSG_ESTIMATOR_STATUS]

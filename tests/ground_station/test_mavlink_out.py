@@ -26,6 +26,7 @@ from ground_station.config import ConfigError, config_from_mapping
 from ground_station.fake_drone import FakeDrone
 from ground_station.mavlink_out import MavlinkMirror, parse_endpoint, system_id_for
 from tests.keys import TEST_COMMAND_PUB, write_test_keys
+from tests.processes import terminate
 
 KEY = "mavlink-out-fleet-key-000000"
 BIN = [sys.executable, "-m", "ground_station.cli"]
@@ -156,27 +157,11 @@ class Station:
         self.proc = subprocess.Popen([*BIN, "run", "--config", str(config)],
                                      stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                      text=True)
-        self.drones: list[FakeDrone] = []
 
     async def feed(self, names: list[str], stop: asyncio.Event) -> None:
-        for name in names:
-            d = FakeDrone(name, fleet_id=5, key=KEY.encode(), ground=("127.0.0.1", self.udp),
-                          command_public_key=TEST_COMMAND_PUB)
-            await d.open()
-            self.drones.append(d)
-        k = 0
-        while not stop.is_set():
-            for i, d in enumerate(self.drones):
-                d.send_telemetry("position", {"lat_deg": 47.0 + i / 1000, "lon_deg": 8.0,
-                                              "alt_rel_m": 10.0 + k, "heading_deg": 90.0})
-                d.send_status("running", info={"mode": "GUIDED", "armed": True,
-                                               "autopilot": "ardupilot", "fix_type": 3})
-            k += 1
-            await asyncio.sleep(0.3)
+        await feed_drones(self.udp, names, stop)
 
     def close(self) -> str:
-        for d in self.drones:
-            d.close()
         self.proc.terminate()
         try:
             _, err = self.proc.communicate(timeout=10)
@@ -304,12 +289,7 @@ async def test_mavproxy_lists_all_drones(tmp_path: Path) -> None:
     finally:
         stop.set()
         await feeder
-        proc.terminate()
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        terminate(proc)
         err = station.close()
     assert "Traceback" not in err
     assert "MAVLink out: drone4 is system id 4" in err  # the mapping is logged at INFO

@@ -5,26 +5,19 @@ processes, real UDP, effects read from the STATUS replies and the companion's mi
 from __future__ import annotations
 
 import asyncio
-import base64
 import json
-import os
 import secrets
-import signal
 import socket
-import subprocess
-import sys
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 from companion.protocol import EPOCH_STATUS, Command, Decoder, Encoder, StatusReceived
-from tests.keys import TEST_COMMAND_KEY, TEST_COMMAND_PUB
+from tests.companion_process import ground_station_toml, start_companion, stop_companion, until
+from tests.keys import TEST_COMMAND_KEY
 
-SCRIPT = Path(sys.executable).parent / "uav-companion"
-COMPANION = [str(SCRIPT)] if SCRIPT.exists() else [sys.executable, "-m", "companion.cli"]
 KEY = b"command-replay-test-fleet-key"
 FLEET = 12
 
@@ -84,43 +77,11 @@ enabled = false
 spec = "builtin:image_streaming"
 log = "{path.parent / 'd1.jsonl'}"
 wait_for_start = true
-[ground_station]
-host = "127.0.0.1"
-port = {gs_port}
-fleet_id = {FLEET}
-fleet_key = "{KEY.decode()}"
-command_public_key = "{base64.b64encode(TEST_COMMAND_PUB).decode()}"
-listen_host = "127.0.0.1"
+{ground_station_toml(gs_port, fleet_id=FLEET, fleet_key=KEY)}
 [budgets]
 mcts_iterations = 20
 """)
     return path
-
-
-def _start(config: Path) -> subprocess.Popen[str]:
-    return subprocess.Popen([*COMPANION, "run", "--config", str(config)],
-                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
-
-
-def _stop(proc: subprocess.Popen[str]) -> tuple[int, str]:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-    try:
-        _, err = proc.communicate(timeout=20)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        _, err = proc.communicate()
-    return proc.returncode, err
-
-
-async def _until(predicate: Any, timeout_s: float, proc: subprocess.Popen[str]) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if proc.poll() is not None or time.monotonic() > deadline:
-            code, err = _stop(proc)
-            pytest.fail(f"condition not met (companion exit {code}):\n{err[-3000:]}")
-        await asyncio.sleep(0.05)
 
 
 def _commands_logged(log: Path, after: float) -> list[str]:
@@ -140,9 +101,9 @@ async def test_a_captured_command_is_not_executed_after_a_restart(
     config = _config(tmp_path / "d1.toml", gs_port)
     log = tmp_path / "d1.jsonl"
 
-    first = _start(config)
+    first = start_companion(config)
     try:
-        await _until(lambda: gs.epochs(), 60, first)
+        await until(lambda: gs.epochs(), 60, first, poll_s=0.05)
         epoch1, addr1 = gs.epochs()[-1]
         # a drone with the fleet key (and its own Ed25519 key) tries first: not obeyed
         forger = Encoder(FLEET, "drone9", KEY, command_key=secrets.token_bytes(32))
@@ -151,33 +112,33 @@ async def test_a_captured_command_is_not_executed_after_a_restart(
         start = Command(command_id=41, name="start", t_exec=time.time())
         captured = gs.encoder.encode_command(start, time.time(), epoch=epoch1)
         gs.send(captured, addr1)
-        await _until(lambda: "done" in gs.states(41), 10, first)
+        await until(lambda: "done" in gs.states(41), 10, first, poll_s=0.05)
         assert gs.states(40) == []
     finally:
-        code, err = _stop(first)
+        code, err = stop_companion(first)
     assert code == 0, err[-2000:]
     assert _commands_logged(log, after=0.0) == ["start"]
 
     restarted = time.time()
-    second = _start(config)
+    second = start_companion(config)
     try:
-        await _until(lambda: gs.epochs(after=restarted), 60, second)
+        await until(lambda: gs.epochs(after=restarted), 60, second, poll_s=0.05)
         epoch2, addr2 = gs.epochs(after=restarted)[-1]
         assert epoch2 != epoch1
         await asyncio.sleep(0.6)  # past the companion's epoch announcement rate limit
         replayed_at = time.time()
         gs.send(captured, addr2)  # 11 s or less old: fresh by the clock, replay by the epoch
         # the companion refuses it and tells the station its epoch again
-        await _until(lambda: gs.epochs(after=replayed_at), 5, second)
+        await until(lambda: gs.epochs(after=replayed_at), 5, second, poll_s=0.05)
         await asyncio.sleep(1.0)
         assert gs.states(41, after=restarted) == []
         assert _commands_logged(log, after=restarted) == []
         # the same companion obeys a fresh command for its new epoch (the check can fail)
         again = Command(command_id=42, name="start", t_exec=time.time())
         gs.send(gs.encoder.encode_command(again, time.time(), epoch=epoch2), addr2)
-        await _until(lambda: "done" in gs.states(42), 10, second)
+        await until(lambda: "done" in gs.states(42), 10, second, poll_s=0.05)
     finally:
-        code, err = _stop(second)
+        code, err = stop_companion(second)
     assert code == 0, err[-2000:]
     assert _commands_logged(log, after=restarted) == ["start"]
     assert "Traceback" not in err

@@ -16,14 +16,12 @@ import pytest
 import serial  # pyserial: a dependency, pymavlink's serial links import it
 from test_companion_system import (  # type: ignore[import-not-found]
     Receiver,
-    _start,
-    _stop,
-    _until,
     _write_config,
     receiver,  # noqa: F401 - fixture
 )
 
 from companion.mavlink import describe_connect_error
+from tests.companion_process import start_companion, stop_companion, until
 from tests.keys import write_test_keys
 
 BIN = Path(sys.executable).parent
@@ -89,11 +87,11 @@ async def test_companion_flies_the_vehicle_over_a_pty_serial_line(
                                           'params = { limit_bytes_per_s = 100000.0 }')
         config.write_text(config.read_text().replace("heartbeat_timeout_s", "baud = 57600\n"
                                                      "heartbeat_timeout_s", 1))
-        proc = _start(config)
+        proc = start_companion(config, json_logs=True)
         try:
             # ArduPilot streams nothing on a link until asked: positions prove the companion's
             # stream requests went out over the line and the vehicle's telemetry came back.
-            await _until(lambda: len(rx.of("d1", "position")) >= 3, 60, proc)
+            await until(lambda: len(rx.of("d1", "position")) >= 3, 60, proc)
             status = rx.of("d1", "status")[-1]
             assert status.data["autopilot"] == "ardupilot"
             first, last = rx.of("d1", "position")[0], rx.of("d1", "position")[-1]
@@ -108,20 +106,20 @@ async def test_companion_flies_the_vehicle_over_a_pty_serial_line(
                 return (latest.data["lat_deg"], latest.data["lon_deg"]) != \
                     (first.data["lat_deg"], first.data["lon_deg"])
 
-            await _until(moved, 60, proc)
+            await until(moved, 60, proc)
             # The autopilot goes away (a USB cable pulled: the line hangs up, the device
             # node disappears) and comes back on the same path: the companion keeps running
             # and flies on without a restart.
             _end(vehicle)
             assert not link.exists(), "the vehicle removes its symlink when it stops"
-            await _until(lambda: rx.of("d1", "status")[-1].data["connected"] is False, 30,
+            await until(lambda: rx.of("d1", "status")[-1].data["connected"] is False, 30,
                          proc)
             vehicle, _ = _serial_vehicle(link, "--baud", "57600", "--flavour", "ardupilot")
             seen = len(rx.of("d1", "position"))
-            await _until(lambda: len(rx.of("d1", "position")) > seen + 1
+            await until(lambda: len(rx.of("d1", "position")) > seen + 1
                          and rx.of("d1", "status")[-1].data["connected"] is True, 60, proc)
         finally:
-            code, err = _stop(proc)
+            code, err = stop_companion(proc)
         assert code == 0, err[-3000:]
         assert err.count(f"mavlink connection opened: {link}") == 2, err[-3000:]
         assert "mavlink link lost" in err

@@ -12,12 +12,11 @@ from pathlib import Path
 import pytest
 from test_companion_system import (  # type: ignore[import-not-found]
     Receiver,
-    _start,
-    _stop,
-    _until,
     _write_config,
     receiver,  # noqa: F401 - fixture
 )
+
+from tests.companion_process import start_companion, stop_companion, until
 
 SITL = Path(sys.executable).parent / "uav-sitl"
 
@@ -54,9 +53,9 @@ async def test_companion_with_sitl_vehicle_and_synthetic_camera(
             constraint='[constraint]\nname = "constant"\n'
                        'params = { limit_bytes_per_s = 100000.0 }',
             extra='[camera.options]\nscene = "demo"\n')
-        proc = _start(config)
+        proc = start_companion(config, json_logs=True)
         try:
-            await _until(lambda: rx.of("d1", "image") and rx.of("d1", "position"), 60, proc)
+            await until(lambda: rx.of("d1", "image") and rx.of("d1", "position"), 60, proc)
             status = rx.of("d1", "status")[-1]
             assert status.data["autopilot"] == flavour
             position = rx.of("d1", "position")[-1]
@@ -66,7 +65,7 @@ async def test_companion_with_sitl_vehicle_and_synthetic_camera(
             image = rx.of("d1", "image")[-1]
             assert "lat_deg" in image.data and 0.0 <= image.data["red"] <= 1.0
         finally:
-            code, err = _stop(proc)
+            code, err = stop_companion(proc)
         assert code == 0, err[-3000:]
     finally:
         vehicle.terminate()

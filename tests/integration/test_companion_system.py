@@ -15,10 +15,8 @@ sends receiver reports back, like the ground station does.
 from __future__ import annotations
 
 import asyncio
-import base64
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -39,13 +37,11 @@ from companion.protocol import (
     StatusReceived,
     entry_from_message,
 )
-from tests.keys import TEST_COMMAND_PUB
+from tests.companion_process import ground_station_toml, start_companion, stop_companion, until
 from utility_specs.message import Message
 
 ROOT = Path(__file__).resolve().parents[2]
 VEHICLE = ROOT / "tests" / "companion" / "companion_fake_vehicle.py"
-SCRIPT = Path(sys.executable).parent / "uav-companion"
-COMPANION = [str(SCRIPT)] if SCRIPT.exists() else [sys.executable, "-m", "companion.cli"]
 KEY = b"integration-test-fleet-key"
 FLEET = 7
 
@@ -177,13 +173,7 @@ jpeg_quality = 70
 [mission]
 spec = "builtin:image_streaming"
 log = "{path.parent / (drone + '.jsonl')}"
-[ground_station]
-host = "127.0.0.1"
-port = {gs_port}
-fleet_id = {FLEET}
-fleet_key = "{KEY.decode()}"
-command_public_key = "{base64.b64encode(TEST_COMMAND_PUB).decode()}"
-listen_host = "127.0.0.1"
+{ground_station_toml(gs_port, fleet_id=FLEET, fleet_key=KEY)}
 [budgets]
 mcts_iterations = 100
 time_budget_s = 0.1
@@ -195,37 +185,6 @@ status_period_s = 2.0
 {extra}
 """)
     return path
-
-
-def _start(config: Path) -> subprocess.Popen[str]:
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    return subprocess.Popen([*COMPANION, "--log-format", "json", "run", "--config", str(config)],
-                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
-                            env=env)
-
-
-def _stop(proc: subprocess.Popen[str]) -> tuple[int, str]:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-    try:
-        _, err = proc.communicate(timeout=20)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        _, err = proc.communicate()
-        return -9, err
-    return proc.returncode, err
-
-
-async def _until(predicate: Any, timeout_s: float, proc: subprocess.Popen[str]) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if proc.poll() is not None:
-            _, err = _stop(proc)
-            pytest.fail(f"companion exited early ({proc.returncode}):\n{err[-3000:]}")
-        if time.monotonic() > deadline:
-            _code, err = _stop(proc)
-            pytest.fail(f"condition not met in {timeout_s} s; companion stderr:\n{err[-3000:]}")
-        await asyncio.sleep(0.1)
 
 
 def _link_states(mission_log: Path, *, after: float) -> list[str]:
@@ -248,9 +207,9 @@ async def test_companion_streams_and_survives_vehicle_loss(
         tmp_path / "d1.toml", drone="d1", vehicle_port=vehicle_proc.port, gs_port=gs_port,
         frames=_frames(tmp_path / "red", red=True), rate_hz=2.0,
         constraint='[constraint]\nname = "constant"\nparams = { limit_bytes_per_s = 200000.0 }')
-    proc = _start(config)
+    proc = start_companion(config, json_logs=True)
     try:
-        await _until(lambda: rx.of("d1", "image") and rx.of("d1", "position")
+        await until(lambda: rx.of("d1", "image") and rx.of("d1", "position")
                      and rx.of("d1", "battery"), 40, proc)
         position = rx.of("d1", "position")[-1]
         assert position.data["lat_deg"] == pytest.approx(50.0615, abs=1e-3)
@@ -267,15 +226,15 @@ async def test_companion_streams_and_survives_vehicle_loss(
         vehicle_proc.kill()
         t_kill = time.time()
         mission_log = tmp_path / "d1.jsonl"
-        await _until(lambda: _link_states(mission_log, after=t_kill) == ["lost"], 20, proc)
+        await until(lambda: _link_states(mission_log, after=t_kill) == ["lost"], 20, proc)
         # ...and it returns on the same port: same process, telemetry flows again.
         vehicle_proc.start()
         t_back = time.time()
-        await _until(lambda: "up" in _link_states(mission_log, after=t_back), 20, proc)
-        await _until(lambda: any(m.t_gen > t_back for m in rx.of("d1", "position")), 20, proc)
+        await until(lambda: "up" in _link_states(mission_log, after=t_back), 20, proc)
+        await until(lambda: any(m.t_gen > t_back for m in rx.of("d1", "position")), 20, proc)
         assert proc.poll() is None
     finally:
-        code, err = _stop(proc)
+        code, err = stop_companion(proc)
     assert code == 0, err[-3000:]
     logs = [json.loads(line) for line in err.splitlines() if line.startswith("{")]
     assert any("link lost" in r["msg"] for r in logs)
@@ -307,14 +266,14 @@ async def test_red_stream_gets_more_images_through_a_low_constraint(
                                    frames=_frames(tmp_path / drone, red=red), rate_hz=3.0,
                                    constraint=constraint, camera_extra='versions = ["quarter"]',
                                    extra="[middleware]\nseed = 1\nchunk_iterations = 25")
-            procs[drone] = _start(config)
-        await _until(lambda: rx.of("red", "status") and rx.of("plain", "status"), 60,
+            procs[drone] = start_companion(config, json_logs=True)
+        await until(lambda: rx.of("red", "status") and rx.of("plain", "status"), 60,
                      procs["red"])
         t_start = time.time()
-        await _until(lambda: time.time() - t_start > 15, 60, procs["red"])
+        await until(lambda: time.time() - t_start > 15, 60, procs["red"])
         assert procs["plain"].poll() is None
     finally:
-        results = {d: _stop(p) for d, p in procs.items()}
+        results = {d: stop_companion(p) for d, p in procs.items()}
         for v in vehicles.values():
             v.kill()
     for drone, (code, err) in results.items():

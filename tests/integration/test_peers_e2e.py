@@ -10,7 +10,6 @@ ground-side listener on the medium hears both drones' positions.
 from __future__ import annotations
 
 import asyncio
-import base64
 import contextlib
 import json
 import os
@@ -29,7 +28,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.peers import callsign_for
 from companion.protocol import Decoder, MessageReassembled, ReportReceived
 from companion.transport import open_medium_socket, parse_medium
-from tests.keys import TEST_COMMAND_PUB
+from tests.companion_process import ground_station_toml
 
 BIN = Path(sys.executable).parent
 KEY = b"peers-e2e-fleet-key-0000000"
@@ -63,13 +62,7 @@ enabled = false
 [mission]
 spec = "{spec}"
 log = "{path.parent / (drone + '.jsonl')}"
-[ground_station]
-host = "127.0.0.1"
-port = {gs_port}
-fleet_id = {FLEET}
-fleet_key = "{KEY.decode()}"
-command_public_key = "{base64.b64encode(TEST_COMMAND_PUB).decode()}"
-listen_host = "127.0.0.1"
+{ground_station_toml(gs_port, fleet_id=FLEET, fleet_key=KEY)}
 [budgets]
 mcts_iterations = 50
 [telemetry]

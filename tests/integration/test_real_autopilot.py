@@ -39,9 +39,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from test_companion_system import FLEET, KEY, _start, _stop, _write_config  # type: ignore[import-not-found]
+from test_companion_system import FLEET, KEY, _write_config  # type: ignore[import-not-found]
 
 from tests.autopilot_checks import AP_GUIDED, AP_LAND, PX4_HOLD, PX4_LAND, Autopilot, m
+from tests.companion_process import start_companion, stop_companion
 from tests.keys import write_test_keys
 
 BIN = Path(sys.executable).parent
@@ -395,7 +396,7 @@ def _run(target: Target, gs: GroundStation, tmp_path: Path) -> None:
         constraint='[constraint]\nname = "constant"\n'
                    'params = { limit_bytes_per_s = 100000.0 }',
         extra='[camera.options]\nscene = "demo"\n')
-    companion = _start(config)
+    companion = start_companion(config, json_logs=True)
     lags = Lags()
     try:
         ap = Autopilot.connect(target.gcs_url, timeout_s=60.0)
@@ -403,7 +404,7 @@ def _run(target: Target, gs: GroundStation, tmp_path: Path) -> None:
         _restart(target, ap, gs, lags)
         assert companion.poll() is None, "the companion exited"
     finally:
-        code, err = _stop(companion)
+        code, err = stop_companion(companion)
         if target.process is not None:
             target.process.stop()
     assert code == 0, err[-3000:]

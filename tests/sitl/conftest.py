@@ -15,6 +15,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sitl.vehicle.core import VehicleConfig, VehicleCore
+from tests.processes import terminate
 
 
 class MemoryGcs:
@@ -113,12 +114,7 @@ def vehicle_process() -> Iterator[Callable[..., VehicleProcess]]:
 
     yield start
     for proc in started:
-        proc.terminate()
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        terminate(proc)
         for stream in (proc.stdout, proc.stderr):
             if stream is not None:
                 stream.close()

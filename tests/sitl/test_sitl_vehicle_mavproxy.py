@@ -16,6 +16,7 @@ import time
 import pytest
 
 from sitl.vehicle.flavour import ARDUPILOT
+from tests.processes import terminate
 
 MAVPROXY = os.environ.get("UAV_SITL_MAVPROXY") or shutil.which("mavproxy.py")
 pytestmark = pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy is not installed")
@@ -97,9 +98,4 @@ def test_mavproxy_reads_params_loads_and_flies_a_mission_and_lands(vehicle_proce
         mp.expect("Saved 5 waypoints")
         mp.send("exit")
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        terminate(proc)

@@ -1,0 +1,131 @@
+"""The control API: mission start/end, live parameters and report requests, each issued to
+every drone through the mission manager, stored, announced as an alert and broadcast.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from typing import Any
+
+from aiohttp import web
+
+from ground_station.fleet import Alert
+from ground_station.http_guard import json_reply
+from ground_station.keys import (
+    BROADCASTER,
+    CLOCK,
+    CONFIG,
+    FLEET,
+    LINK,
+    MISSIONS,
+    STORAGE,
+)
+from ground_station.mission_input import MissionError, parse_params, parse_when
+
+__all__ = ["api_end", "api_params", "api_report", "api_reset_reports", "api_start"]
+
+
+async def _body(request: web.Request) -> dict[str, Any]:
+    if not request.can_read_body:
+        return {}
+    try:
+        body = await request.json()
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise web.HTTPBadRequest(
+            text=json.dumps({"error": "body must be a JSON object"}),
+            content_type="application/json",
+        ) from None
+    if not isinstance(body, dict):
+        raise web.HTTPBadRequest(
+            text=json.dumps({"error": "body must be a JSON object"}),
+            content_type="application/json",
+        )
+    return body
+
+
+def _t_exec(body: dict[str, Any], now: float) -> float:
+    if "t_exec" in body:
+        value = body["t_exec"]
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise MissionError("t_exec: expected a number (fleet clock, Unix seconds)")
+        return float(value)
+    if "delay_s" in body:
+        value = body["delay_s"]
+        if isinstance(value, bool) or not isinstance(value, int | float) or value < 0:
+            raise MissionError("delay_s: expected a number of seconds >= 0")
+        return now + float(value)
+    when = body.get("when")
+    if when is not None and not isinstance(when, str):
+        raise MissionError("when: expected text like 'in 5 s' or 'at 14:00'")
+    return parse_when(when, now=now)
+
+
+async def _issue(request: web.Request, verb: str) -> web.Response:
+    app = request.app
+    now = app[CLOCK]()
+    body = await _body(request)
+    try:
+        t_exec = _t_exec(body, now)
+        args: dict[str, Any] = {}
+        if verb == "params":
+            raw = body.get("params")
+            if isinstance(raw, str):
+                args = parse_params(raw)
+            elif isinstance(raw, dict) and raw:
+                args = dict(raw)
+            else:
+                raise MissionError("params: expected an object or 'NAME=VALUE,...' text")
+        elif isinstance(body.get("args"), dict):
+            args = dict(body["args"])
+        issued = app[MISSIONS].issue(verb, t_exec=t_exec, now=now, args=args)
+    except MissionError as exc:
+        return json_reply({"error": str(exc)}, status=400)
+    mission = app[CONFIG].mission
+    fleet = app[FLEET]
+    try:  # the command is issued either way; a storage failure is shown, not a 500
+        if verb == "start":
+            await app[STORAGE].call_writer(
+                lambda s: s.mark_mission(mission, now=now, t_start=t_exec))
+        elif verb == "end":
+            await app[STORAGE].call_writer(lambda s: s.mark_mission(mission, now=now, t_end=t_exec))
+    except Exception as exc:  # full disk, SQLite errors...
+        fleet.alert(Alert(t=now, level="error", kind="storage",
+                          text=f"mission {verb} not stored: {exc}"))
+    fleet.alert(
+        Alert(
+            t=now,
+            level="info",
+            kind="mission",
+            text=f"{issued.command.name} at {time.strftime('%H:%M:%S', time.localtime(t_exec))}"
+            f" sent to {len(app[MISSIONS].drones)} drone(s)",
+        )
+    )
+    link = app[LINK]
+    link.kick()
+    link._flush_alerts()
+    state = app[MISSIONS].state(now=now)
+    app[BROADCASTER].publish("mission", {"mission": state})
+    return json_reply({"command": issued.as_json(now), "mission": state})
+
+
+async def api_start(request: web.Request) -> web.Response:
+    return await _issue(request, "start")
+
+
+async def api_end(request: web.Request) -> web.Response:
+    return await _issue(request, "end")
+
+
+async def api_params(request: web.Request) -> web.Response:
+    return await _issue(request, "params")
+
+
+async def api_report(request: web.Request) -> web.Response:
+    return await _issue(request, "report")
+
+
+async def api_reset_reports(request: web.Request) -> web.Response:
+    app = request.app
+    app[MISSIONS].reset_reports()
+    return json_reply(app[MISSIONS].state(now=app[CLOCK]()))
