@@ -89,3 +89,16 @@ def test_the_middleware_plans_with_the_learned_margin_only_when_asked() -> None:
         planned[learn] = mw.last_problem.budget_bytes
     assert planned[False] == BUDGET
     assert planned[True] == pytest.approx(9_000.0, abs=1e-6)  # 20 % over: a margin of half that
+
+
+def test_study_policy_suffix_m_turns_the_margin_on() -> None:
+    from sitl.study.baselines import _policy
+
+    made = {name: _policy(name, 0.0, spec=builtin_spec("image_streaming"), agent="a",
+                          index=0, seed=1, budget_bytes=1000.0, window_s=1.0, horizon_s=3.0)
+            for name in ("mcts300", "mcts300m", "mcts600ksm", "mcts300ks")}
+    got = {n: (p.config.max_iterations, p.config.knapsack_seed,  # type: ignore[union-attr]
+               p.config.learn_margin)  # type: ignore[union-attr]
+           for n, p in made.items()}
+    assert got == {"mcts300": (300, False, False), "mcts300m": (300, False, True),
+                   "mcts600ksm": (600, True, True), "mcts300ks": (300, True, False)}
