@@ -13,6 +13,8 @@ of decisions made by the greedy fallback <= 1 %.
 Quality: utility >= the thesis reference at its drop shares (mostly-low), >= random at every
 drop share in all scenarios (interpolated), within 5 % of the offline optimum on average over
 20 seeded short missions, fewer violations than the reference (max 9 per run).
+Anytime (``--only anytime``): mean utility over seeds 1-3 does not fall from 300 to 3000
+iterations (20 s study missions, mostly-low and uniform at tight budgets).
 Like for like (``--only like-for-like``): the same checks against the thesis numbers on the
 reference code's own message sequence (data/infdist_preset0_seed0.csv), on which they were
 measured, instead of this project's draw of the scenario.
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import itertools
 import sys
 import time
 from pathlib import Path
@@ -255,6 +258,28 @@ def quality(t_end: float, out: Path, scenarios: list[str]) -> None:
         writer.writerows(rows)
 
 
+ANYTIME_CASES = (("mostly-low", 5.5), ("mostly-low", 2.5), ("uniform", 5.5))
+ANYTIME_ITERATIONS = (300, 600, 1500, 3000)
+
+
+def anytime(seeds: tuple[int, ...] = (1, 2, 3), t_end: float = 20.0) -> None:
+    """Mean utility over seeds must not fall as the iteration budget grows (issue 18), on
+    the study's missions (``sitl.study.baselines.run_one``, the companion's 300 and up)."""
+    from sitl.study.baselines import run_one
+
+    for scenario, budget in ANYTIME_CASES:
+        means = []
+        for iterations in ANYTIME_ITERATIONS:
+            runs = [run_one(scenario, f"mcts{iterations}", budget, seed=s, t_end=t_end)
+                    for s in seeds]
+            means.append(float(np.mean([r["utility_pct"] for r in runs])))
+        falls = [b - a for a, b in itertools.pairwise(means)]
+        check(f"anytime {scenario} {budget:g} msgs/T, it. "
+              + "/".join(str(i) for i in ANYTIME_ITERATIONS),
+              " / ".join(f"{m:.1f}" for m in means) + " %", "never falls",
+              min(falls) >= -1e-9)
+
+
 def optimum(n_missions: int, t_end: float) -> None:
     """MCTS (1500 it.) against the exact optimum with full knowledge, 4 agents, 3 msgs/T."""
     ratios = []
@@ -271,7 +296,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("artifacts/bench_mcts"))
     parser.add_argument("--quick", action="store_true", help="shorter missions (indicative)")
-    parser.add_argument("--only", choices=["companion", "like-for-like"],
+    parser.add_argument("--only", choices=["companion", "like-for-like", "anytime"],
                         help="run only these rows")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -282,6 +307,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if all(ok for *_, ok in ROWS) else 1
     if args.only == "like-for-like":
         like_for_like(t_end)
+        return 0 if all(ok for *_, ok in ROWS) else 1
+    if args.only == "anytime":
+        anytime()
         return 0 if all(ok for *_, ok in ROWS) else 1
     print("speed: reference setup", flush=True)
     speed_reference(t_end)
@@ -294,6 +322,8 @@ def main(argv: list[str] | None = None) -> int:
             ["mostly-low", "uniform", "mostly-high"])
     print("quality: like for like on the reference's own message sequence", flush=True)
     like_for_like(t_end)
+    print("quality: anytime (more iterations never lower the mean utility)", flush=True)
+    anytime()
     print("quality: offline optimum", flush=True)
     optimum(6 if args.quick else 20, 20.0)
     print(f"\n{'check':42s} {'measured':34s} {'target':28s} result")

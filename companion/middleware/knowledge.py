@@ -186,6 +186,10 @@ class FleetKnowledge:
         return {sender: (total / window_s, total / count)
                 for sender, (total, count) in sums.items()}
 
+    def known_sends(self) -> list[tuple[float, int]]:
+        """(send time, bytes) of every send the agent knows of (own, and others' delivered)."""
+        return list(self._sends.values())
+
     def sent_in_window(self, *, now: float, window_s: float) -> int:
         """Bytes the fleet is known to have sent in [now - T, now] (eq. 5.7)."""
         return sum(b for t, b in self._sends.values() if t >= now - window_s - 1e-9)

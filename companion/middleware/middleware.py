@@ -36,6 +36,7 @@ from companion.middleware.decider import (
 from companion.middleware.errors import MiddlewareError, ParamError, UnknownParamError
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge, settle_inflight, usable
+from companion.middleware.margin import OvershootMargin
 from companion.middleware.mcts import MCTS, greedy_option
 from companion.middleware.params import LIVE_KEYS, check_params, with_alpha
 from companion.middleware.reports import ReceiverReport, ReportLearned, deliveries, feed_link
@@ -82,6 +83,10 @@ class MiddlewareConfig:
     frames between a red and a plain stream about 2 : 1 instead of the thesis' 4 : 1
     (tests/middleware/test_mw_fig73.py) and gains only 2.5 points in image streaming
     (docs/middleware.md)."""
+    learn_margin: bool = False
+    """Plan against the budget less a margin learned from the fleet's observed overshoot
+    (:class:`~companion.middleware.margin.OvershootMargin`): the others' sends are known
+    only when they arrive, so without it the fleet fills the same window (issue 18)."""
     announce_after_s: float | None = 60.0
     """Other agents learn of a stream only from its deliveries: a stream of this agent that
     has sent nothing for this long is invisible to their plans, so they fill the shared
@@ -144,11 +149,12 @@ class Middleware:
             config.spec, agent=config.agent, default_latency_s=config.default_latency_s
         )
         self.counters: Counter[str] = Counter()
+        self.margin = OvershootMargin()
         self.last_problem: Problem | None = None
         self._last_sent: dict[str, float] = {}
+        """Per own message type: when it last sent one (what the fleet has heard of)."""
         self.always_send: frozenset[str] = frozenset()
         """Own types sent whatever the search says (the companion's status heartbeat)."""
-        """Per own message type: when it last sent one (what the fleet has heard of)."""
 
     @classmethod
     def from_setup(cls, setup: DeciderSetup, *, alpha: ParamValue = None,
@@ -207,11 +213,16 @@ class Middleware:
         view = settle_inflight(view, now=now, lag_s=lag, keep=self.config.search_inflight,
                                rates=self.knowledge.sender_rates(now=now, lag_s=lag,
                                                                  window_s=window_s))
+        budget = self.constraint.budget_bytes(now=now)
+        if self.config.learn_margin:
+            self.margin.observe(self.knowledge.known_sends(), now=now, settle_s=lag,
+                                window_s=window_s, budget_bytes=budget)
+            budget = self.margin.plan_budget(budget)
         try:
             problem = build_problem(
                 self.spec, items=view.items, fixed=view.fixed,
                 horizon_end=view.horizon_end + self.config.tail_s,
-                budget_bytes=self.constraint.budget_bytes(now=now), window_s=window_s,
+                budget_bytes=budget, window_s=window_s,
                 root_window=view.root_window, receivers=view.receivers,
             )
         except UtilitySpecsError as exc:  # bad message data: counted, not a crash
@@ -238,7 +249,7 @@ class Middleware:
             free = build_problem(
                 self.spec, items=view.items if over else own, fixed=view.fixed,
                 horizon_end=view.horizon_end + self.config.tail_s,
-                budget_bytes=self.constraint.budget_bytes(now=now), window_s=window_s,
+                budget_bytes=budget, window_s=window_s,
                 root_window=() if over else view.root_window, receivers=view.receivers,
             )
             relaxed = MCTS(free, c=self.config.c, max_nodes=self.config.max_iterations + 1,

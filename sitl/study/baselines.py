@@ -43,7 +43,8 @@ from utility_specs.spec import MissionSpec
 __all__ = ["KnapsackFill", "image_fleet", "main", "run_one"]
 
 POLICIES = ("mcts300", "mcts300ks", "greedy", "knapsack", "knapsack-fill", "random")
-"""mcts300ks: the same MCTS seeded with the knapsack-greedy plan (``knapsack_seed``)."""
+"""mcts300ks: the same MCTS seeded with the knapsack-greedy plan (``knapsack_seed``); any
+``mcts<N>[ks][m]`` runs with ``run_one`` (m: ``learn_margin``)."""
 IMAGE_VERSIONS = (Version(name="full", size=40_000, quality=1.0),
                   Version(name="half", size=10_000, quality=0.5),
                   Version(name="quarter", size=2_500, quality=0.25))
@@ -89,16 +90,23 @@ def image_fleet(make_policy: Callable[[str, int], Policy], *, n: int = 4,
     return agents
 
 
+def _mcts_name(name: str) -> tuple[int, str]:
+    """``mcts<iterations>[ks][m]``: ks seeds the search with knapsack-greedy's plan, m plans
+    with the overshoot margin (``learn_margin``)."""
+    digits = name[4:].rstrip("ksm")
+    return int(digits), name[4 + len(digits):]
+
+
 def _policy(name: str, param: float, *, spec: MissionSpec, agent: str, index: int, seed: int,
             budget_bytes: float, window_s: float, horizon_s: float) -> Policy:
     def constraint() -> ConstantConstraint:
         return ConstantConstraint(limit_bytes_per_s=budget_bytes / window_s, window_s=window_s)
 
     if name.startswith("mcts"):
-        seeded = name.endswith("ks")
-        config = MiddlewareConfig(spec=spec, agent=agent,
-                                  max_iterations=int(name[4:].removesuffix("ks")),
-                                  horizon_s=horizon_s, knapsack_seed=seeded)
+        iterations, suffix = _mcts_name(name)
+        config = MiddlewareConfig(spec=spec, agent=agent, max_iterations=iterations,
+                                  horizon_s=horizon_s, knapsack_seed="ks" in suffix,
+                                  learn_margin="m" in suffix.replace("ks", ""))
         return Middleware(config, rng=np.random.default_rng([seed, index]),
                           constraint=constraint())
     if name == "random":
