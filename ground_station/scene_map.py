@@ -2,13 +2,17 @@
 written for a real field) as plain JSON in local east/north metres around its home.
 
 The map then shows the area outline, the red objects and ArUco targets and home, and every
-drone's position in the same frame (``FleetView`` takes home as its origin).
+drone's position in the same frame (``FleetView`` takes home as its origin). The format is
+:mod:`utility_specs.scene`, the one the simulator reads (no import of ``sitl`` here).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
+
+from utility_specs.files import read_scene
+from utility_specs.scene import SceneError
 
 __all__ = ["SceneMapError", "load_scene_map"]
 
@@ -18,10 +22,8 @@ class SceneMapError(ValueError):
 
 
 def load_scene_map(path: Path) -> dict[str, Any]:
-    from sitl.scenes import SceneError, load_scene
-
     try:
-        scene = load_scene(path)
+        scene = read_scene(path)
     except SceneError as exc:
         raise SceneMapError(str(exc)) from None
     half_w, half_h = scene.width_m / 2, scene.height_m / 2

@@ -11,6 +11,10 @@ image, its file fsync'd under its final name): the receiver reports exactly thos
 delivered (docs/ground_station.md, "What a receiver report promises"). An item the database
 refuses (a value SQLite cannot hold) fails alone: a failed batch transaction is retried item
 by item, so one poisoned message never takes its batch with it.
+
+The schema and records are in :mod:`ground_station.storage_records`, the queries in
+:mod:`ground_station.storage_reads`; this module keeps the writing (files, transactions, the
+mission log) and re-exports the names its users import.
 """
 
 from __future__ import annotations
@@ -18,212 +22,47 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
-import math
-import os
-import re
 import sqlite3
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from utility_specs.log import message_to_record
+from ground_station.storage_files import fsync_dir, remove_temp_files, write_atomically
+from ground_station.storage_reads import StorageReads
+from ground_station.storage_records import (
+    NEW_IMAGE_COLUMNS,
+    POSE_STALE_AFTER_S,
+    SCHEMA,
+    BatchResult,
+    ImageRow,
+    StoreItem,
+    angle_deg,
+    geo_number,
+    jsonable,
+    log_record,
+    pose_quality,
+    safe_name,
+)
 from utility_specs.message import Message
 
-__all__ = ["BatchResult", "ImageRow", "Storage", "StoreItem", "log_record"]
-
-SCHEMA = """
-CREATE TABLE IF NOT EXISTS missions (
-    name TEXT PRIMARY KEY,
-    t_created REAL NOT NULL,
-    t_start REAL,
-    t_end REAL
-);
-CREATE TABLE IF NOT EXISTS messages (
-    id INTEGER PRIMARY KEY,
-    mission TEXT NOT NULL,
-    sender TEXT NOT NULL,
-    seq INTEGER NOT NULL,
-    type TEXT NOT NULL,
-    t_gen REAL NOT NULL,
-    t_sent REAL,
-    t_rcv REAL NOT NULL,
-    size INTEGER NOT NULL,
-    version INTEGER,
-    data TEXT NOT NULL
-);
-CREATE INDEX IF NOT EXISTS messages_by_sender ON messages (mission, sender, t_rcv);
-CREATE TABLE IF NOT EXISTS images (
-    id INTEGER PRIMARY KEY,
-    mission TEXT NOT NULL,
-    sender TEXT NOT NULL,
-    seq INTEGER NOT NULL,
-    type TEXT NOT NULL,
-    t_gen REAL NOT NULL,
-    t_rcv REAL NOT NULL,
-    size INTEGER NOT NULL,
-    version INTEGER,
-    red REAL,
-    object INTEGER NOT NULL DEFAULT 0,
-    utility REAL NOT NULL,
-    lat_deg REAL, lon_deg REAL, alt_m REAL,
-    x_m REAL, y_m REAL,
-    roll_deg REAL, pitch_deg REAL, yaw_deg REAL,
-    path TEXT,
-    error TEXT,
-    pose_age_s REAL,
-    pose TEXT,
-    UNIQUE (mission, sender, seq)
-);
-CREATE INDEX IF NOT EXISTS images_by_sender ON images (mission, sender, t_rcv);
-CREATE INDEX IF NOT EXISTS images_by_utility ON images (mission, utility);
-CREATE TABLE IF NOT EXISTS alerts (
-    id INTEGER PRIMARY KEY,
-    mission TEXT NOT NULL,
-    t REAL NOT NULL,
-    level TEXT NOT NULL,
-    kind TEXT NOT NULL,
-    drone TEXT,
-    text TEXT NOT NULL
-);
-"""
+__all__ = [
+    "POSE_STALE_AFTER_S",
+    "SCHEMA",
+    "BatchResult",
+    "ImageRow",
+    "Storage",
+    "StoreItem",
+    "log_record",
+    "pose_quality",
+    "safe_name",
+]
 
 FILE_WRITERS = 8
 """Threads writing image files of one batch in parallel."""
 
-_SAFE = re.compile(r"[^A-Za-z0-9_.-]")
 
-
-def safe_name(name: str) -> str:
-    """A sender or mission id usable as one path component."""
-    cleaned = _SAFE.sub("_", name)[:64]
-    return cleaned if cleaned not in ("", ".", "..") else "_"
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, Mapping):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, str | int | float | bool) or value is None:
-        return value
-    return str(value)
-
-
-def log_record(message: Message) -> dict[str, Any]:
-    """One mission-log line (the JSON Lines contract read by ``uav-utility evaluate``)."""
-    record = message_to_record(message)
-    record["data"] = _jsonable(record["data"])
-    return record
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class StoreItem:
-    """One received message to persist; ``payload`` is set for images."""
-
-    mission: str
-    message: Message
-    payload: bytes | None = None
-    utility: float | None = None
-    """Image utility weight (eq. 7.1/7.2); only for images."""
-    t_rcv: float | None = None
-    """The link's reception time, unclamped (for the receiver report's entry)."""
-
-
-@dataclass(slots=True, kw_only=True)
-class BatchResult:
-    image_ids: list[int | None] = field(default_factory=list)
-    """Per item, the images.id row (None for telemetry or when the row failed)."""
-    errors: list[str] = field(default_factory=list)
-    """Human-readable storage errors (e.g. disk full) raised while writing this batch."""
-    images_stored: int = 0
-    """Image files that reached the disk."""
-    stored: list[bool] = field(default_factory=list)
-    """Per item, True when it is durable: its row committed and, for an image, its file
-    written under its final name. Only these may be reported delivered."""
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class ImageRow:
-    id: int
-    mission: str
-    sender: str
-    seq: int
-    type: str
-    t_gen: float
-    t_rcv: float
-    size: int
-    version: int | None
-    red: float | None
-    object: bool
-    utility: float
-    lat_deg: float | None
-    lon_deg: float | None
-    alt_m: float | None
-    x_m: float | None
-    y_m: float | None
-    roll_deg: float | None
-    pitch_deg: float | None
-    yaw_deg: float | None
-    path: str | None
-    error: str | None
-    pose_age_s: float | None = None
-    """How old the position was when the image was taken (None: not reported)."""
-    pose: str | None = None
-    """``ok``, ``stale`` (older than POSE_STALE_AFTER_S) or ``none`` (no fix: no position)."""
-
-    def as_json(self) -> dict[str, Any]:
-        return {name: getattr(self, name) for name in self.__dataclass_fields__}
-
-
-POSE_STALE_AFTER_S = 1.0
-"""An image's position older than this (5 samples at the companion's 5 Hz) is stale: an
-autopilot outage, not the geotag of the place the image shows."""
-_NEW_IMAGE_COLUMNS = (("pose_age_s", "REAL"), ("pose", "TEXT"))
-
-
-def pose_quality(data: Mapping[str, Any]) -> tuple[float | None, str]:
-    """(pose age, ``ok``/``stale``/``none``) of an image's geotag data."""
-    age = _geo(data, "pose_age_s")
-    lat, lon = _geo(data, "lat_deg", "lat"), _geo(data, "lon_deg", "lon")
-    if data.get("position") == "none" or lat is None or lon is None \
-            or (abs(lat) < 1e-6 and abs(lon) < 1e-6):
-        return age, "none"
-    if age is not None and age > POSE_STALE_AFTER_S:
-        return age, "stale"
-    return age, "ok"
-
-
-def _geo(data: Mapping[str, Any], *keys: str) -> float | None:
-    for key in keys:
-        value = data.get(key)
-        if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value):
-            return float(value)
-    return None
-
-
-def _angle_deg(data: Mapping[str, Any], *keys: str, radians: str) -> float | None:
-    """An attitude angle in degrees; the companion's geotags carry MAVLink's radians."""
-    value = _geo(data, *keys)
-    if value is not None:
-        return value
-    rad = _geo(data, radians)
-    return math.degrees(rad) if rad is not None else None
-
-
-def _fsync_dir(directory: Path) -> None:
-    with contextlib.suppress(OSError):
-        fd = os.open(directory, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
-class Storage:
+class Storage(StorageReads):
     """SQLite index and files under ``root``. Not thread-safe: one thread per instance."""
 
     def __init__(self, root: Path, *, fsync: bool = True, readonly: bool = False) -> None:
@@ -240,7 +79,7 @@ class Storage:
             self.db.execute("PRAGMA synchronous = NORMAL")
             self.db.executescript(SCHEMA)
             self._add_columns()
-            self.removed_temp_files = self._remove_temp_files()
+            self.removed_temp_files = remove_temp_files(self.root)
         self._logs: dict[str, Any] = {}
         self._files = ThreadPoolExecutor(FILE_WRITERS, thread_name_prefix="gs-image-file")
         self._made_dirs: set[Path] = set()
@@ -256,7 +95,7 @@ class Storage:
     def _add_columns(self) -> None:
         """Columns newer than a database made by an older version (nullable: old rows)."""
         have = {r[1] for r in self.db.execute("PRAGMA table_info(images)")}
-        for name, kind in _NEW_IMAGE_COLUMNS:
+        for name, kind in NEW_IMAGE_COLUMNS:
             if name not in have:
                 self.db.execute(f"ALTER TABLE images ADD COLUMN {name} {kind}")
 
@@ -292,50 +131,16 @@ class Storage:
             / f"{message.seq:09d}{version}.jpg"
         )
 
-    def _remove_temp_files(self) -> int:
-        """Half-written images of a process that died mid-write (``.NAME.jpg.tmp``): never
-        indexed, never under a final name, only taking space. Runs when a writer opens."""
-        removed = 0
-        for tmp in (self.root / "missions").glob("*/images/*/.*.tmp"):
-            with contextlib.suppress(OSError):
-                tmp.unlink()
-                removed += 1
-        return removed
-
     def _write_file(self, relpath: Path, payload: bytes) -> None:
-        final = self.root / relpath
-        folder = final.parent
-        if folder not in self._made_dirs:
-            folder.mkdir(parents=True, exist_ok=True)
-            self._made_dirs.add(folder)
-        tmp = final.with_name(f".{final.name}.tmp")
-        try:
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-        except FileNotFoundError:  # the folder was removed while running: make it again
-            self._made_dirs.discard(folder)
-            folder.mkdir(parents=True, exist_ok=True)
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-        try:
-            view = memoryview(payload)
-            while view:
-                written = os.write(fd, view)
-                view = view[written:]
-            if self.fsync:
-                os.fsync(fd)
-        except BaseException:
-            os.close(fd)
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-            raise
-        os.close(fd)
-        os.replace(tmp, final)
+        write_atomically(self.root / relpath, payload, fsync=self.fsync,
+                         made_dirs=self._made_dirs)
 
     def _sync_dirs(self, dirs: set[Path]) -> None:
         """Make the batch's renames durable. In parallel, like the files: a batch from 50
         drones touches 50 folders, and 50 fsyncs one after another took longer than the
         batch's files."""
         if self.fsync:
-            list(self._files.map(_fsync_dir, dirs))
+            list(self._files.map(fsync_dir, dirs))
 
     def log_path(self, mission: str) -> Path:
         return self.root / "missions" / safe_name(mission) / "mission_log.jsonl"
@@ -492,7 +297,7 @@ class Storage:
         for item, path, error in zip(items, paths, errors, strict=True):
             m = item.message
             t_rcv = m.t_rcv if m.t_rcv is not None else now
-            data_json = json.dumps(_jsonable(m.data))
+            data_json = json.dumps(jsonable(m.data))
             cur.execute(
                 "INSERT INTO messages (mission, sender, seq, type, t_gen, t_sent, t_rcv, size,"
                 " version, data) VALUES (?,?,?,?,?,?,?,?,?,?)",
@@ -530,17 +335,17 @@ class Storage:
                     t_rcv,
                     m.size,
                     m.version,
-                    _geo(d, "red"),
+                    geo_number(d, "red"),
                     1 if obj is True or obj == 1 else 0,
                     item.utility,
-                    _geo(d, "lat_deg", "lat") if placed else None,
-                    _geo(d, "lon_deg", "lon") if placed else None,
-                    _geo(d, "alt_m", "alt_rel_m", "alt") if placed else None,
-                    _geo(d, "x_m", "x") if placed else None,
-                    _geo(d, "y_m", "y") if placed else None,
-                    _angle_deg(d, "roll_deg", "roll", radians="roll_rad"),
-                    _angle_deg(d, "pitch_deg", "pitch", radians="pitch_rad"),
-                    _angle_deg(d, "yaw_deg", "yaw", "heading_deg", radians="yaw_rad"),
+                    geo_number(d, "lat_deg", "lat") if placed else None,
+                    geo_number(d, "lon_deg", "lon") if placed else None,
+                    geo_number(d, "alt_m", "alt_rel_m", "alt") if placed else None,
+                    geo_number(d, "x_m", "x") if placed else None,
+                    geo_number(d, "y_m", "y") if placed else None,
+                    angle_deg(d, "roll_deg", "roll", radians="roll_rad"),
+                    angle_deg(d, "pitch_deg", "pitch", radians="pitch_rad"),
+                    angle_deg(d, "yaw_deg", "yaw", "heading_deg", radians="yaw_rad"),
                     path,
                     error,
                     pose_age,
@@ -578,103 +383,3 @@ class Storage:
             handle = self._log(mission)
             handle.write(json.dumps({"mission": bounds}) + "\n")
             handle.flush()
-
-    # -- reading ------------------------------------------------------------------------
-    def images(
-        self,
-        mission: str,
-        *,
-        sender: str | None = None,
-        object_only: bool | None = None,
-        order: str = "utility",
-        limit: int = 50,
-    ) -> list[ImageRow]:
-        """Stored images of a mission, best first (``order='utility'``) or newest first."""
-        where = ["mission = ?", "path IS NOT NULL"]
-        args: list[Any] = [mission]
-        if sender is not None:
-            where.append("sender = ?")
-            args.append(sender)
-        if object_only is not None:
-            where.append("object = ?")
-            args.append(1 if object_only else 0)
-        by = "utility DESC, t_rcv DESC" if order == "utility" else "t_rcv DESC"
-        sql = f"SELECT * FROM images WHERE {' AND '.join(where)} ORDER BY {by} LIMIT ?"
-        args.append(max(1, min(int(limit), 1000)))
-        return [self._row(r) for r in self.db.execute(sql, args)]
-
-    def window_share(
-        self, mission: str, row: ImageRow, senders: Iterable[str], *, window_s: float
-    ) -> float | None:
-        """The sender's share of the bytes received from ``senders`` in the ``window_s``
-        before ``row`` arrived (the tile's goodput share at that moment); None: nothing."""
-        names = sorted({*senders, row.sender})
-        sql = ("SELECT sender, SUM(size) FROM messages WHERE mission = ? AND sender IN"
-               f" ({', '.join('?' * len(names))}) AND t_rcv > ? AND t_rcv <= ? GROUP BY sender")
-        sums = dict(self.db.execute(sql, (mission, *names, row.t_rcv - window_s, row.t_rcv)))
-        total = sum(v or 0 for v in sums.values())
-        return (sums.get(row.sender) or 0) / total if total > 0 else None
-
-    def iter_images(self, mission: str) -> Iterator[ImageRow]:
-        for r in self.db.execute(
-            "SELECT * FROM images WHERE mission = ? ORDER BY t_gen, sender, seq", (mission,)
-        ):
-            yield self._row(r)
-
-    def image(self, image_id: int) -> ImageRow | None:
-        row = self.db.execute("SELECT * FROM images WHERE id = ?", (image_id,)).fetchone()
-        return self._row(row) if row is not None else None
-
-    def latest_images(self, mission: str) -> list[ImageRow]:
-        rows = self.db.execute(
-            "SELECT * FROM images WHERE id IN (SELECT MAX(id) FROM images WHERE mission = ?"
-            " AND path IS NOT NULL GROUP BY sender)",
-            (mission,),
-        )
-        return [self._row(r) for r in rows]
-
-    def missions(self) -> list[dict[str, Any]]:
-        rows = self.db.execute(
-            "SELECT m.name, m.t_created, m.t_start, m.t_end,"
-            " (SELECT COUNT(*) FROM images i WHERE i.mission = m.name) AS images,"
-            " (SELECT COUNT(*) FROM messages g WHERE g.mission = m.name) AS messages"
-            " FROM missions m ORDER BY m.t_created"
-        )
-        return [dict(r) for r in rows]
-
-    def counts(self, mission: str) -> dict[str, int]:
-        images = self.db.execute(
-            "SELECT COUNT(*), COUNT(path) FROM images WHERE mission = ?", (mission,)
-        ).fetchone()
-        messages = self.db.execute(
-            "SELECT COUNT(*) FROM messages WHERE mission = ?", (mission,)
-        ).fetchone()
-        return {"images": images[0], "images_on_disk": images[1], "messages": messages[0]}
-
-    def telemetry(
-        self, mission: str, *, sender: str | None = None, limit: int = 200
-    ) -> list[dict[str, Any]]:
-        where, args = "mission = ?", [mission]
-        if sender is not None:
-            where += " AND sender = ?"
-            args.append(sender)
-        rows = self.db.execute(
-            f"SELECT sender, seq, type, t_gen, t_rcv, size, data FROM messages WHERE {where}"
-            " ORDER BY id DESC LIMIT ?",
-            [*args, limit],
-        )
-        return [{**dict(r), "data": json.loads(r["data"])} for r in rows]
-
-    def alerts(self, mission: str, *, limit: int = 100) -> list[dict[str, Any]]:
-        rows = self.db.execute(
-            "SELECT t, level, kind, drone, text FROM alerts WHERE mission = ?"
-            " ORDER BY id DESC LIMIT ?",
-            (mission, limit),
-        )
-        return [dict(r) for r in rows]
-
-    @staticmethod
-    def _row(r: sqlite3.Row) -> ImageRow:
-        values = dict(r)
-        values["object"] = bool(values["object"])
-        return ImageRow(**values)

@@ -14,11 +14,8 @@ SHELLS = ("companion", "ground_station", "sitl")
 CORES = ("companion/middleware", "companion/protocol", "utility_specs")
 LIMIT = 450
 
-KNOWN_OVER_LIMIT = frozenset({
-    "ground_station/receiver.py",
-    "ground_station/storage.py",
-})
-"""Modules other engineers are splitting now; remove each as it comes under LIMIT."""
+KNOWN_OVER_LIMIT: frozenset[str] = frozenset()
+"""Modules still being split (none now); remove each as it comes under LIMIT."""
 
 
 def shell_module_lines() -> dict[str, int]:

@@ -1,7 +1,8 @@
-"""The model's file edge: mission specs and logs read from disk.
+"""The model's file edge: mission specs, logs and scene files read from disk.
 
 Everything else in utility_specs is pure and takes parsed data (:func:`parse_spec`,
-:func:`parse_log`); these loaders only read a file and hand its text on.
+:func:`parse_log`, :func:`~utility_specs.scene.parse_scene`); these loaders only read a file
+and hand its text on.
 """
 
 from __future__ import annotations
@@ -12,9 +13,10 @@ from pathlib import Path
 
 from utility_specs.errors import LogError, SpecError
 from utility_specs.log import MissionLog, parse_log
+from utility_specs.scene import Scene, SceneError, parse_scene
 from utility_specs.spec import MissionSpec, parse_spec
 
-__all__ = ["builtin_spec", "builtin_specs", "load_spec", "read_log"]
+__all__ = ["builtin_spec", "builtin_specs", "load_spec", "read_log", "read_scene"]
 
 
 def read_log(path: str | Path) -> MissionLog:
@@ -63,3 +65,15 @@ def builtin_spec(name: str) -> MissionSpec:
         raise SpecError(f"no built-in spec {name!r}; expected one of {builtin_specs()}")
     raw = tomllib.loads(resource.read_text(encoding="utf-8"))
     return parse_spec(raw, source=f"utility_specs/missions/{name}.toml")
+
+
+def read_scene(path: str | Path) -> Scene:
+    """Parse the scene file at ``path``; a file that cannot be read is a SceneError too."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read scene ({exc.strerror})") from exc
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{path}: not a text file (byte {exc.start} is not UTF-8)") from None
+    return parse_scene(text, path)
