@@ -177,8 +177,10 @@ class CompanionApp:
                     async with asyncio.timeout(10.0):
                         await wait_started()
                 group.create_task(self.mavlink.run(), name="mavlink")
-                await self.dispatcher.warm_up()  # before anything asks the optimiser
+                # statuses flow while the optimiser warms up (the dispatcher sends them without
+                # it), so a cold numba cache never looks like a lost link at the station
                 group.create_task(self.publisher.run(), name="telemetry-publisher")
+                await self.dispatcher.warm_up()  # before anything else asks the optimiser
                 if self.camera is not None:
                     group.create_task(self.camera.run(), name="camera")
                 group.create_task(self._housekeeping(), name="housekeeping")

@@ -33,9 +33,13 @@ log = logging.getLogger(__name__)
 Clock = Callable[[], float]
 SendMessage = Callable[[Message, bytes, float], int]
 
+HEARTBEAT_TYPES = frozenset({"status"})
+"""Sent whatever the policy says (``companion.middleware.decider.COMPANION_ALWAYS_SEND``),
+and during the optimiser's warm-up without asking it."""
+
 COUNTERS = ("generated", "sent", "dropped", "decide_timeouts", "decide_errors", "send_errors",
             "reports", "commands", "frames_skipped", "frame_errors", "not_running", "decided",
-            "fallback")
+            "fallback", "warming_up")
 """The app's counters (shared by its services; ``request_report`` returns them)."""
 
 
@@ -60,6 +64,9 @@ class Dispatcher:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stopping: asyncio.Event | None = None
         self.health = LinkHealth()
+        self._warming = False
+        """The optimiser's warm-up (numba compilation: up to seconds on a cold cache) runs:
+        only the status heartbeat goes out, so the station does not see the drone vanish."""
         """Δ and loss of this drone's own link, for its status messages."""
 
     # -- life cycle -------------------------------------------------------------------------
@@ -97,10 +104,12 @@ class Dispatcher:
         t0 = loop.time()
         work = loop.run_in_executor(self._pool, warm_up)
         stop_wait = asyncio.ensure_future(stopping.wait())
+        self._warming = True
         try:
             await asyncio.wait([work, stop_wait], timeout=120.0,
                                return_when=asyncio.FIRST_COMPLETED)
         finally:
+            self._warming = False
             stop_wait.cancel()
         if not work.done():
             log.warning("optimiser warm-up unfinished after %.1f s", loop.time() - t0)
@@ -136,6 +145,14 @@ class Dispatcher:
         if not self._mission.running and message.type != "status":
             self.counters["not_running"] += 1
             return False
+        if self._warming:  # the optimiser's thread is busy compiling: no decision to ask for
+            if message.type not in HEARTBEAT_TYPES:
+                self.counters["warming_up"] += 1
+                self._log.write_message(message, sent=False, decision={
+                    "send": False, "reason": "optimiser warming up"})
+                return False
+            return self._send(message, None, {"send": True, "version": None,
+                                              "reason": "status-heartbeat (warming up)"})
         loop = asyncio.get_running_loop()
         now = self.clock()
         budget = self.config.budgets.time_budget_s
@@ -163,8 +180,11 @@ class Dispatcher:
             self.counters["dropped"] += 1
             self._log.write_message(message, sent=False, decision=info)
             return False
+        return self._send(message, decision.version, info)
+
+    def _send(self, message: Message, version: int | None, info: dict[str, Any]) -> bool:
+        """Send the decided version of ``message``, count and log it. True if sent."""
         chosen = message
-        version = decision.version
         if message.versions and version is not None:
             chosen = message.with_version(version)
         t_sent = self.clock()
