@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from companion.config import CompanionConfig
 from companion.linkhealth import LinkHealth
+from companion.middleware.decider import COMPANION_ALWAYS_SEND
 from companion.mission import MissionWindow
 from companion.mission_log import MissionLogWriter
 from utility_specs.message import Message
@@ -33,9 +34,9 @@ log = logging.getLogger(__name__)
 Clock = Callable[[], float]
 SendMessage = Callable[[Message, bytes, float], int]
 
-HEARTBEAT_TYPES = frozenset({"status"})
-"""Sent whatever the policy says (``companion.middleware.decider.COMPANION_ALWAYS_SEND``),
-and during the optimiser's warm-up without asking it."""
+HEARTBEAT_TYPES = frozenset(COMPANION_ALWAYS_SEND)
+"""The status heartbeat: the registry's policies send it whatever they decide, and the
+dispatcher sends it without asking while the optimiser warms up."""
 
 COUNTERS = ("generated", "sent", "dropped", "decide_timeouts", "decide_errors", "send_errors",
             "reports", "commands", "frames_skipped", "frame_errors", "not_running", "decided",

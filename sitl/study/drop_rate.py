@@ -364,21 +364,28 @@ def _plot(path: Path, runs: list[Run], chars: dict[str, list[float]],
         if opt:
             ax.scatter(*zip(*opt, strict=True), marker="*", s=90, color="black",
                        label="offline optimum (short)")
-        if scenario == "mostly-low":
-            ax.plot(REFERENCE_DROP, REFERENCE_MCTS, "k--", linewidth=0.8, label="thesis MCTS")
-            ax.plot(REFERENCE_DROP, REFERENCE_RANDOM, "k:", linewidth=0.8, label="thesis random")
-        ax.set_title(scenario)
-        ax.set_xlabel("drop share")
-        ax.set_ylabel("% of utility")
-        ax.set_xlim(0, 1)
-        ax.set_ylim(0, 105)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-        hx = axes[1][col]
-        histogram_panel(hx, np.array(chars.get(scenario, [])))
+        finish_panels(ax, axes[1][col], scenario, np.array(chars.get(scenario, [])))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def finish_panels(ax: Any, hx: Any, scenario: str, characteristics: np.ndarray) -> None:
+    """A fig 5.7 column's common parts: the reference rerun's curves (mostly-low; the
+    reference code rerun here, not the thesis' own numbers), axes, legend and histogram."""
+    if scenario == "mostly-low":
+        ax.plot(REFERENCE_DROP, REFERENCE_MCTS, "k--", linewidth=0.8,
+                label="reference rerun MCTS")
+        ax.plot(REFERENCE_DROP, REFERENCE_RANDOM, "k:", linewidth=0.8,
+                label="reference rerun random")
+    ax.set_title(scenario)
+    ax.set_xlabel("drop share")
+    ax.set_ylabel("% of utility")
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 105)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    histogram_panel(hx, characteristics)
 
 
 def histogram_panel(hx: Any, values: np.ndarray) -> None:

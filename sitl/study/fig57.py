@@ -307,20 +307,7 @@ def _plot(path: Path, summary: Sequence[dict[str, Any]], hist: dict[str, np.ndar
             if np.isfinite(lo).all():
                 ax.fill_between(x, lo, hi, color=color, alpha=0.2, linewidth=0,
                                 label=f"{policy} 95 % interval")
-        if scenario == "mostly-low":
-            ax.plot(dr.REFERENCE_DROP, dr.REFERENCE_MCTS, "k--", linewidth=0.8,
-                    label="reference rerun MCTS")
-            ax.plot(dr.REFERENCE_DROP, dr.REFERENCE_RANDOM, "k:", linewidth=0.8,
-                    label="reference rerun random")
-        ax.set_title(scenario)
-        ax.set_xlabel("drop share")
-        ax.set_ylabel("% of utility")
-        ax.set_xlim(0, 1)
-        ax.set_ylim(0, 105)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-        hx = axes[1][col]
-        dr.histogram_panel(hx, hist.get(scenario, np.array([])))
+        dr.finish_panels(ax, axes[1][col], scenario, hist.get(scenario, np.array([])))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

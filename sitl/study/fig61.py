@@ -13,8 +13,6 @@ near its minimum until the link is full; with larger σ it grows well before tha
 from __future__ import annotations
 
 import argparse
-import csv
-import sys
 import time
 from collections import defaultdict
 from collections.abc import Sequence
@@ -23,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from sitl.study.sweep import add_cluster_options, dask_client, run_sweep
+from sitl.study.sweep import add_cluster_options, sweep_figure, write_rows
 
 __all__ = ["SIGMAS", "jittered_link", "main", "point_cell"]
 
@@ -110,20 +108,12 @@ def main(argv: list[str] | None = None) -> int:
     cells = [{"sigma_s": s, "rate_mbit": r, "run": k, "duration_s": DURATION_S}
              for s in SIGMAS for k in range(runs) for r in rates]
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    try:
-        with dask_client(args.scheduler, workers=args.workers) as client:
-            sweep = run_sweep(point_cell, cells, out=out / "fig6_1.csv", client=client,
-                              label="fig6.1")
-    except (OSError, ValueError) as exc:
-        print(f"uav-sitl study fig6.1: {exc}", file=sys.stderr)
+    sweep = sweep_figure(point_cell, cells, args=args, name="fig6_1", label="fig6.1")
+    if sweep is None:
         return 1
     summary = _summary(sweep.rows)
-    with (out / "fig6_1_summary.csv").open("w", newline="", encoding="utf-8") as f:
-        writer = csv.DictWriter(f, fieldnames=list(summary[0]))
-        writer.writeheader()
-        writer.writerows(summary)
+    write_rows(out / "fig6_1_summary.csv", summary)
     by = {(s["sigma_s"], s["rate_mbit"]): s for s in summary}
     lines = ["fig. 6.1: reception rate Mbit/s | mean latency ms [95 % interval] per publishing "
              "rate (link 1 Mbit/s); thesis: no numbers stated (figure only)",

@@ -13,8 +13,6 @@ Mbit/s). Writes ``fig6_2.csv`` (cells, streamed, resumable), ``fig6_2_summary.cs
 from __future__ import annotations
 
 import argparse
-import csv
-import sys
 import time
 from collections import defaultdict
 from collections.abc import Sequence
@@ -23,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from sitl.study.sweep import add_cluster_options, dask_client, run_sweep
+from sitl.study.sweep import add_cluster_options, sweep_figure, write_rows
 
 __all__ = ["THESIS_R_STAR_MBIT", "crossing", "main", "point_cell"]
 
@@ -91,24 +89,13 @@ def main(argv: list[str] | None = None) -> int:
     cells = [{"background_mbit": s, "rate_mbit": r, "run": k, "duration_s": duration}
              for s in BACKGROUNDS_MBIT for k in range(runs) for r in rates]
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    try:
-        with dask_client(args.scheduler, workers=args.workers) as client:
-            sweep = run_sweep(point_cell, cells, out=out / "fig6_2.csv", client=client,
-                              label="fig6.2")
-    except OSError as exc:  # no scheduler there, or the output cannot be written
-        print(f"uav-sitl study fig6.2: {exc}", file=sys.stderr)
-        return 1
-    except ValueError as exc:  # --out holds a CSV of another sweep
-        print(f"uav-sitl study fig6.2: {exc}", file=sys.stderr)
+    sweep = sweep_figure(point_cell, cells, args=args, name="fig6_2", label="fig6.2")
+    if sweep is None:
         return 1
     rows = [r for r in sweep.rows if float(r["duration_s"]) == duration]
     summary = _summary(rows)
-    with (out / "fig6_2_summary.csv").open("w", newline="", encoding="utf-8") as f:
-        writer = csv.DictWriter(f, fieldnames=list(summary[0]))
-        writer.writeheader()
-        writer.writerows(summary)
+    write_rows(out / "fig6_2_summary.csv", summary)
     lines = [f"fig. 6.2: r* = publishing rate where mean ‖W‖_Δ reaches α = {ALPHA_MBIT} Mbit/s "
              f"(link 1 Mbit/s; {runs} runs of {duration:g} s per point, 95 % interval)",
              f"{'S Mbit/s':>9} | {'r* measured':>11} | {'r* thesis':>9} | "

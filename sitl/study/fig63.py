@@ -21,7 +21,6 @@ rate, a higher drop rate and a higher latency; the table checks those claims.
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 import time
 from collections import defaultdict
@@ -31,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from sitl.study.sweep import add_cluster_options, dask_client, run_sweep
+from sitl.study.sweep import add_cluster_options, sweep_figure, write_rows
 
 __all__ = ["ALPHAS_MBIT", "FIXED_RATES_MBIT", "alpha_cell", "main"]
 
@@ -140,23 +139,15 @@ def main(argv: list[str] | None = None) -> int:
              + [{"mode": "fixed", "alpha_mbit": 0.0, "fixed_mbit": r, "run": k,
                  "duration_s": duration} for r in fixed for k in range(runs)])
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    try:
-        with dask_client(args.scheduler, workers=args.workers) as client:
-            sweep = run_sweep(alpha_cell, cells, out=out / "fig6_3.csv", client=client,
-                              label="fig6.3")
-    except (OSError, ValueError) as exc:
-        print(f"uav-sitl study fig6.3: {exc}", file=sys.stderr)
+    sweep = sweep_figure(alpha_cell, cells, args=args, name="fig6_3", label="fig6.3")
+    if sweep is None:
         return 1
     summary = _summary(sweep.rows)
     if not summary:
         print("uav-sitl study fig6.3: no cell finished", file=sys.stderr)
         return 1
-    with (out / "fig6_3_summary.csv").open("w", newline="", encoding="utf-8") as f:
-        writer = csv.DictWriter(f, fieldnames=list(summary[0]))
-        writer.writeheader()
-        writer.writerows(summary)
+    write_rows(out / "fig6_3_summary.csv", summary)
     adaptive = [s for s in summary if s["mode"] == "adaptive"]
     lines = [f"figs. 6.3/6.4: {AGENTS} agents x {RATE_HZ:g} Hz x {MESSAGE_BYTES} B, "
              f"{BACKGROUND_MBIT} Mbit/s background on 1 Mbit/s, {duration:g} s runs, mean of "

@@ -16,7 +16,6 @@ JSON), ``fig6_5_summary.csv``, ``fig6_5.png`` (ξ and goodput of seed 0 per cons
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 import time
@@ -26,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from sitl.study.sweep import add_cluster_options, dask_client, run_sweep
+from sitl.study.sweep import add_cluster_options, sweep_figure, write_rows
 
 __all__ = ["main", "run_cell", "step_response_s"]
 
@@ -111,23 +110,15 @@ def main(argv: list[str] | None = None) -> int:
     cells = [{"constraint": c, "run": k, "duration_s": duration}
              for k in range(runs) for c in FIG65_CONSTRAINTS]
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    try:
-        with dask_client(args.scheduler, workers=args.workers) as client:
-            sweep = run_sweep(run_cell, cells, out=out / "fig6_5.csv", client=client,
-                              label="fig6.5")
-    except (OSError, ValueError) as exc:
-        print(f"uav-sitl study fig6.5: {exc}", file=sys.stderr)
+    sweep = sweep_figure(run_cell, cells, args=args, name="fig6_5", label="fig6.5")
+    if sweep is None:
         return 1
     summary = _summary(sweep.rows)
     if not summary:
         print("uav-sitl study fig6.5: no cell finished", file=sys.stderr)
         return 1
-    with (out / "fig6_5_summary.csv").open("w", newline="", encoding="utf-8") as f:
-        writer = csv.DictWriter(f, fieldnames=list(summary[0]))
-        writer.writeheader()
-        writer.writerows(summary)
+    write_rows(out / "fig6_5_summary.csv", summary)
     by = {s["constraint"]: s for s in summary}
     aimd_cv = max(by["aimd"]["cv_first_half_mean"], by["aimd"]["cv_second_half_mean"]) \
         if "aimd" in by else float("nan")

@@ -254,3 +254,26 @@ def _client_or(client: Any, scheduler: str | None, workers: int) -> Iterator[Any
         return
     with dask_client(scheduler, workers=workers) as c:
         yield c
+
+
+def sweep_figure(fn: CellFn, cells: Sequence[Mapping[str, Any]], *, args: Any, name: str,
+                 label: str) -> SweepResult | None:
+    """A figure command's cells on Dask (``args.out``, ``args.scheduler``, ``args.workers``)
+    into ``args.out/NAME.csv`` (streamed, resumable); None after a one-line error (no
+    scheduler there, an unwritable folder, or a CSV of another sweep in it)."""
+    out: Path = args.out
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with dask_client(args.scheduler, workers=args.workers) as client:
+            return run_sweep(fn, cells, out=out / f"{name}.csv", client=client, label=label)
+    except (OSError, ValueError) as exc:
+        print(f"uav-sitl study {label}: {exc}", file=sys.stderr)
+        return None
+
+
+def write_rows(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
+    """A summary table as CSV (columns of the first row)."""
+    with path.open("w", newline="", encoding="utf-8") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
