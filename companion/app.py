@@ -128,6 +128,7 @@ class CompanionApp:
             send_report=(getattr(self.transport, "send_report_shared", None)
                          if config.peers.medium else None),
             learn=self._learn_heard)
+        self.peers.count_reports_in(decider)  # reports on the medium use the budget's air time
         self.publisher.status_extra = self.peers.status_fields
         self.telemetry.add_listener(self.publisher.on_sample)
         self.telemetry.add_listener(self._on_link_state)

@@ -14,6 +14,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from companion.middleware.constraints.base import GoodputConstraint
+from companion.peer_airtime import CountingReports, ReportTraffic, report_wire_bytes
 from companion.peer_reports import REPORT_INTERVAL_S, PeerReporter
 from companion.peer_table import (
     AdsbReport,
@@ -22,7 +24,7 @@ from companion.peer_table import (
     callsign_for,
     icao_for,
 )
-from companion.protocol import MessageReassembled
+from companion.protocol import MessageReassembled, ReportReceived
 from companion.protocol.records import Report
 
 __all__ = [
@@ -227,6 +229,8 @@ class PeerServices:
         self.settings = settings
         self.own_id = own_id
         self.reporter = PeerReporter(own_id)
+        self.report_traffic = ReportTraffic()
+        """Receiver reports on the medium, sent and heard: air time the budget counts."""
         self._send_report = send_report
         self._learn = learn
         self.report_interval_s = report_interval_s
@@ -253,6 +257,20 @@ class PeerServices:
             self.table.on_message(event.message, now=now)
             if self._send_report is not None:
                 self.reporter.on_message(event.message, t_rcv=event.message.t_rcv or now)
+        elif isinstance(event, ReportReceived) and self._send_report is not None \
+                and self.is_peer(event.reporter):
+            self.report_traffic.add(event.t_sent, report_wire_bytes(event.report,
+                                                                    sender=event.reporter))
+
+    def count_reports_in(self, decider: Any) -> bool:
+        """On a medium, the decider's goodput budget leaves room for the receiver reports
+        (companion/peer_airtime.py). True if its constraint now counts them."""
+        constraint = getattr(decider, "constraint", None)
+        if self._send_report is None or not isinstance(constraint, GoodputConstraint) \
+                or isinstance(constraint, CountingReports):
+            return False
+        decider.constraint = CountingReports(constraint, self.report_traffic)
+        return True
 
     def status_fields(self) -> dict[str, Any]:
         """``peers``: {peer: age of its position, s} for this drone's status messages (the
@@ -271,7 +289,8 @@ class PeerServices:
         if report is None or self._send_report is None:
             return False
         now = self.clock()
-        self._send_report(report, now)
+        if self._send_report(report, now):
+            self.report_traffic.add(now, report_wire_bytes(report, sender=self.own_id))
         if self._learn is not None:
             self._learn(report, now)
         return True
