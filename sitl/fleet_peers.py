@@ -1,4 +1,10 @@
-"""`uav-sitl fleet --peers`: peer sharing over a loopback broadcast medium (docs/peers.md).
+"""`uav-sitl fleet --peers`: peer sharing over a broadcast medium (docs/peers.md).
+
+On loopback the medium is a free port of 127.255.255.255; with ``--netns`` it is the
+broadcast address of the namespaces' shared bridge (10.199.0.255), where every drone and the
+ground station has its own address and socket: a datagram crosses the bridge to every
+member (only the bridge's port toward the ground station is shaped, so peers hear each other
+unshaped; the station's copy queues in the tbf like every other datagram).
 
 The launcher (sitl/fleet.py, sitl/fleet_config.py) calls these:
 every companion gets a ``[peers]`` table (the medium, ADSB_VEHICLE at 1 Hz into its vehicle,
@@ -12,13 +18,14 @@ from __future__ import annotations
 import json
 import math
 import socket
+import threading
 import urllib.request
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["companion_peers_table", "format_peers", "poll_peers", "position_age_bound",
-           "vehicle_args"]
+__all__ = ["companion_peers_table", "format_peers", "loopback_medium", "netns_medium",
+           "poll_peers", "position_age_bound", "vehicle_args"]
 
 ADSB_RATE_HZ = 1.0
 
@@ -31,6 +38,13 @@ def loopback_medium() -> str:
     return f"broadcast:127.255.255.255:{port}"
 
 
+def netns_medium(port: int) -> str:
+    """The broadcast medium on the ``--netns`` bridge (sitl.linkemu.SharedMedium's /24)."""
+    from sitl.linkemu import GROUND_ADDR
+
+    return f"broadcast:{GROUND_ADDR.rsplit('.', 1)[0]}.255:{port}"
+
+
 def companion_peers_table(medium: str, http_port: int) -> dict[str, Any]:
     return {"medium": medium, "adsb_rate_hz": ADSB_RATE_HZ, "http": f"127.0.0.1:{http_port}"}
 
@@ -40,22 +54,51 @@ def vehicle_args(flavour: str) -> list[str]:
     return ["--param", "ADSB_TYPE=1"] if flavour == "ardupilot" else []
 
 
-def poll_peers(http_ports: Mapping[str, int], *, timeout_s: float = 2.0
+def poll_peers(http_ports: Mapping[str, int], *, timeout_s: float = 2.0,
+               namespaces: Mapping[str, str] | None = None,
                ) -> dict[str, dict[str, float | None] | None]:
     """Drone -> {peer: position age in s (None: no position yet)}; None when the companion
-    did not answer."""
+    did not answer. ``namespaces`` (``--netns``): drone -> the network namespace its
+    companion (and its 127.0.0.1 endpoint) lives in; each is asked from a thread inside it."""
     known: dict[str, dict[str, float | None] | None] = {}
     for drone, port in http_ports.items():
-        try:
-            with urllib.request.urlopen(f"http://127.0.0.1:{port}/peers",
-                                        timeout=timeout_s) as resp:
-                body = json.loads(resp.read())
-        except (OSError, ValueError):
-            known[drone] = None
-            continue
-        known[drone] = {p["drone"]: (p["position"] or {}).get("age_s")
-                        for p in body.get("peers", [])}
+        ns = (namespaces or {}).get(drone)
+        body = _get_json(f"http://127.0.0.1:{port}/peers", timeout_s) if ns is None \
+            else _in_namespace(ns, lambda p=port: _get_json(f"http://127.0.0.1:{p}/peers",
+                                                              timeout_s), timeout_s + 1.0)
+        known[drone] = None if body is None else {
+            p["drone"]: (p["position"] or {}).get("age_s") for p in body.get("peers", [])}
     return known
+
+
+def _get_json(url: str, timeout_s: float) -> dict[str, Any] | None:
+    try:
+        with urllib.request.urlopen(url, timeout=timeout_s) as resp:
+            body = json.loads(resp.read())
+    except (OSError, ValueError):
+        return None
+    return body if isinstance(body, dict) else None
+
+
+def _in_namespace(ns: str, call: Callable[[], dict[str, Any] | None], timeout_s: float
+                  ) -> dict[str, Any] | None:
+    """``call()`` on a thread that first enters network namespace ``ns`` (setns moves only
+    the calling thread, so the launcher's own sockets stay where they are)."""
+    from sitl.fleet.netns import _enter_netns
+
+    result: list[dict[str, Any] | None] = [None]
+
+    def run() -> None:
+        try:
+            _enter_netns(ns)
+        except OSError:
+            return
+        result[0] = call()
+
+    thread = threading.Thread(target=run, name=f"peers-{ns}", daemon=True)
+    thread.start()
+    thread.join(timeout_s)
+    return result[0]
 
 
 def position_age_bound(spec_path: Path) -> float | None:

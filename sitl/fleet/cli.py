@@ -91,12 +91,11 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
                    help=f"the relay's queue limit in bytes (default {RELAY_QUEUE_BYTES})")
     p.add_argument("--quiet", action="store_true", help="no live progress line")
     p.add_argument("--peers", action="store_true",
-                   help="peer sharing (docs/peers.md): a loopback broadcast medium, each "
+                   help="peer sharing (docs/peers.md): a broadcast medium (loopback, or the "
+                        "--netns bridge), each "
                         "drone's peers in its autopilot (ADSB_VEHICLE) and at GET /peers; "
                         "use a spec with receivers = [\"peers\"] (--spec peer_sharing)")
     args = p.parse_args(list(argv))
-    if args.peers and args.netns:
-        p.error("--peers runs on loopback; it does not combine with --netns yet")
     if not 1 <= args.drones <= 64:
         p.error("--drones must be in 1..64")
     if args.duration < 0:

@@ -56,15 +56,16 @@ def make_plan(args: argparse.Namespace, run_dir: Path, *, netns: bool = False) -
         mcts_iterations=args.mcts_iterations, time_budget_s=args.time_budget,
         constraint=args.constraint, constraint_params=params, alpha=args.alpha, seed=args.seed,
         policy=COMPANION_POLICY[args.policy], drop_probability=args.drop_probability,
-        **_peers_plan(args, drones))
+        **_peers_plan(args, drones, netns=netns))
 
 
-def _peers_plan(args: argparse.Namespace, drones: Sequence[DroneSlot]) -> dict[str, Any]:
+def _peers_plan(args: argparse.Namespace, drones: Sequence[DroneSlot], *,
+                netns: bool = False) -> dict[str, Any]:
     """the medium and /peers ports of ``--peers`` (sitl.fleet_peers)."""
     if not getattr(args, "peers", False):
         return {}
-    from sitl.fleet_peers import loopback_medium
+    from sitl.fleet_peers import loopback_medium, netns_medium
 
-    return {"peers_medium": loopback_medium(),
+    return {"peers_medium": netns_medium(free_port()) if netns else loopback_medium(),
             "peers_http_ports": {d.drone_id: free_port(kind=socket.SOCK_STREAM)
                                  for d in drones}}

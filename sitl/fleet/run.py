@@ -159,7 +159,9 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
             out.write("\n")
         if plan.peers_medium is not None:  # who knows whom, before stopping
             from sitl.fleet_peers import poll_peers
-            peers_known = poll_peers(plan.peers_http_ports)
+            peers_known = poll_peers(plan.peers_http_ports, namespaces=None if netns is None
+                                     else {s.drone_id: netns.medium.ns_drones[s.index]
+                                           for s in plan.drones})
         _try(lambda: api.post("/api/mission/end", {"t_exec": t_end}))
     except FleetError as exc:
         failure = str(exc)

@@ -338,3 +338,38 @@ def test_fleet_runs_each_drone_in_its_own_namespace(tmp_path: Path) -> None:
     else:
         assert link["netem"] is True
     assert not set(where.values()) & _namespaces()
+
+
+@pytest.mark.slow  # about 50 s: three companions, vehicles and a station in namespaces
+@pytest.mark.netns
+@needs_netns
+@pytest.mark.timeout(150)
+def test_fleet_peers_share_the_medium_across_namespaces(tmp_path: Path) -> None:
+    """``--peers --netns`` (issue 15): each companion in its own namespace hears its peers
+    only across the bridge (broadcast on 10.199.0.255); at the end every drone holds every
+    peer's position, younger than the spec's bound, asked inside its namespace."""
+    run_dir = tmp_path / "run"
+    summary_path = tmp_path / "summary.json"
+    proc = subprocess.run([*FLEET, "--out", str(run_dir), "--summary-json", str(summary_path),
+                           "--netns", "--peers", "--spec", "peer_sharing", "--drones", "3",
+                           "--duration", "8", "--rate", "1", "--size", "320x240",
+                           "--mcts-iterations", "100", "--first-fix", "0", "--quiet"],
+                          capture_output=True, text=True, timeout=140)
+    print(proc.stdout[-2500:])
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads(summary_path.read_text())
+    drones = ["drone1", "drone2", "drone3"]
+    namespaces = summary["link"]["namespaces"]["drones"]
+    assert len(set(namespaces)) == 3
+    bound = summary["peers_age_bound_s"]
+    assert bound == pytest.approx(37.61, abs=0.01)
+    for drone in drones:
+        ages = summary["peers"][drone]
+        assert set(ages) == set(drones) - {drone}, ages
+        assert all(age is not None and 0 <= age < bound for age in ages.values()), ages
+    assert "every drone knows every peer: yes" in proc.stdout
+    assert "every position within it" in proc.stdout
+    for drone in drones:
+        log = (run_dir / "logs" / f"{drone}.log").read_text()
+        assert "shared medium: broadcast 10.199.0.255:" in log
+        assert "heard from 2 peers" in log

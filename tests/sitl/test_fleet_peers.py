@@ -43,9 +43,21 @@ def test_without_peers_nothing_changes(tmp_path: Path) -> None:
     assert "shared_medium" not in ground_station_toml(plan)
 
 
-def test_peers_refuses_netns() -> None:
-    with pytest.raises(SystemExit):
-        parse_args(["--peers", "--netns"])
+def test_peers_with_netns_use_the_bridges_broadcast(tmp_path: Path) -> None:
+    """--netns: every member is on the namespaces' 10.199.0.0/24 bridge, so the medium is its
+    broadcast address; each companion's /peers stays on 127.0.0.1 inside its namespace."""
+    args = parse_args(["--drones", "3", "--peers", "--netns", "--spec", "peer_sharing"])
+    plan = make_plan(args, tmp_path, netns=True)
+    assert plan.peers_medium is not None
+    kind, address, port = plan.peers_medium.split(":")
+    assert (kind, address) == ("broadcast", "10.199.0.255")
+    assert int(port) != plan.gs_udp_port
+    for slot in plan.drones:
+        raw = tomllib.loads(companion_toml(plan, slot))
+        assert raw["peers"]["medium"] == plan.peers_medium
+        assert raw["peers"]["http"] == f"127.0.0.1:{plan.peers_http_ports[slot.drone_id]}"
+    assert tomllib.loads(ground_station_toml(plan))["ground_station"]["shared_medium"] \
+        == plan.peers_medium
 
 
 def test_summary_lines() -> None:
