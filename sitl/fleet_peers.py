@@ -15,6 +15,7 @@ it knows and how old each position is, and the summary prints it.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import socket
@@ -63,9 +64,9 @@ def poll_peers(http_ports: Mapping[str, int], *, timeout_s: float = 2.0,
     known: dict[str, dict[str, float | None] | None] = {}
     for drone, port in http_ports.items():
         ns = (namespaces or {}).get(drone)
-        body = _get_json(f"http://127.0.0.1:{port}/peers", timeout_s) if ns is None \
-            else _in_namespace(ns, lambda p=port: _get_json(f"http://127.0.0.1:{p}/peers",
-                                                              timeout_s), timeout_s + 1.0)
+        url = f"http://127.0.0.1:{port}/peers"
+        body = _get_json(url, timeout_s) if ns is None \
+            else _in_namespace(ns, functools.partial(_get_json, url, timeout_s), timeout_s + 1.0)
         known[drone] = None if body is None else {
             p["drone"]: (p["position"] or {}).get("age_s") for p in body.get("peers", [])}
     return known
