@@ -4,8 +4,8 @@ Sans-I/O (docs/peers.md). :meth:`PeerReporter.on_message` collects each peer mes
 (an entry, and the sender's clock pair as the ground station keeps it); :meth:`take` returns
 the report of everything since the previous one, in the ground station's format, so every
 sender learns what this drone holds (its optimiser plans with it, its goodput constraint
-learns the medium's latency from it) and this drone's own optimiser learns the same
-deliveries locally (``receiver`` = this drone).
+learns the medium's latency from it). This drone's own optimiser learns each delivery at
+once (``receiver`` = this drone, companion/peers.py), not a report period later.
 """
 
 from __future__ import annotations
@@ -31,13 +31,15 @@ class PeerReporter:
         self._echoes: dict[str, ClockEcho] = {}
         self.counters: dict[str, int] = {"heard": 0, "reports": 0, "entries_dropped": 0}
 
-    def on_message(self, message: Message, *, t_rcv: float) -> None:
+    def on_message(self, message: Message, *, t_rcv: float) -> ReportEntry | None:
+        """Collect ``message`` for the next report; returns its entry (None: not reported,
+        our own or one the report format cannot carry)."""
         if message.sender == self.own_id:
-            return
+            return None
         try:
             entry = entry_from_message(message, t_rcv=t_rcv)
         except ValueError:  # a message the report format cannot carry: not reported
-            return
+            return None
         self.counters["heard"] += 1
         self._entries.append(entry)
         if len(self._entries) > self.max_entries:
@@ -46,6 +48,7 @@ class PeerReporter:
         if message.t_sent is not None:
             self._echoes[message.sender] = ClockEcho(sender=message.sender,
                                                      t_sent=message.t_sent, t_rcv=t_rcv)
+        return entry
 
     def take(self) -> Report | None:
         """The report since the previous one; None when nothing was heard."""

@@ -224,8 +224,8 @@ class PeerServices:
                  learn: Callable[[Report, float], object] | None = None,
                  report_interval_s: float = REPORT_INTERVAL_S) -> None:
         """``send_report(report, now)`` puts this drone's receiver report on the medium;
-        ``learn(report, now)`` hands the same deliveries to its own optimiser. Without
-        ``send_report`` (no medium) nothing is reported."""
+        ``learn(report, now)`` hands each delivery heard to its own optimiser as it arrives
+        (a one-entry report). Without ``send_report`` (no medium) nothing is reported."""
         self.settings = settings
         self.own_id = own_id
         self.reporter = PeerReporter(own_id)
@@ -256,7 +256,12 @@ class PeerServices:
             now = self.clock()
             self.table.on_message(event.message, now=now)
             if self._send_report is not None:
-                self.reporter.on_message(event.message, t_rcv=event.message.t_rcv or now)
+                entry = self.reporter.on_message(event.message, t_rcv=event.message.t_rcv or now)
+                if entry is not None and self._learn is not None:
+                    # at once: a peer's send unknown for a report period (0.25 s) is neither
+                    # in the optimiser's window nor in its in-flight estimate (which spans
+                    # only the link's latency), so the fleet would overfill the window
+                    self._learn(Report(entries=(entry,)), now)
         elif isinstance(event, ReportReceived) and self._send_report is not None \
                 and self.is_peer(event.reporter):
             self.report_traffic.add(event.t_sent, report_wire_bytes(event.report,
@@ -291,8 +296,6 @@ class PeerServices:
         now = self.clock()
         if self._send_report(report, now):
             self.report_traffic.add(now, report_wire_bytes(report, sender=self.own_id))
-        if self._learn is not None:
-            self._learn(report, now)
         return True
 
     async def _report_loop(self) -> None:

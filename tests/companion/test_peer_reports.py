@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import asyncio
 import time
+from dataclasses import replace
 
 from companion.middleware.constraint import ConstantConstraint
 from companion.middleware.middleware import Middleware, MiddlewareConfig
 from companion.middleware.reports import ReceiverReport
 from companion.peers import PeerReporter, PeerServices, PeersSettings
-from companion.protocol import Decoder, Encoder, ReportReceived
+from companion.protocol import Decoder, Encoder, MessageReassembled, ReportReceived
 from companion.protocol.records import Report
 from companion.transport import UdpTransport, parse_medium
 from tests.companion.test_shared_medium import FLEET, free_udp_port
@@ -100,3 +101,25 @@ async def test_a_peers_report_reaches_the_sender_and_its_optimiser() -> None:
     ground, peer = view.receivers[("position", "drone1")]
     assert ground is not None and peer is not None
     assert peer.message.seq == 1 and peer.rcv_t == event.report.entries[0].t_rcv
+
+
+def test_what_a_drone_hears_reaches_its_optimiser_at_once() -> None:
+    """Not a report period later: until then the peer's send would be neither in the
+    optimiser's window nor in its in-flight estimate (which spans only the link latency)."""
+    learned: list[tuple[Report, float]] = []
+    sent: list[Report] = []
+    services = PeerServices(PeersSettings(medium="broadcast:127.255.255.255:14799"),
+                            own_id="drone2", clock=lambda: 100.0,
+                            peer_types=frozenset({"position"}),
+                            send_report=lambda report, now: sent.append(report) or 1,
+                            learn=lambda report, now: learned.append((report, now)),
+                            report_interval_s=3600.0)
+    heard = position("drone1", 3, 99.9)
+    services.on_event(MessageReassembled(message=replace(heard, t_rcv=99.95), payload=b"",
+                                         addr=("127.0.0.1", 9), t_rcv=99.95, fragments=1))
+    assert [([(e.sender, e.seq, e.t_rcv) for e in r.entries], now) for r, now in learned] \
+        == [([("drone1", 3, 99.95)], 100.0)]
+    assert not sent  # the report to the peers still waits for its period
+    assert services.report_now()
+    assert [(e.sender, e.seq) for e in sent[0].entries] == [("drone1", 3)]
+    assert len(learned) == 1  # the report does not teach the optimiser a second time
