@@ -195,6 +195,9 @@ def run_one(policy: str, *, seed: int, t_end: float, n: int, budget_bytes_per_s:
         "peer_age_p95_s": float(np.percentile(ages, 95)),
         "swarm_sent": sum(1 for m in result.sent if m.type == "swarm"),
         "images_sent": sum(1 for m in result.sent if m.type == "image"),
+        # per type, summed over its receivers: where a policy gains or loses
+        **{f"utility_{name}_pct": 100.0 * got.per_type.get(name, 0.0) / ideal.per_type[name]
+           for name in sorted(ideal.per_type)},
     }
 
 
@@ -312,7 +315,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{time.perf_counter() - t0:6.1f} s seed {seed} {row['policy']}: "
                   f"{row['utility_total_pct']:.1f} % total, {row['utility_drones_pct']:.1f} % "
                   f"at drones, {row['delivered_bytes_per_s']:.0f} B/s, peer age "
-                  f"{row['peer_age_mean_s']:.2f} s", flush=True)
+                  f"{row['peer_age_mean_s']:.2f} s; swarm {row['utility_swarm_pct']:.1f} % "
+                  f"({row['swarm_sent']} sent), image {row['utility_image_pct']:.1f} %, "
+                  f"battery {row['utility_battery_pct']:.1f} %", flush=True)
     with (args.out / "peers.csv").open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()

@@ -65,6 +65,8 @@ def test_quick_study_writes_csv_png_and_the_table_at_equal_bytes(tmp_path: Path)
         assert float(by[policy]["delivered_bytes_per_s"]) == pytest.approx(matched, rel=0.25)
     for r in rows:
         assert 0 < float(r["utility_total_pct"]) <= 100.0
+        for name in ("swarm", "image", "battery"):  # per type, where a policy gains or loses
+            assert 0 <= float(r[f"utility_{name}_pct"]) <= 100.0
         assert 0 <= float(r["peer_age_mean_s"]) <= float(r["peer_age_p95_s"])
     assert (tmp_path / "peers.png").stat().st_size > 5_000
     table = (tmp_path / "peers.md").read_text()
