@@ -142,13 +142,18 @@ async def test_two_drones_know_each_other_in_companion_and_autopilot(tmp_path: P
                            ("127.0.0.1", port))
             with_timeout = asyncio.wait_for(loop.sock_recvfrom(gcs, 2048), 0.2)
             try:
-                data, addr = await with_timeout
-                i = ports.index(addr[1])
-                for m in parsers[i].parse_buffer(data) or []:
-                    if m.get_type() == "ADSB_VEHICLE":
-                        traffic[i].add(m.callsign)
-            except (TimeoutError, ValueError):
-                pass
+                got = [await with_timeout]
+            except TimeoutError:
+                got = []
+            while got:  # every datagram queued: the vehicles stream more than one per turn
+                data, addr = got.pop()
+                with contextlib.suppress(ValueError):
+                    i = ports.index(addr[1])
+                    for m in parsers[i].parse_buffer(data) or []:
+                        if m.get_type() == "ADSB_VEHICLE":
+                            traffic[i].add(m.callsign)
+                with contextlib.suppress(BlockingIOError):
+                    got.append(gcs.recvfrom(2048))
             while True:
                 try:
                     data, addr = ground_medium.recvfrom(2048)
