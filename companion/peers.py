@@ -14,6 +14,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from companion.middleware.constraints.adaptive import LinkStatsConstraint
 from companion.middleware.constraints.base import GoodputConstraint
 from companion.peer_airtime import CountingReports, ReportTraffic, report_wire_bytes
 from companion.peer_reports import REPORT_INTERVAL_S, PeerReporter
@@ -269,10 +270,13 @@ class PeerServices:
 
     def count_reports_in(self, decider: Any) -> bool:
         """On a medium, the decider's goodput budget leaves room for the receiver reports
-        (companion/peer_airtime.py). True if its constraint now counts them."""
+        (companion/peer_airtime.py). True if its constraint now counts them.
+
+        A constraint that learns ξ from the link (adaptive, AIMD) already sees the reports as
+        load on the medium: taking them off its budget again would count them twice."""
         constraint = getattr(decider, "constraint", None)
         if self._send_report is None or not isinstance(constraint, GoodputConstraint) \
-                or isinstance(constraint, CountingReports):
+                or isinstance(constraint, CountingReports | LinkStatsConstraint):
             return False
         decider.constraint = CountingReports(constraint, self.report_traffic)
         return True

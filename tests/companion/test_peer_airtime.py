@@ -14,6 +14,7 @@ import numpy as np
 from companion.app import CompanionApp
 from companion.config import parse_config
 from companion.middleware.constraint import ConstantConstraint
+from companion.middleware.constraints.adaptive import AdaptiveConstraint
 from companion.middleware.middleware import Middleware, MiddlewareConfig
 from companion.peer_airtime import CountingReports, ReportTraffic, report_wire_bytes
 from companion.peers import PeerServices, PeersSettings
@@ -179,3 +180,13 @@ def test_without_a_medium_nothing_is_wrapped() -> None:
     services = PeerServices(PeersSettings(), own_id="d1", clock=time.time)
     assert not services.count_reports_in(decider)
     assert isinstance(decider.constraint, ConstantConstraint)
+
+
+def test_a_link_learning_constraint_is_not_charged_twice() -> None:
+    """Adaptive and AIMD learn ξ from the medium, where the reports already are load."""
+    decider = DeciderWithBudget()
+    decider.constraint = AdaptiveConstraint(window_s=1.0)
+    services = PeerServices(PeersSettings(medium="broadcast:127.255.255.255:14799"),
+                            own_id="d1", clock=time.time, send_report=lambda report, now: None)
+    assert not services.count_reports_in(decider)
+    assert isinstance(decider.constraint, AdaptiveConstraint)
