@@ -354,10 +354,11 @@ class Middleware:
 
     def on_delivered(self, messages: Iterable[Message], now: float) -> None:
         """Messages (any agent's) known to have arrived, with ``t_rcv`` (and ``t_sent``)."""
-        messages = list(messages)
-        for m in messages:
-            if m.t_rcv is not None and usable(self.spec, m):
-                self.unheard.observe(self.spec, m)
+        if self.config.plan_unheard_s is not None:
+            messages = list(messages)
+            for m in messages:
+                if m.t_rcv is not None and usable(self.spec, m):
+                    self.unheard.observe(self.spec, m)
         self.counters["delivered"] += self.knowledge.on_delivered(messages, now=now)
 
     def on_report(self, report: ReceiverReport, now: float) -> ReportLearned:
