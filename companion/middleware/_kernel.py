@@ -246,7 +246,7 @@ def search(
     stream: Any, pos: Any, nopt: Any, size: Any, send_t: Any, gain: Any, nslot: Any,
     markov: Any,
     root_win_t: Any, root_win_b: Any, budget: float, window_s: float, maxv: int, top: float,
-    lam: float, plan: Any, dlevel: int, best_u: Any, best_at: Any,
+    lam: float, plan: Any, dlevel: int, best_u: Any, best_at: Any, depth_limit: int,
     # tree
     parent: Any, depth: Any, option: Any, visits: Any, value: Any, delta: Any,
     children: Any, tried: Any, live: Any, dead: Any, hkeys: Any, hvals: Any, counters: Any,
@@ -256,7 +256,11 @@ def search(
     With a knapsack ``plan`` (``plan[0] >= 0``) its option is expanded first at every node and
     a leaf is valued by the better of the two default policies (greedy above ``lam``, the
     plan). Either way ``best_u[0]`` keeps the best complete plan's utility seen so far and
-    ``best_at[0]`` its option at ``dlevel`` (-1: none yet)."""
+    ``best_at[0]`` its option at ``dlevel`` (-1: none yet).
+
+    Nodes at depth ``depth_limit`` (< n) are leaves: valued by the default policy from there
+    on every visit, never expanded; a budget that covers the bounded tree then answers the
+    same for every larger budget."""
     n = stream.shape[0]
     n_streams = markov.shape[0]
     n_root = root_win_t.shape[0]
@@ -294,11 +298,17 @@ def search(
         node = 0
         while True:
             d = depth[node]
-            if d == n:
-                if u > best_u[0]:
-                    best_u[0] = u
+            if d == n or d >= depth_limit:
+                total = u
+                if d < n:
+                    pick[0] = -1
+                    total += _rollout(d, last, r_last, win_t, win_b, head, tail, wbytes, stream,
+                                      pos, nopt, size, send_t, gain, nslot, budget, window_s,
+                                      maxv, lam, r_win_t, r_win_b, noplan, dlevel, pick)
+                if total > best_u[0]:
+                    best_u[0] = total
                     best_at[0] = _option_on_path(node, dlevel, parent, depth, option)
-                _backprop(node, _score(u, top), parent, visits, value)
+                _backprop(node, _score(total, top), parent, visits, value)
                 break
             lim = send_t[d] - window_s - _EPS
             while head < tail and win_t[head] < lim:

@@ -118,10 +118,12 @@ class Tree:
 class MCTS:
     """One decision's search: build with a :class:`Problem`, :meth:`run`, read :meth:`result`."""
 
-    __slots__ = ("best", "best_at", "c", "lam", "plan", "problem", "top", "tree")
+    __slots__ = ("best", "best_at", "best_plan", "c", "depth_limit", "lam", "plan", "problem",
+                 "top", "tree")
 
     def __init__(self, problem: Problem, *, c: float = 0.35, max_nodes: int = 1501,
-                 knapsack_seed: bool = False) -> None:
+                 knapsack_seed: bool = False, best_plan: bool = False,
+                 depth: int | None = None) -> None:
         if not c >= 0:
             raise ValueError(f"discovery factor c must be >= 0, got {c}")
         self.problem = problem
@@ -136,6 +138,12 @@ class MCTS:
                                   problem.root_win_t, problem.root_win_bytes,
                                   float(problem.budget_bytes), float(problem.window_s),
                                   self.plan)
+        self.best_plan = best_plan or knapsack_seed
+        """Answer with the best complete plan evaluated (else the most visited path)."""
+        self.depth_limit = problem.n if depth is None else \
+            min(problem.n, max(0, problem.decided_level) + 1 + max(0, depth))
+        """Tree levels searched: the decided one and ``depth`` after it; below, the default
+        policy alone."""
         self.best = np.full(1, -np.inf)
         """Utility of the best complete plan any iteration evaluated."""
         self.best_at = np.full(1, -1, dtype=np.int64)
@@ -162,6 +170,7 @@ class MCTS:
                     p.root_win_t, p.root_win_bytes, float(p.budget_bytes), float(p.window_s),
                     int(p.max_versions), self.top, self.lam,
                     self.plan, int(p.decided_level), self.best, self.best_at,
+                    int(self.depth_limit),
                     t.parent, t.depth, t.option, t.visits, t.value, t.delta,
                     t.children, t.tried, t.live, t.dead, t.hkeys, t.hvals, t.counters,
                 )
@@ -208,7 +217,7 @@ class MCTS:
         option: int | None = None
         score = float("nan")
         visits = 0
-        if self.seeded and self.best_at[0] >= 0:
+        if self.best_plan and self.best_at[0] >= 0:
             option = int(self.best_at[0])
             score = float(self.best[0]) / self.top if self.top > 1e-9 else 1.0
             if 0 <= level < len(path) and int(t.option[path[level]]) == option:

@@ -40,6 +40,7 @@ from companion.middleware.margin import OvershootMargin
 from companion.middleware.mcts import MCTS, greedy_option
 from companion.middleware.params import LIVE_KEYS, check_params, with_alpha
 from companion.middleware.reports import ReceiverReport, ReportLearned, deliveries, feed_link
+from companion.middleware.unheard import UnheardStreams
 from utility_specs.errors import UtilitySpecsError
 from utility_specs.message import Message, Version
 from utility_specs.spec import MissionSpec
@@ -83,6 +84,17 @@ class MiddlewareConfig:
     frames between a red and a plain stream about 2 : 1 instead of the thesis' 4 : 1
     (tests/middleware/test_mw_fig73.py) and gains only 2.5 points in image streaming
     (docs/middleware.md)."""
+    best_plan: bool = False
+    """Answer with the decided level's option of the best complete plan any iteration
+    evaluated instead of the most visited path's: the model is deterministic, so the
+    answer's model utility never falls with more iterations (issue 18, round 5)."""
+    search_depth: int | None = None
+    """Levels after the decided one that the tree searches; below them the default policy
+    alone plans (None: every level). With ``best_plan`` and a depth the budget covers (5 at
+    300 iterations in the fig. 5.7 fleet), more iterations give the same answer: measured,
+    mean utility is then flat from 300 to 3000 iterations, but 0.4-0.9 points below the
+    unbounded most-visited search at 300 and 93.4 instead of 94.1 % of the offline
+    optimum, so both are off by default (docs/middleware.md, round 5)."""
     learn_margin: bool = False
     """Plan against the budget less a margin learned from the fleet's observed overshoot
     (:class:`~companion.middleware.margin.OvershootMargin`): the others' sends are known
@@ -98,7 +110,13 @@ class MiddlewareConfig:
     """Announce even over the sends known to fill the window: at most one planned window
     violation per stream per ``announce_after_s`` (counter ``over_budget``). False: zero
     planned violations, a stream waits for room among the known sends; measured, that costs
-    1.2 points against the offline optimum (94.6 instead of 95.8 %, 8 short missions)."""
+    up to 15 points at tight budgets, 6 with ``plan_unheard_s`` (docs/middleware.md, round 5)."""
+    plan_unheard_s: float | None = None
+    """For this long after the agent's first decision, plan for the spec's types nobody has
+    been heard sending (:mod:`~companion.middleware.unheard`): forecast at the fleet's
+    median period with the data of a known message of the same utility function, so the
+    fleet leaves room for a heavy stream it has not heard of yet. After it a type still
+    unheard is taken as absent. None: off."""
 
     def __post_init__(self) -> None:
         if not self.agent:
@@ -110,6 +128,10 @@ class MiddlewareConfig:
         if not (self.horizon_s > 0 and self.c >= 0 and self.default_latency_s >= 0
                 and self.tail_s >= 0):
             raise MiddlewareError("need horizon_s > 0, c >= 0, default_latency_s >= 0, tail_s >= 0")
+        if self.search_depth is not None and self.search_depth < 0:
+            raise MiddlewareError("search_depth must be >= 0 or None")
+        if self.plan_unheard_s is not None and not self.plan_unheard_s > 0:
+            raise MiddlewareError("plan_unheard_s must be > 0 or None")
         if self.announce_after_s is not None and not self.announce_after_s > 0:
             raise MiddlewareError("announce_after_s must be > 0 or None")
         if self.time_budget_s is not None and not self.time_budget_s > 0:
@@ -153,6 +175,9 @@ class Middleware:
         self.last_problem: Problem | None = None
         self._last_sent: dict[str, float] = {}
         """Per own message type: when it last sent one (what the fleet has heard of)."""
+        self.unheard = UnheardStreams()
+        self._started: float | None = None
+        """Time of the first decision (``plan_unheard_s`` counts from it)."""
         self.always_send: frozenset[str] = frozenset()
         """Own types sent whatever the search says (the companion's status heartbeat)."""
 
@@ -204,6 +229,9 @@ class Middleware:
             self.counters["bad_message"] += 1
             return Decision(send=False, reason="bad-message: its utility cannot be read")
         self.knowledge.on_generated(message)
+        self.unheard.observe(self.spec, message)
+        if self._started is None:
+            self._started = now
         window_s = self.constraint.window_s
         view = self.knowledge.view(
             message, now=now, horizon_s=self.config.horizon_s,
@@ -213,6 +241,12 @@ class Middleware:
         view = settle_inflight(view, now=now, lag_s=lag, keep=self.config.search_inflight,
                                rates=self.knowledge.sender_rates(now=now, lag_s=lag,
                                                                  window_s=window_s))
+        unheard_s = self.config.plan_unheard_s
+        if unheard_s is not None and now - self._started <= unheard_s:
+            view = self.unheard.add_to(view, self.spec, now=now,
+                                       period_s=self.knowledge.forecaster.prior_period,
+                                       latency_s=self.knowledge.latency.mean_s,
+                                       max_items=self.config.max_items)
         budget = self.constraint.budget_bytes(now=now)
         if self.config.learn_margin:
             self.margin.observe(self.knowledge.known_sends(), now=now, settle_s=lag,
@@ -230,7 +264,8 @@ class Middleware:
             return Decision(send=False, reason=f"bad-message: {exc}")
         self.last_problem = problem
         search = MCTS(problem, c=self.config.c, max_nodes=self.config.max_iterations + 1,
-                      knapsack_seed=self.config.knapsack_seed)
+                      knapsack_seed=self.config.knapsack_seed, best_plan=self.config.best_plan,
+                      depth=self.config.search_depth)
         self._run(search, deadline)
         result = search.result()
         level = problem.decided_level
@@ -253,7 +288,8 @@ class Middleware:
                 root_window=() if over else view.root_window, receivers=view.receivers,
             )
             relaxed = MCTS(free, c=self.config.c, max_nodes=self.config.max_iterations + 1,
-                           knapsack_seed=self.config.knapsack_seed)
+                           knapsack_seed=self.config.knapsack_seed,
+                           best_plan=self.config.best_plan, depth=self.config.search_depth)
             self._run(relaxed, deadline)
             announce = relaxed.result()
             if announce.option:
@@ -318,6 +354,11 @@ class Middleware:
 
     def on_delivered(self, messages: Iterable[Message], now: float) -> None:
         """Messages (any agent's) known to have arrived, with ``t_rcv`` (and ``t_sent``)."""
+        if self.config.plan_unheard_s is not None:
+            messages = list(messages)
+            for m in messages:
+                if m.t_rcv is not None and usable(self.spec, m):
+                    self.unheard.observe(self.spec, m)
         self.counters["delivered"] += self.knowledge.on_delivered(messages, now=now)
 
     def on_report(self, report: ReceiverReport, now: float) -> ReportLearned:

@@ -1,0 +1,89 @@
+"""Streams the mission spec names but this agent has not heard of yet (issue 18).
+
+Other agents learn of a stream only from its deliveries. An agent whose stream the others
+have not heard of finds every window full of their plans and never gets a message out (a
+starvation loop); announcing it over the budget is a planned window violation. Instead each
+agent plans for the streams the spec says may exist: a type of the mission that no known
+message has had is forecast as one stream at the fleet's median period, carrying the data and
+size of the newest known message valued by the same utility function. The tree then leaves
+room for it where it is worth it (a heavy type) and not where it is not (a light one), so the
+real stream's first message finds room within the budget. Once a message of the type is
+known, the ordinary forecast takes over.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+from companion.middleware.incremental import PlanItem
+from companion.middleware.knowledge import PlanningView
+from utility_specs.message import Message
+from utility_specs.spec import MissionSpec
+
+__all__ = ["UNHEARD_PREFIX", "UnheardStreams"]
+
+UNHEARD_PREFIX = "?"
+"""Sender name of a forecast unheard stream: ``?`` + its type (no real agent is named so)."""
+
+
+@dataclass(slots=True)
+class UnheardStreams:
+    """Which types of the spec are known, and a template message per utility function."""
+
+    heard: set[str] = field(default_factory=set)
+    templates: dict[str, Message] = field(default_factory=dict)
+    """Per utility function name: the newest known message valued by it."""
+
+    def observe(self, spec: MissionSpec, message: Message) -> None:
+        info = spec.types.get(message.type)
+        if info is None:
+            return
+        self.heard.add(message.type)
+        name = info.utility.name
+        known = self.templates.get(name)
+        if known is None or known.t_gen <= message.t_gen:
+            self.templates[name] = message
+
+    def unheard(self, spec: MissionSpec) -> list[str]:
+        return [t for t in spec.types if t not in self.heard]
+
+    def items(self, spec: MissionSpec, *, now: float, horizon_end: float, period_s: float | None,
+              latency_s: float) -> list[PlanItem]:
+        """Forecast messages of every unheard type with a template, at ``period_s`` from half
+        a period after ``now`` (the phase is unknown: its expected place)."""
+        if period_s is None or not period_s > 0:
+            return []
+        out: list[PlanItem] = []
+        for type_name in self.unheard(spec):
+            info = spec.types[type_name]
+            template = self.templates.get(info.utility.name)
+            if template is None or info.for_peers:
+                continue
+            first = Message(sender=UNHEARD_PREFIX + type_name, seq=-1, type=type_name,
+                            t_gen=now + 0.5 * period_s, size=template.size,
+                            data=template.data, versions=template.versions,
+                            version=0 if template.versions else None)
+            k = 0
+            t = first.t_gen
+            while t <= horizon_end:
+                m = first if k == 0 else replace(first, seq=-1 - k, t_gen=t)
+                out.append(PlanItem(message=m, send_t=t, rcv_t=t + latency_s))
+                k += 1
+                t = first.t_gen + k * period_s
+        return out
+
+    def add_to(self, view: PlanningView, spec: MissionSpec, *, now: float,
+               period_s: float | None, latency_s: float, max_items: int) -> PlanningView:
+        """``view`` with the unheard streams' forecast messages; at most ``max_items`` levels
+        (the latest forecast ones go first)."""
+        extra = self.items(spec, now=now, horizon_end=view.horizon_end, period_s=period_s,
+                           latency_s=latency_s)
+        if not extra:
+            return view
+        items = sorted([*view.items, *extra], key=lambda it: it.send_t)
+        while len(items) > max_items:
+            last = max((i for i, it in enumerate(items) if it.kind == "forecast"), default=None)
+            if last is None:
+                break
+            del items[last]
+        return replace(view, items=items)
