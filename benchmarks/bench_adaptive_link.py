@@ -37,6 +37,7 @@ from companion.middleware.adaptive import AdaptiveConstraint
 from companion.middleware.linkstats import WindowStats
 from sitl.linkemu import cleanup_stale, missing_requirements
 from sitl.study.adaptive import (
+    LINK_CONSTRAINT_KINDS,
     REAL_LINK_CONSTRAINTS,
     LinkRun,
     PhaseMetrics,
@@ -81,7 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true",
                         help="RFC schedule compressed to 50 s, background run 30 s")
     parser.add_argument("--out", type=Path, default=Path("out/adaptive_link"))
-    parser.add_argument("--constraints", default="adaptive,aimd,fixed")
+    parser.add_argument("--constraints", default="adaptive,aimd,fixed",
+                        help="of adaptive, adaptive-thesis (the thesis' SGD), aimd, fixed")
     parser.add_argument("--scenarios", default="background-step,rfc8867-5.1")
     args = parser.parse_args(argv)
     reason = missing_requirements()
@@ -113,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         runs: list[LinkRun] = []
         phases: dict[str, list[PhaseMetrics]] = {}
         for name in args.constraints.split(","):
-            kind = "constant" if name == "fixed" else name
+            kind = LINK_CONSTRAINT_KINDS.get(name, name)
             print(f"running {scenario.name} with {name} ({scenario.duration_s:g} s) ...",
                   flush=True)
             run = run_link_experiment(scenario, constraint=kind,
@@ -133,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
                     problems.append("delay")
                 if not phase.recovery_s <= RECOVERY_TARGET_S:
                     problems.append("recovery")
-                if name != "aimd" and "aimd" in phases and not (
+                if name.startswith("adaptive") and "aimd" in phases and not (
                         phase.xi_cv <= phases["aimd"][i].xi_cv):
                     problems.append("cv")  # smoother than AIMD in steady state (issue 16)
                 verdict = "ok" if not problems else "MISS " + "+".join(problems)

@@ -3,11 +3,15 @@
 >>> make_constraint("constant", limit_bytes_per_s=1000.0).limit_bytes_per_s(now=0.0)
 1000.0
 >>> sorted(CONSTRAINTS)
-['adaptive', 'aimd', 'constant']
+['adaptive', 'adaptive-thesis', 'aimd', 'constant']
+
+``"adaptive"`` is the product's constraint (use-weighted steps with the knee memory, see
+:class:`AdaptiveConstraint`); ``"adaptive-thesis"`` is the thesis' plain SGD (equal steps).
 """
 
 from __future__ import annotations
 
+import functools
 import inspect
 from collections.abc import Callable, Mapping
 
@@ -21,6 +25,7 @@ __all__ = ["CONSTRAINTS", "make_constraint"]
 CONSTRAINTS: Mapping[str, Callable[..., GoodputConstraint]] = {
     "constant": ConstantConstraint,
     "adaptive": AdaptiveConstraint,
+    "adaptive-thesis": functools.partial(AdaptiveConstraint, use_weighted=False, knee_band=0.0),
     "aimd": AimdConstraint,
 }
 
