@@ -32,7 +32,7 @@ KNEE_HOLD_WINDOWS = 1.5
 """How long (in windows T) a congestion episode may last before ξ may fall below the knee
 band: a window over a queue that formed at the knee shows congestion for up to one T."""
 
-KNEE_FORGET_WINDOWS = 4.0
+KNEE_FORGET_WINDOWS = 2.0
 """After this many windows T without congestion the knee no longer slows ξ down."""
 
 
