@@ -12,9 +12,9 @@ Scenarios:
 Per phase it reports steady-state application goodput as a share of what the link has left
 (capacity − background, in UDP payload bytes), p95 queueing delay, loss and the time to recover
 after the step, and the coefficient of variation of ξ in steady state. Targets, for the
-adaptive constraint: share >= 85%, p95 queueing < 100 ms, recovery <= 5 s, and CV of ξ no
-more than AIMD's in the same phase (issue 16; checked when AIMD runs too). AIMD and the
-fixed ξ are baselines: their misses are reported, not failed.
+adaptive constraints (adaptive, adaptive-smooth): share >= 85%, p95 queueing < 100 ms,
+recovery <= 5 s, and CV of ξ no more than AIMD's in the same phase (issue 16; checked when
+AIMD runs too). AIMD and the fixed ξ are baselines: their misses are reported, not failed.
 Also times the SGD update (``partial_fit``): per sample, as fed (one call per report), it
 must stay under 1 ms; a call with a single sample is dominated by scikit-learn's input
 validation (~0.3-1 ms) and is reported for information.
@@ -53,14 +53,12 @@ SHARE_TARGET = 0.85
 DELAY_TARGET_S = 0.100
 RECOVERY_TARGET_S = 5.0
 UPDATE_TARGET_S = 0.001
-CHECKED = ("adaptive",)
-"""The constraints whose misses fail the benchmark; the others are baselines."""
 
 
 def time_sgd_update(n: int = 200, repeats: int = 5) -> tuple[float, float]:
     """Seconds per SGD update: one sample per partial_fit call, and per sample when a
     report's 25 samples go in one call (still one step per sample). Best of ``repeats``."""
-    c = AdaptiveConstraint()
+    c = AdaptiveConstraint(use_weighted=True, knee_band=0.05)  # the costlier, smooth mode
     obs = WindowStats(t_end=0.0, window_s=1.0, n_messages=10, goodput_bytes_per_s=60_000.0,
                       mean_latency_s=0.02, base_latency_s=0.01, backlog_bytes_per_s=9_000.0,
                       warm=True)
@@ -83,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="RFC schedule compressed to 50 s, background run 30 s")
     parser.add_argument("--out", type=Path, default=Path("out/adaptive_link"))
     parser.add_argument("--constraints", default="adaptive,aimd,fixed",
-                        help="of adaptive, adaptive-thesis (the thesis' SGD), aimd, fixed")
+                        help="of adaptive (the thesis' SGD), adaptive-smooth, aimd, fixed")
     parser.add_argument("--scenarios", default="background-step,rfc8867-5.1")
     args = parser.parse_args(argv)
     reason = missing_requirements()
@@ -139,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
                         phase.xi_cv <= phases["aimd"][i].xi_cv):
                     problems.append("cv")  # smoother than AIMD in steady state (issue 16)
                 verdict = "ok" if not problems else "MISS " + "+".join(problems)
-                if problems and name in CHECKED:
+                if problems and name.startswith("adaptive"):
                     misses.append(f"{scenario.name} {name} {phase.t_start:g}s "
                                   f"{'+'.join(problems)}")
                 rows.append({

@@ -1,4 +1,4 @@
-"""The knee memory of the default adaptive constraint (issue 16): slow near the knee, full
+"""The knee memory of ``adaptive-smooth`` (issue 16): slow near the knee, full
 speed away from it, and a new congestion episode stops just under the knee.
 
 On a link with a sharp capacity the thesis' SGD limit-cycles ±15 % around the knee; these
@@ -30,7 +30,8 @@ def window(t: float, goodput: float, backlog: float) -> WindowStats:
 def at_the_knee(knee: float = 120_000.0) -> AdaptiveConstraint:
     """The real-link constraint, just after a congestion episode at ``knee`` ended (t = 1.1)."""
     c = AdaptiveConstraint(window_s=T, alpha_bytes_per_s=ALPHA, learning_rate=0.1,
-                           min_coef=0.3, backlog_clip=2.0,
+                           min_coef=0.3, backlog_clip=2.0, use_weighted=True,
+                           knee_band=0.05, knee_step=0.01,
                            initial_intercept_bytes_per_s=knee - 0.3 * ALPHA)
     c._learn([window(1.0, knee, 3 * ALPHA)])  # congested: the episode's peak is the knee
     c._learn([window(1.1, knee, 0.0)])  # calm again: the episode ends, the knee is learnt
@@ -100,7 +101,7 @@ def test_a_new_congestion_episode_stops_just_under_the_knee() -> None:
 
 def test_windows_without_goodput_teach_nothing() -> None:
     """Regression: all-zero step weights made scikit-learn raise (use_weighted, G = 0)."""
-    c = make_constraint("adaptive", window_s=T)
+    c = make_constraint("adaptive-smooth", window_s=T)
     before = c.limit_bytes_per_s(now=0.0)
     c._learn([window(1.0, 0.0, 0.0), window(1.1, 0.0, 0.0)])
     assert c.limit_bytes_per_s(now=0.0) == before

@@ -1,5 +1,5 @@
-"""Use-weighted SGD steps (``use_weighted``, alone and in the default constraint with the knee
-memory): ξ as smooth as AIMD's, and still fast (fig. 6.5)."""
+"""Use-weighted SGD steps (``use_weighted``, alone and with the knee memory in
+``adaptive-smooth``): ξ as smooth as AIMD's, and still fast (fig. 6.5)."""
 
 from __future__ import annotations
 
@@ -18,9 +18,9 @@ def _cv(name: str) -> tuple[float, float, float]:
     return max(float(x.std() / x.mean()) for x in halves), step, float(halves[1].mean())
 
 
-@pytest.mark.parametrize("name", ["adaptive-weighted", "adaptive"])
+@pytest.mark.parametrize("name", ["adaptive-weighted", "adaptive-smooth"])
 def test_weighted_steps_are_smoother_than_aimd_and_the_thesis_sgd_is_not(name: str) -> None:
-    thesis, _, _ = _cv("adaptive-thesis")
+    thesis, _, _ = _cv("adaptive")
     smooth, step, after = _cv(name)
     aimd, _, _ = _cv("aimd")
     assert smooth <= aimd < thesis  # seed 1: 0.055-0.08 <= 0.115 < 0.141
@@ -29,12 +29,11 @@ def test_weighted_steps_are_smoother_than_aimd_and_the_thesis_sgd_is_not(name: s
 
 
 def test_off_is_the_thesis_sgd_exactly() -> None:
-    a = figure_6_5_run(figure_6_5_constraint("adaptive-thesis"), seed=3, duration_s=30.0)
+    a = figure_6_5_run(figure_6_5_constraint("adaptive"), seed=3, duration_s=30.0)
     from companion.middleware.adaptive import AdaptiveConstraint
 
     b = figure_6_5_run(AdaptiveConstraint(alpha_bytes_per_s=12_500.0, learning_rate=0.01,
-                                          initial_intercept_bytes_per_s=37_500.0,
-                                          use_weighted=False, knee_band=0.0),
+                                          initial_intercept_bytes_per_s=37_500.0),
                        seed=3, duration_s=30.0)
     assert a.xi_bytes_per_s == b.xi_bytes_per_s
 
@@ -49,9 +48,9 @@ def test_step_response_is_the_first_passage_of_the_midpoint() -> None:
     assert step_response_s(t, rising, t_step=10.0, before=(5, 10), after=(16, 20)) == 6.0
 
 
-@pytest.mark.parametrize(("name", "weighted", "knee"), [("adaptive-thesis", False, False),
+@pytest.mark.parametrize(("name", "weighted", "knee"), [("adaptive", False, False),
                                                       ("adaptive-weighted", True, False),
-                                                      ("adaptive", True, True)])
+                                                      ("adaptive-smooth", True, True)])
 def test_weighted_constraint_is_built_from_its_name(name: str, weighted: bool,
                                                    knee: bool) -> None:
     from companion.middleware.adaptive import AdaptiveConstraint

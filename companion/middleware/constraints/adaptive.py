@@ -128,18 +128,20 @@ class AdaptiveConstraint(LinkStatsConstraint):
         little says little about what the link carries; with equal steps an on/off demand
         drags ξ down and up with it (fig. 6.5: CV of ξ 0.14 against AIMD's 0.08, seed 1;
         weighted 0.055). It still learns at low use, only more slowly (docs/studies.md).
-        Default on; ``make_constraint("adaptive-thesis")`` is the thesis' SGD.
     knee_band, knee_step
-        The knee memory (0: off, the thesis' SGD). On a link with a sharp capacity (a
-        token bucket, a radio's MCS rate) there is no gentle slope to fit: below the knee
-        Δ ≈ 0, above it the queue grows, and plain SGD limit-cycles ±15 % around the knee
-        in ~1.3 s (docs/adaptive.md). The knee is the goodput the link delivered in the last
-        congestion episode (consecutive windows with Δ > α). Uncongested steps are weighted
-        by ``knee_step`` at the knee, growing quadratically to full at ``knee_band`` · knee
-        away from it, so ξ approaches the knee slowly but recovers and probes a grown link
-        at full speed; a new congestion episode lowers ξ to (1 − ``knee_band``) · knee and
-        no further for 1.5 windows (a queue formed at the knee shows in one window), after
-        which congestion that persists (more background, a slower link) gets the full SGD.
+        The knee memory (``knee_band`` 0: off, the thesis' SGD; ``make_constraint(
+        "adaptive-smooth")`` turns it on with 0.05 / 0.01 and use-weighted steps). On a link
+        with a sharp capacity (a token bucket, a radio's MCS rate) there is no gentle slope
+        to fit: below the knee Δ ≈ 0, above it the queue grows, and plain SGD limit-cycles
+        ±15 % around the knee in ~1.3 s (docs/adaptive.md). The knee is the goodput the link
+        delivered in the last congestion episode (consecutive windows with Δ > α).
+        Uncongested steps are weighted by ``knee_step`` at the knee, growing quadratically
+        to full at ``knee_band`` · knee away from it (or after ``KNEE_FORGET_WINDOWS`` calm
+        windows), so ξ approaches the knee slowly but recovers and probes a grown link at
+        full speed; a new congestion episode lowers ξ to (1 − ``knee_band``) · knee and no
+        further for ``KNEE_HOLD_WINDOWS`` (a queue formed at the knee shows in one window),
+        after which congestion that persists (more background, a slower link) gets the full
+        SGD.
     window_s
         T of both the link statistics and the budget window (eq. 6.1).
     stats
@@ -158,8 +160,8 @@ class AdaptiveConstraint(LinkStatsConstraint):
         scale_bytes_per_s: float = 125_000.0,
         min_coef: float = 0.1,
         backlog_clip: float = 4.0,
-        use_weighted: bool = True,
-        knee_band: float = 0.05,
+        use_weighted: bool = False,
+        knee_band: float = 0.0,
         knee_step: float = 0.01,
         window_s: float = 2.5,
         base_window_s: float = 10.0,

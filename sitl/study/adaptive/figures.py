@@ -24,9 +24,9 @@ MBIT = 125_000.0
 """Bytes per second in one Mbit/s."""
 
 
-FIG65_CONSTRAINTS = ("adaptive-thesis", "adaptive-weighted", "adaptive", "aimd")
-"""adaptive-thesis: the thesis' SGD (equal steps); adaptive-weighted: use-weighted steps only;
-adaptive: the product's constraint (use-weighted steps and the knee memory); AIMD."""
+FIG65_CONSTRAINTS = ("adaptive", "adaptive-weighted", "adaptive-smooth", "aimd")
+"""adaptive: the thesis' SGD (equal steps, the default); adaptive-weighted: use-weighted steps
+only; adaptive-smooth: use-weighted steps and the knee memory; AIMD."""
 
 
 def figure_6_5_constraint(name: str, *, alpha_bytes_per_s: float = 0.1 * MBIT,
@@ -35,16 +35,13 @@ def figure_6_5_constraint(name: str, *, alpha_bytes_per_s: float = 0.1 * MBIT,
     if name == "aimd":
         return make_constraint("aimd", alpha_bytes_per_s=alpha_bytes_per_s,
                                initial_bytes_per_s=0.4 * MBIT)
-    params: dict[str, object] = {"alpha_bytes_per_s": alpha_bytes_per_s,
-                                 "learning_rate": learning_rate,
-                                 "initial_intercept_bytes_per_s": 0.3 * MBIT}
-    if name == "adaptive-weighted":
-        params |= {"use_weighted": True, "knee_band": 0.0}
-    elif name not in ("adaptive", "adaptive-thesis"):
+    if name not in FIG65_CONSTRAINTS:
         raise ValueError(f"unknown figure 6.5 constraint {name!r}; expected one of "
                          f"{FIG65_CONSTRAINTS}")
-    return make_constraint("adaptive-thesis" if name == "adaptive-thesis" else "adaptive",
-                           **params)
+    return make_constraint("adaptive" if name == "adaptive-weighted" else name,
+                           alpha_bytes_per_s=alpha_bytes_per_s, learning_rate=learning_rate,
+                           initial_intercept_bytes_per_s=0.3 * MBIT,
+                           **({"use_weighted": True} if name == "adaptive-weighted" else {}))
 
 
 def figure_6_5_run(constraint: GoodputConstraint, *, seed: int = 1,

@@ -284,8 +284,8 @@ REAL_LINK_CONSTRAINTS: dict[str, dict[str, float]] = {
     "fixed": {"window_s": 0.5, "limit_bytes_per_s": 115_000.0},
 }
 """Constraints compared on the real 1 Mbit/s link (fixed: tuned to the base capacity).
-``adaptive-thesis`` (the thesis' SGD, equal steps) runs with the adaptive parameters."""
-REAL_LINK_CONSTRAINTS["adaptive-thesis"] = REAL_LINK_CONSTRAINTS["adaptive"]
+``adaptive-smooth`` (use-weighted steps and the knee memory) runs with the adaptive ones."""
+REAL_LINK_CONSTRAINTS["adaptive-smooth"] = REAL_LINK_CONSTRAINTS["adaptive"]
 
 LINK_CONSTRAINT_KINDS = {"fixed": "constant"}
 """The registry name of a compared constraint, where it is not its own name."""
