@@ -272,7 +272,7 @@ class AdaptiveConstraint(LinkStatsConstraint):
             self.model.coef_[0] = self.min_coef
         if self.knee_band > 0 and self._episode is not None:
             # A new congestion episode takes ξ to just under what the link delivered, not
-            # further, until it has lasted two windows (then the link really has less).
+            # further, until it has lasted KNEE_HOLD_WINDOWS (then the link really has less).
             start, peak, xi_start = self._episode
             if observations[-1].t_end - start <= KNEE_HOLD_WINDOWS * self.window_s:
                 floor = min((1 - self.knee_band) * min(peak, xi_start), xi_before)
