@@ -55,7 +55,7 @@ def alpha_cell(params: dict[str, Any], seed: int) -> dict[str, Any]:
     offered = AGENTS * RATE_HZ * MESSAGE_BYTES
     if params["mode"] == "adaptive":
         constraint: Any = make_constraint(
-            "adaptive", alpha_bytes_per_s=float(params["alpha_mbit"]) * MBIT,
+            "adaptive-thesis", alpha_bytes_per_s=float(params["alpha_mbit"]) * MBIT,
             learning_rate=0.01, initial_intercept_bytes_per_s=0.3 * MBIT)
         demand = offered
     else:

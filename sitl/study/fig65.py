@@ -2,9 +2,10 @@
 
 ``uav-sitl study fig6.5 --out DIR [--runs 5] [--quick] [--scheduler ADDR]`` runs the figure
 6.5 scenario of :mod:`sitl.study.adaptive` (on/off demand every 25 s, background 0.1 -> 0.25
-Mbit/s at 50 s, α = 0.1 Mbit/s) for the thesis' SGD constraint (``adaptive``), the same with
-use-weighted steps (``adaptive-weighted``, ``use_weighted=True``) and AIMD, ``--runs`` seeds
-each (the same seed gives every constraint the same demand draws), on the Dask sweep runner.
+Mbit/s at 50 s, α = 0.1 Mbit/s) for the thesis' SGD (``adaptive``, the default), the same
+with use-weighted steps only (``adaptive-weighted``), with use-weighted steps and the knee
+memory (``adaptive-smooth``) and AIMD, ``--runs`` seeds each (the same seed gives every
+constraint the same demand draws), on the Dask sweep runner.
 Per run: the CV of ξ in the two steady halves ([10, 50) and [60, 100) s), the p95 queueing
 delay (latency minus the run's minimum) of application packets, loss, and the step response:
 seconds after the 50 s step until ξ is half-way from its level before (mean over [40, 50))
@@ -97,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="uav-sitl study fig6.5",
         description="Thesis figure 6.5 with numbers: CV of ξ, p95 queueing delay and step "
-                    "response of the adaptive constraint (thesis-exact and use-weighted) "
+                    "response of the adaptive constraint (thesis' SGD, use-weighted, smooth) "
                     "and AIMD, on Dask.")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--runs", type=int, default=5, help="seeds per constraint (default 5)")

@@ -107,7 +107,8 @@ def fig74_cell(params: dict[str, Any], seed: int) -> dict[str, Any]:
     duration, t_on = float(params["duration_s"]), float(params["t_on_s"])
     agents = _fleet(4, (0.2, 0.05, 0.0, 0.0), lambda a, i: _middleware(
         a, i, seed=seed, constraint=make_constraint(
-            "adaptive", window_s=WINDOW_74_S, alpha_bytes_per_s=12_500.0, learning_rate=0.05,
+            "adaptive-thesis", window_s=WINDOW_74_S, alpha_bytes_per_s=12_500.0,
+            learning_rate=0.05,
             initial_intercept_bytes_per_s=20_000.0,
             min_bytes_per_s=FRAME_BYTES / WINDOW_74_S)))
     period = 1200 / BACKGROUND_74_BYTES_PER_S

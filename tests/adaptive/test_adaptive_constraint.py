@@ -163,10 +163,15 @@ def test_aimd_does_not_adapt_while_the_app_sends_far_less() -> None:
 
 
 def test_registry_builds_every_constraint_by_name() -> None:
-    assert set(CONSTRAINTS) == {"constant", "adaptive", "aimd"}
+    assert set(CONSTRAINTS) == {"constant", "adaptive", "adaptive-thesis", "adaptive-smooth",
+                                "aimd"}
     assert isinstance(make_constraint("constant", limit_bytes_per_s=5.0), ConstantConstraint)
-    adaptive = make_constraint("adaptive", alpha_bytes_per_s=1000.0, window_s=0.5)
-    assert isinstance(adaptive, AdaptiveConstraint) and adaptive.window_s == 0.5
+    for name in ("adaptive", "adaptive-thesis", "adaptive-smooth"):
+        adaptive = make_constraint(name, alpha_bytes_per_s=1000.0, window_s=0.5)
+        assert isinstance(adaptive, AdaptiveConstraint) and adaptive.window_s == 0.5
+        # the default is the thesis' SGD; the smooth one has use-weighted steps and the knee
+        smooth = name == "adaptive-smooth"
+        assert adaptive.use_weighted is smooth and (adaptive.knee_band == 0.05) is smooth
     assert isinstance(make_constraint("aimd", decrease_factor=0.9), AimdConstraint)
 
 

@@ -1,4 +1,5 @@
-"""Use-weighted SGD steps (``use_weighted``): ξ as smooth as AIMD's, and still fast (fig. 6.5)."""
+"""Use-weighted SGD steps (``use_weighted``, alone and with the knee memory in
+``adaptive-smooth``): ξ as smooth as AIMD's, and still fast (fig. 6.5)."""
 
 from __future__ import annotations
 
@@ -17,11 +18,12 @@ def _cv(name: str) -> tuple[float, float, float]:
     return max(float(x.std() / x.mean()) for x in halves), step, float(halves[1].mean())
 
 
-def test_weighted_steps_are_smoother_than_aimd_and_the_thesis_sgd_is_not() -> None:
+@pytest.mark.parametrize("name", ["adaptive-weighted", "adaptive-smooth"])
+def test_weighted_steps_are_smoother_than_aimd_and_the_thesis_sgd_is_not(name: str) -> None:
     thesis, _, _ = _cv("adaptive")
-    weighted, step, after = _cv("adaptive-weighted")
+    smooth, step, after = _cv(name)
     aimd, _, _ = _cv("aimd")
-    assert weighted <= aimd < thesis  # seed 1: 0.055-0.08 <= 0.115 < 0.141
+    assert smooth <= aimd < thesis  # seed 1: 0.055-0.08 <= 0.115 < 0.141
     assert step <= 5.0
     assert after < 0.4 * 125_000  # it did come down after the background step
 
@@ -46,10 +48,13 @@ def test_step_response_is_the_first_passage_of_the_midpoint() -> None:
     assert step_response_s(t, rising, t_step=10.0, before=(5, 10), after=(16, 20)) == 6.0
 
 
-@pytest.mark.parametrize("name", ["adaptive", "adaptive-weighted"])
-def test_weighted_constraint_is_built_from_its_name(name: str) -> None:
+@pytest.mark.parametrize(("name", "weighted", "knee"), [("adaptive", False, False),
+                                                      ("adaptive-weighted", True, False),
+                                                      ("adaptive-smooth", True, True)])
+def test_weighted_constraint_is_built_from_its_name(name: str, weighted: bool,
+                                                   knee: bool) -> None:
     from companion.middleware.adaptive import AdaptiveConstraint
 
     c = figure_6_5_constraint(name)
     assert isinstance(c, AdaptiveConstraint)
-    assert c.use_weighted is (name == "adaptive-weighted")
+    assert c.use_weighted is weighted and (c.knee_band > 0) is knee

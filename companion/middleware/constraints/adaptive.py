@@ -28,6 +28,14 @@ from companion.middleware.errors import ConstraintError
 
 __all__ = ["AdaptiveConstraint", "LinkStatsConstraint"]
 
+KNEE_HOLD_WINDOWS = 1.5
+"""How long (in windows T) a congestion episode may last before ξ may fall below the knee
+band: a window over a queue that formed at the knee shows congestion for up to one T."""
+
+KNEE_FORGET_WINDOWS = 2.0
+"""After this many windows T without congestion the knee no longer slows ξ down."""
+
+
 
 class LinkStatsConstraint(GoodputConstraint):
     """A constraint that learns from link statistics of receiver reports (ch. 6).
@@ -120,6 +128,20 @@ class AdaptiveConstraint(LinkStatsConstraint):
         little says little about what the link carries; with equal steps an on/off demand
         drags ξ down and up with it (fig. 6.5: CV of ξ 0.14 against AIMD's 0.08, seed 1;
         weighted 0.055). It still learns at low use, only more slowly (docs/studies.md).
+    knee_band, knee_step
+        The knee memory (``knee_band`` 0: off, the thesis' SGD; ``make_constraint(
+        "adaptive-smooth")`` turns it on with 0.05 / 0.01 and use-weighted steps). On a link
+        with a sharp capacity (a token bucket, a radio's MCS rate) there is no gentle slope
+        to fit: below the knee Δ ≈ 0, above it the queue grows, and plain SGD limit-cycles
+        ±15 % around the knee in ~1.3 s (docs/adaptive.md). The knee is the goodput the link
+        delivered in the last congestion episode (consecutive windows with Δ > α).
+        Uncongested steps are weighted by ``knee_step`` at the knee, growing quadratically
+        to full at ``knee_band`` · knee away from it (or after ``KNEE_FORGET_WINDOWS`` calm
+        windows), so ξ approaches the knee slowly but recovers and probes a grown link at
+        full speed; a new congestion episode lowers ξ to (1 − ``knee_band``) · knee and no
+        further for ``KNEE_HOLD_WINDOWS`` (a queue formed at the knee shows in one window),
+        after which congestion that persists (more background, a slower link) gets the full
+        SGD.
     window_s
         T of both the link statistics and the budget window (eq. 6.1).
     stats
@@ -139,6 +161,8 @@ class AdaptiveConstraint(LinkStatsConstraint):
         min_coef: float = 0.1,
         backlog_clip: float = 4.0,
         use_weighted: bool = False,
+        knee_band: float = 0.0,
+        knee_step: float = 0.01,
         window_s: float = 2.5,
         base_window_s: float = 10.0,
         min_base_latency_s: float = 0.005,
@@ -157,6 +181,18 @@ class AdaptiveConstraint(LinkStatsConstraint):
         self.min_coef = float(min_coef)
         self.backlog_clip = float(backlog_clip)
         self.use_weighted = bool(use_weighted)
+        if not knee_band >= 0:
+            raise ConstraintError(f"knee_band must be >= 0, got {knee_band}")
+        if not 0 < knee_step <= 1:
+            raise ConstraintError(f"knee_step must be in (0, 1], got {knee_step}")
+        self.knee_band = float(knee_band)
+        self.knee_step = float(knee_step)
+        self.knee_bytes_per_s: float | None = None
+        """The most goodput the link delivered in the last congestion episode (Δ > α)."""
+        self._episode: tuple[float, float, float] | None = None
+        """The congestion episode under way: (start t, peak goodput, ξ when it began)."""
+        self._calm_goodput = 0.0
+        self._calm_since = 0.0
         if not alpha_bytes_per_s > 0:
             raise ConstraintError(f"alpha_bytes_per_s must be > 0, got {alpha_bytes_per_s}")
         if not learning_rate > 0:
@@ -222,11 +258,10 @@ class AdaptiveConstraint(LinkStatsConstraint):
             [[min(o.backlog_bytes_per_s, clip) / scale] for o in observations], dtype=np.float64
         )
         y = np.array([o.goodput_bytes_per_s / scale for o in observations], dtype=np.float64)
-        weight = None
-        if self.use_weighted:
-            xi = max(self.limit_bytes_per_s(now=0.0), 1e-9)  # ξ does not depend on now here
-            weight = np.array([1.0 if o.backlog_bytes_per_s > self.alpha_bytes_per_s
-                               else min(1.0, o.goodput_bytes_per_s / xi) for o in observations])
+        xi_before = self.limit_bytes_per_s(now=0.0)  # ξ does not depend on now here
+        weight = self._step_weights(observations, xi_before)
+        if weight is not None and not weight.any():
+            return  # the application sent nothing in these windows: nothing to learn
         coef, intercept = self.model.coef_.copy(), self.model.intercept_.copy()
         self.model.partial_fit(x, y, sample_weight=weight)
         if not (np.all(np.isfinite(self.model.coef_)) and np.isfinite(self.model.intercept_[0])):
@@ -235,3 +270,46 @@ class AdaptiveConstraint(LinkStatsConstraint):
         if self.model.coef_[0] < self.min_coef:
             # Projected SGD onto increasing models: see the class docstring.
             self.model.coef_[0] = self.min_coef
+        if self.knee_band > 0 and self._episode is not None:
+            # A new congestion episode takes ξ to just under what the link delivered, not
+            # further, until it has lasted KNEE_HOLD_WINDOWS (then the link really has less).
+            start, peak, xi_start = self._episode
+            if observations[-1].t_end - start <= KNEE_HOLD_WINDOWS * self.window_s:
+                floor = min((1 - self.knee_band) * min(peak, xi_start), xi_before)
+                xi = self.predict_bytes_per_s(self.alpha_bytes_per_s)
+                if xi < floor:
+                    self.model.intercept_[0] += (floor - xi) / scale
+
+    def _step_weights(self, observations: list[WindowStats], xi: float) -> np.ndarray | None:
+        """Per-observation SGD step weights (None: equal steps, the thesis' SGD)."""
+        if not self.use_weighted and self.knee_band == 0:
+            return None
+        xi = max(xi, 1e-9)
+        weight = np.ones(len(observations))
+        for i, o in enumerate(observations):
+            if o.backlog_bytes_per_s > self.alpha_bytes_per_s:
+                # Congested: a full step; the episode's peak goodput is where the knee is.
+                if self._episode is None:
+                    # The window that shows congestion first has already lost goodput: the
+                    # rate the link carried is the last calm window's.
+                    peak = max(o.goodput_bytes_per_s, self._calm_goodput)
+                    self._episode = (o.t_end, peak, xi)
+                else:
+                    start, peak, xi_start = self._episode
+                    self._episode = (start, max(peak, o.goodput_bytes_per_s), xi_start)
+                continue
+            if self._episode is not None:
+                self.knee_bytes_per_s = self._episode[1]
+                self._episode = None
+                self._calm_since = o.t_end
+            self._calm_goodput = o.goodput_bytes_per_s
+            if self.use_weighted:
+                weight[i] = min(1.0, o.goodput_bytes_per_s / xi)
+            if self.knee_band > 0 and self.knee_bytes_per_s is not None:
+                # The knee is forgotten over KNEE_FORGET_WINDOWS calm windows: a congestion
+                # episode from a latency glitch must not slow ξ for good.
+                distance = max(abs(xi - self.knee_bytes_per_s) / (
+                    self.knee_band * max(self.knee_bytes_per_s, 1e-9)),
+                    (o.t_end - self._calm_since) / (KNEE_FORGET_WINDOWS * self.window_s))
+                weight[i] *= self.knee_step + (1 - self.knee_step) * min(1.0, distance) ** 2
+        return weight

@@ -43,6 +43,7 @@ from sitl.study.adaptive.model import (
     steps,
 )
 from sitl.study.adaptive.reallink import (
+    LINK_CONSTRAINT_KINDS,
     MESSAGE_BYTES,
     REAL_LINK_CONSTRAINTS,
     LinkRun,
@@ -55,6 +56,7 @@ from sitl.study.adaptive.reallink import (
 )
 
 __all__ = [
+    "LINK_CONSTRAINT_KINDS",
     "MBIT",
     "MESSAGE_BYTES",
     "REAL_LINK_CONSTRAINTS",

@@ -24,8 +24,9 @@ MBIT = 125_000.0
 """Bytes per second in one Mbit/s."""
 
 
-FIG65_CONSTRAINTS = ("adaptive", "adaptive-weighted", "aimd")
-"""adaptive: the thesis' SGD; adaptive-weighted: the same with ``use_weighted``; AIMD."""
+FIG65_CONSTRAINTS = ("adaptive", "adaptive-weighted", "adaptive-smooth", "aimd")
+"""adaptive: the thesis' SGD (equal steps, the default); adaptive-weighted: use-weighted steps
+only; adaptive-smooth: use-weighted steps and the knee memory; AIMD."""
 
 
 def figure_6_5_constraint(name: str, *, alpha_bytes_per_s: float = 0.1 * MBIT,
@@ -34,9 +35,13 @@ def figure_6_5_constraint(name: str, *, alpha_bytes_per_s: float = 0.1 * MBIT,
     if name == "aimd":
         return make_constraint("aimd", alpha_bytes_per_s=alpha_bytes_per_s,
                                initial_bytes_per_s=0.4 * MBIT)
-    return make_constraint("adaptive", alpha_bytes_per_s=alpha_bytes_per_s,
-                           learning_rate=learning_rate, initial_intercept_bytes_per_s=0.3 * MBIT,
-                           use_weighted=name == "adaptive-weighted")
+    if name not in FIG65_CONSTRAINTS:
+        raise ValueError(f"unknown figure 6.5 constraint {name!r}; expected one of "
+                         f"{FIG65_CONSTRAINTS}")
+    return make_constraint("adaptive" if name == "adaptive-weighted" else name,
+                           alpha_bytes_per_s=alpha_bytes_per_s, learning_rate=learning_rate,
+                           initial_intercept_bytes_per_s=0.3 * MBIT,
+                           **({"use_weighted": True} if name == "adaptive-weighted" else {}))
 
 
 def figure_6_5_run(constraint: GoodputConstraint, *, seed: int = 1,

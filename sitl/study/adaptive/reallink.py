@@ -208,6 +208,8 @@ class PhaseMetrics:
     """Share of application packets sent in steady state that never arrived."""
     recovery_s: float
     """Time from the step to the end of the first 1-s bin meeting both targets again."""
+    xi_cv: float = math.nan
+    """Coefficient of variation of ξ (std / mean over the reports) in steady state."""
 
 
 def _goodput(arrivals: np.ndarray, t_a: float, t_b: float) -> float:
@@ -224,11 +226,20 @@ def _p95_queueing(arrivals: np.ndarray, base_s: float, t_a: float, t_b: float) -
     return float(np.percentile(arrivals[m, 2] - arrivals[m, 1] - base_s, 95))
 
 
+def _xi_cv(reports: np.ndarray, t_a: float, t_b: float) -> float:
+    """CV of ξ over the reports processed in [t_a, t_b) (NaN if fewer than two)."""
+    xi = reports[(reports[:, 0] >= t_a) & (reports[:, 0] < t_b), 1]
+    if xi.size < 2 or not xi.mean() > 0:
+        return math.nan
+    return float(xi.std() / xi.mean())
+
+
 def phase_metrics(run: LinkRun, *, settle_s: float = 5.0, share_target: float = 0.85,
                   delay_target_s: float = 0.1, bin_s: float = 1.0) -> list[PhaseMetrics]:
     """Per phase: steady-state goodput share, p95 queueing delay, loss, recovery time.
 
-    Steady state is the phase after ``settle_s``; whether the targets *hold* is judged there.
+    Steady state is the phase after ``settle_s``; whether the targets *hold* is judged there,
+    and the CV of ξ (how smooth the constraint is) is measured there.
     Recovery is first passage: the end of the first ``bin_s`` bin after the step (bins
     aligned on the step) whose goodput is ≥ ``share_target`` of what the link has left and
     whose p95 queueing delay is < ``delay_target_s`` (infinite if no bin does).
@@ -259,6 +270,7 @@ def phase_metrics(run: LinkRun, *, settle_s: float = 5.0, share_target: float = 
             p95_queueing_s=_p95_queueing(arrivals, base, a, t_end) if t_end > a else math.nan,
             loss=lost / len(steady_sent) if len(steady_sent) else math.nan,
             recovery_s=recovery,
+            xi_cv=_xi_cv(run.reports, a, t_end),
         ))
     return out
 
@@ -271,4 +283,9 @@ REAL_LINK_CONSTRAINTS: dict[str, dict[str, float]] = {
              "min_bytes_per_s": 6_250.0},
     "fixed": {"window_s": 0.5, "limit_bytes_per_s": 115_000.0},
 }
-"""Constraints compared on the real 1 Mbit/s link (fixed: tuned to the base capacity)."""
+"""Constraints compared on the real 1 Mbit/s link (fixed: tuned to the base capacity).
+``adaptive-smooth`` (use-weighted steps and the knee memory) runs with the adaptive ones."""
+REAL_LINK_CONSTRAINTS["adaptive-smooth"] = REAL_LINK_CONSTRAINTS["adaptive"]
+
+LINK_CONSTRAINT_KINDS = {"fixed": "constant"}
+"""The registry name of a compared constraint, where it is not its own name."""
