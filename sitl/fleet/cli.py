@@ -7,6 +7,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from companion.middleware.constraints.registry import CONSTRAINTS
 from sitl.fleet.link import (
     RELAY_BACKGROUND_SHARE,
     RELAY_QUEUE_BYTES,
@@ -38,9 +39,9 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
                    help="what decides which messages go out (default mcts)")
     p.add_argument("--drop-probability", type=float, default=0.5,
                    help="--policy random: probability of dropping each message (default 0.5)")
-    p.add_argument("--constraint", choices=("constant", "adaptive", "aimd"), default=None,
+    p.add_argument("--constraint", choices=sorted(CONSTRAINTS), default=None,
                    help="goodput constraint (default: constant on loopback, adaptive with "
-                        "--netns)")
+                        "--netns or the relay; adaptive-smooth: docs/adaptive.md)")
     p.add_argument("--goodput", type=float, default=None,
                    help="constant constraint: fleet goodput limit in bytes/s (default 40000; "
                         "given alone, it selects the constant constraint)")

@@ -64,7 +64,7 @@ def relay_constraint_params(name: str, rate_bytes_per_s: float) -> dict[str, Any
     params: dict[str, Any] = {"window_s": 1.0, "alpha_bytes_per_s": 0.5 * rate_bytes_per_s,
                               "min_base_latency_s": 0.01,
                               "min_bytes_per_s": 0.05 * rate_bytes_per_s}
-    if name == "adaptive":
+    if name.startswith("adaptive"):
         params |= {"learning_rate": 0.1, "min_coef": 0.3, "backlog_clip": 2.0,
                    "scale_bytes_per_s": rate_bytes_per_s,
                    "initial_intercept_bytes_per_s": 0.5 * rate_bytes_per_s}
