@@ -68,6 +68,8 @@ def relay_constraint_params(name: str, rate_bytes_per_s: float) -> dict[str, Any
         params |= {"learning_rate": 0.1, "min_coef": 0.3, "backlog_clip": 2.0,
                    "scale_bytes_per_s": rate_bytes_per_s,
                    "initial_intercept_bytes_per_s": 0.5 * rate_bytes_per_s}
+    elif name == "aimd":  # its default start (62.5 kB/s) is above a slow relay
+        params |= {"initial_bytes_per_s": 0.5 * rate_bytes_per_s}
     return params
 
 

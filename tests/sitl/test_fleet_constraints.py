@@ -1,0 +1,22 @@
+"""Every registered constraint can drive the fleet, scaled to the relay's rate."""
+
+from __future__ import annotations
+
+import pytest
+
+from companion.middleware.constraints.registry import CONSTRAINTS, make_constraint
+from sitl.fleet.cli import parse_args
+from sitl.fleet.link import relay_constraint_params
+
+
+@pytest.mark.parametrize("name", ["adaptive", "adaptive-smooth", "adaptive-thesis", "aimd"])
+def test_each_learning_constraint_is_built_from_the_relay_parameters(name: str) -> None:
+    rate = 50_000.0
+    constraint = make_constraint(name, **relay_constraint_params(name, rate))
+    assert constraint.window_s == 1.0
+    assert 0.05 * rate <= constraint.limit_bytes_per_s(now=0.0) <= rate
+
+
+def test_the_fleet_offers_every_registered_constraint() -> None:
+    for name in CONSTRAINTS:
+        assert parse_args(["--constraint", name]).constraint == name
