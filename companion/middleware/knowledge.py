@@ -13,12 +13,15 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 
 from companion.middleware.forecast import LatencyEstimator, StreamForecaster
-from companion.middleware.incremental import FixedItem, PlanItem, stream_of
+from companion.middleware.incremental import FixedItem, PlanItem, option_message, stream_of
 from utility_specs.errors import UtilitySpecsError
 from utility_specs.message import Message
 from utility_specs.spec import MissionSpec
 
-__all__ = ["FleetKnowledge", "PlanningView", "settle_inflight", "usable"]
+__all__ = ["WORTH_SPAN_S", "FleetKnowledge", "PlanningView", "settle_inflight", "usable"]
+
+WORTH_SPAN_S = 3.0
+"""A message's worth (:meth:`FleetKnowledge.worth`) is its utility over this long."""
 
 
 def usable(spec: MissionSpec, message: Message) -> bool:
@@ -68,10 +71,14 @@ class FleetKnowledge:
         "spec",
     )
 
-    def __init__(self, spec: MissionSpec, *, agent: str, default_latency_s: float) -> None:
+    def __init__(self, spec: MissionSpec, *, agent: str, default_latency_s: float,
+                 spread_forecasts: bool = True) -> None:
         self.spec = spec
         self.agent = agent
-        self.forecaster = StreamForecaster()
+        self.forecaster = StreamForecaster(worth=self.worth if spread_forecasts else None)
+        """``spread_forecasts``: a stream's forecasts are drawn from its recent messages'
+        worths (:meth:`StreamForecaster.forecast`), so the optimiser sees the value of
+        waiting for a better frame; False: copies of the last message (the baselines)."""
         self.latency = LatencyEstimator(default_s=default_latency_s)
         self._delivered: dict[tuple[str, str | None], tuple[Message, float]] = {}
         self._inflight: dict[tuple[str, int], tuple[Message, float]] = {}
@@ -171,6 +178,19 @@ class FleetKnowledge:
         self.forecaster.forget(floor - 10.0 * keep_s)
 
     # --- reads ---------------------------------------------------------------------------
+    def worth(self, message: Message) -> float | None:
+        """What ``message`` in its best version is worth over :data:`WORTH_SPAN_S` after its
+        generation (the forecaster ranks a stream's recent messages by it); None when its
+        utility is not a curve of the message alone."""
+        info = self.spec.types.get(message.type)
+        if info is None or info.utility.impulse:
+            return None
+        try:
+            curve = info.utility.curve(option_message(message, 1))
+        except (NotImplementedError, UtilitySpecsError):
+            return None
+        return info.weight * curve.integral(message.t_gen, message.t_gen + WORTH_SPAN_S)
+
     def sender_rates(self, *, now: float, lag_s: float, window_s: float
                      ) -> dict[str, tuple[float, float]]:
         """Per other agent: (bytes/s, mean message bytes) it is known to have sent over the

@@ -34,6 +34,7 @@ from companion.middleware.decider import (
     ParamValue,
 )
 from companion.middleware.errors import MiddlewareError, ParamError, UnknownParamError
+from companion.middleware.gate import priced_option
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge, settle_inflight, usable
 from companion.middleware.margin import OvershootMargin
@@ -94,6 +95,9 @@ class MiddlewareConfig:
     speak first take the window). Then a message the tree would send if the others had not
     planned for the window goes out, once, and makes the stream known ("mcts-announce").
     None: off."""
+    price_bytes: bool = True
+    """A message with versions is sent only in a version that earns the horizon's utility per
+    byte (:mod:`~companion.middleware.gate`); False: the tree's option as it is."""
     announce_over_budget: bool = True
     """Announce even over the sends known to fill the window: at most one planned window
     violation per stream per ``announce_after_s`` (counter ``over_budget``). False: zero
@@ -239,6 +243,8 @@ class Middleware:
             self.counters["fallback"] += 1
         else:
             option, reason = result.option, "mcts-exact" if result.exhausted else "mcts"
+            if self.config.price_bytes and message.versions:  # issue 18 round 5, gate.py
+                option = priced_option(problem, level, option, search.lam)
         if option == 0 and view.root_window and self._invisible(message.type, now) \
                 and _dense_enough(problem, level, search.lam):
             # What the tree would do if the fleet, knowing of this stream, had left room:
