@@ -203,7 +203,8 @@ class StreamForecaster:
             stream.ranked = ranked if hi - lo > _SPREAD_REL * abs(mid) else []
         return stream.ranked or None
 
-    def forecast(self, key: StreamKeyT, *, t_from: float, t_to: float) -> list[Message]:
+    def forecast(self, key: StreamKeyT, *, t_from: float, t_to: float,
+                 spread: bool = True) -> list[Message]:
         """Messages predicted for (t_from, t_to]: the last known data, the recent mean size.
 
         With :attr:`worth`, a stream whose recent messages differ in worth (the red content of
@@ -215,6 +216,8 @@ class StreamForecaster:
         message is the same at every decision (plans stay consistent), and the optimiser
         sees the value of waiting: a plain frame now competes with the redder frames the
         stream is likely to offer within the same budget, not with copies of itself.
+        ``spread=False``: copies of the last message whatever :attr:`worth` says (messages
+        another agent has decided already, in flight, are what it has been sending).
         """
         stream = self._streams.get(key)
         if stream is None or stream.last is None:
@@ -223,7 +226,7 @@ class StreamForecaster:
         size = self.mean_size(key)
         versions = _scaled_versions(last, size)
         times = self.predict(key, t_from=t_from, t_to=t_to)
-        ranked = self._ranked(stream) if times else None
+        ranked = self._ranked(stream) if times and spread else None
         if ranked is not None:
             return self._spread(key, ranked, times, last, versions, size)
         out: list[Message] = []

@@ -237,7 +237,8 @@ class FleetKnowledge:
             if key[1] not in self.spec.types:
                 continue
             if key[0] != self.agent:
-                for m in self.forecaster.forecast(key, t_from=now - high, t_to=now):
+                for m in self.forecaster.forecast(key, t_from=now - high, t_to=now,
+                                                  spread=False):
                     items.append(
                         PlanItem(message=m, send_t=m.t_gen, rcv_t=max(m.t_gen + mean, now),
                                  kind="inflight")
@@ -312,7 +313,12 @@ def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, tuple[fl
     same window (the fleet sent 2.5 times its budget in the companion benchmark).
 
     The newest ``keep`` in-flight messages stay in the tree: a few levels cost the search
-    little, and without a backlog (the fig. 5.7 fleet) that is all there is.
+    little, and without a backlog (the fig. 5.7 fleet) that is all there is. Messages with
+    versions are always settled: which version their sender chose is unknown, the tree's
+    smaller versions of them add nothing over drop (ties), and with four such options per
+    level the search spread its visits so that its most visited path fell short of the
+    decided message (greedy fallbacks); their bytes join the windows by the sender's rate
+    like any settled message's.
     """
     window = list(view.root_window)
     if lag_s > 0:
@@ -321,6 +327,8 @@ def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, tuple[fl
             n = math.floor(rate * lag_s / size + 0.5) if size > 0 else 0
             window += [(now - lag_s + (i + 0.5) * lag_s / n, int(size)) for i in range(n)]
     inflight = [it for it in view.items if it.kind == "inflight"]
-    settled = {id(it) for it in inflight[: max(0, len(inflight) - keep)]}
+    plain = [it for it in inflight if not it.message.versions]
+    kept = {id(it) for it in plain[max(0, len(plain) - keep):]} if keep > 0 else set()
+    settled = {id(it) for it in inflight if id(it) not in kept}
     return replace(view, items=[it for it in view.items if id(it) not in settled],
                    root_window=sorted(window))
