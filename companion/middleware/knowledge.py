@@ -296,7 +296,7 @@ class FleetKnowledge:
 
 
 def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, tuple[float, float]],
-                    lag_s: float, keep: int = 0) -> PlanningView:
+                    lag_s: float, keep: int = 0, settle_versions: bool = False) -> PlanningView:
     """The view with what other agents sent in the last ``lag_s`` (not known before it
     arrives) estimated, and their possibly in-flight messages taken as already decided.
 
@@ -313,7 +313,8 @@ def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, tuple[fl
     same window (the fleet sent 2.5 times its budget in the companion benchmark).
 
     The newest ``keep`` in-flight messages stay in the tree: a few levels cost the search
-    little, and without a backlog (the fig. 5.7 fleet) that is all there is. Messages with
+    little, and without a backlog (the fig. 5.7 fleet) that is all there is. With
+    ``settle_versions`` (the middleware's default since issue 18 round 5) messages with
     versions are always settled: which version their sender chose is unknown, the tree's
     smaller versions of them add nothing over drop (ties), and with four such options per
     level the search spread its visits so that its most visited path fell short of the
@@ -327,7 +328,7 @@ def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, tuple[fl
             n = math.floor(rate * lag_s / size + 0.5) if size > 0 else 0
             window += [(now - lag_s + (i + 0.5) * lag_s / n, int(size)) for i in range(n)]
     inflight = [it for it in view.items if it.kind == "inflight"]
-    plain = [it for it in inflight if not it.message.versions]
+    plain = [it for it in inflight if not (settle_versions and it.message.versions)]
     kept = {id(it) for it in plain[max(0, len(plain) - keep):]} if keep > 0 else set()
     settled = {id(it) for it in inflight if id(it) not in kept}
     return replace(view, items=[it for it in view.items if id(it) not in settled],

@@ -216,7 +216,8 @@ class Middleware:
         lag = max(self.knowledge.latency.high_s, self.knowledge.latency.mean_s)
         view = settle_inflight(view, now=now, lag_s=lag, keep=self.config.search_inflight,
                                rates=self.knowledge.sender_rates(now=now, lag_s=lag,
-                                                                 window_s=window_s))
+                                                                 window_s=window_s),
+                               settle_versions=True)  # issue 18 round 5
         budget = self.constraint.budget_bytes(now=now)
         if self.config.learn_margin:
             self.margin.observe(self.knowledge.known_sends(), now=now, settle_s=lag,
