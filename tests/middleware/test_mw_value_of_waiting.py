@@ -122,7 +122,7 @@ def test_a_quarter_copy_that_does_not_earn_its_bytes_is_dropped() -> None:
     assert priced_option(p, 0, 3, 0.0) == 3  # no price: the tree's option
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.lists(st.tuples(st.floats(0, 2), st.integers(1, 50_000)), min_size=1, max_size=4),
        st.integers(0, 4), st.floats(0, 1e-4))
 def test_priced_option_earns_its_bytes_and_never_grows(
