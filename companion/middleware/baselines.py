@@ -159,7 +159,8 @@ class _Knowing(Baseline):
         self.spec = spec
         self.agent = agent
         self.constraint = constraint
-        self.knowledge = FleetKnowledge(spec, agent=agent, default_latency_s=default_latency_s)
+        self.knowledge = FleetKnowledge(spec, agent=agent, default_latency_s=default_latency_s,
+                                        spread_forecasts=False)
 
     def _commit(self, message: Message, decision: Decision, now: float) -> Decision:
         if decision.send:

@@ -11,7 +11,9 @@ from __future__ import annotations
 import cmath
 import itertools
 import math
+import zlib
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -25,6 +27,14 @@ StreamKeyT = tuple[str, str]
 _HISTORY = 32
 """Observations kept per stream: forecasting cost does not grow with mission length."""
 
+_SPREAD_MIN = 6
+"""Valued observations a stream needs before its forecasts spread over their worths."""
+_SPREAD_REL = 0.05
+"""Spread only when the 10th-90th percentile range of worths exceeds this share of the
+median: a stream whose messages are all worth the same keeps its one forecast copy."""
+_GOLDEN = 0.6180339887498949
+"""Quantile step between consecutive forecast messages (any run of them covers the range)."""
+
 
 @dataclass(slots=True)
 class _Stream:
@@ -32,9 +42,14 @@ class _Stream:
     seqs: deque[int] = field(default_factory=lambda: deque(maxlen=_HISTORY))
     sizes: deque[int] = field(default_factory=lambda: deque(maxlen=8))
     last: Message | None = None
+    """The newest known message (its data and versions are what forecasts carry)."""
     cached: tuple[float | None, float] | None = None
     """(period, anchor) until the next observation."""
-    """The newest known message (its data and versions are what forecasts carry)."""
+    pool: deque[tuple[float, Message]] = field(default_factory=lambda: deque(maxlen=_HISTORY))
+    """(worth, message) of the recent observations: the empirical distribution of what the
+    stream's next messages may carry."""
+    ranked: list[tuple[float, Message]] | None = None
+    """``pool`` by worth when it is spread enough to matter (cached), else None."""
 
 
 class StreamForecaster:
@@ -50,11 +65,17 @@ class StreamForecaster:
     correctly instead of to period / 2).
     """
 
-    __slots__ = ("_streams", "assume_fleet_period", "prior_period")
+    __slots__ = ("_streams", "assume_fleet_period", "prior_period", "worth")
 
-    def __init__(self, *, assume_fleet_period: bool = True) -> None:
+    def __init__(self, *, assume_fleet_period: bool = True,
+                 worth: Callable[[Message], float | None] | None = None) -> None:
         self._streams: dict[StreamKeyT, _Stream] = {}
         self.assume_fleet_period = assume_fleet_period
+        self.worth = worth
+        """What a message is worth (e.g. its utility integral over a few seconds). Given,
+        the forecasts of a stream whose recent messages differ in worth carry the data of
+        those messages, one quantile each, instead of the last message's data (see
+        :meth:`forecast`). None: every forecast carries the last data (the thesis' model)."""
         self.prior_period: float | None = None
         """Median period of the streams seen at least twice (refreshed by :meth:`refresh`);
         a stream heard of only once is assumed to repeat at it (``assume_fleet_period``)."""
@@ -81,6 +102,11 @@ class StreamForecaster:
         stream.sizes.append(_best_size(message))
         stream.last = message
         stream.cached = None
+        if self.worth is not None:
+            value = self.worth(message)
+            if value is not None and math.isfinite(value):
+                stream.pool.append((value, message))
+                stream.ranked = None
 
     def streams(self) -> list[StreamKeyT]:
         return list(self._streams)
@@ -164,16 +190,47 @@ class StreamForecaster:
         stream = self._streams[key]
         return round(sum(stream.sizes) / len(stream.sizes)) if stream.sizes else 0
 
-    def forecast(self, key: StreamKeyT, *, t_from: float, t_to: float) -> list[Message]:
-        """Messages predicted for (t_from, t_to]: the last known data, the recent mean size."""
+    def _ranked(self, stream: _Stream) -> list[tuple[float, Message]] | None:
+        """The stream's valued observations by worth, or None when they are too few or all
+        worth about the same (then one copy of the last message is the forecast)."""
+        if self.worth is None or len(stream.pool) < _SPREAD_MIN:
+            return None
+        if stream.ranked is None:
+            ranked = sorted(stream.pool, key=lambda wm: wm[0])
+            lo = ranked[int(0.1 * (len(ranked) - 1))][0]
+            mid = ranked[(len(ranked) - 1) // 2][0]
+            hi = ranked[int(0.9 * (len(ranked) - 1))][0]
+            stream.ranked = ranked if hi - lo > _SPREAD_REL * abs(mid) else []
+        return stream.ranked or None
+
+    def forecast(self, key: StreamKeyT, *, t_from: float, t_to: float,
+                 spread: bool = True) -> list[Message]:
+        """Messages predicted for (t_from, t_to]: the last known data, the recent mean size.
+
+        With :attr:`worth`, a stream whose recent messages differ in worth (the red content of
+        frames) is forecast as a draw from them rather than as copies of the last one: the
+        message predicted for period ``k`` carries the data of the recent message at quantile
+        ``frac(k·0.618 + stream offset)`` of worth. Any run of consecutive forecasts covers
+        the distribution evenly (a low-discrepancy draw: the best of n future frames sits
+        near the 1 - 1/n quantile, as it would in expectation), the draw for a given future
+        message is the same at every decision (plans stay consistent), and the optimiser
+        sees the value of waiting: a plain frame now competes with the redder frames the
+        stream is likely to offer within the same budget, not with copies of itself.
+        ``spread=False``: copies of the last message whatever :attr:`worth` says (messages
+        another agent has decided already, in flight, are what it has been sending).
+        """
         stream = self._streams.get(key)
         if stream is None or stream.last is None:
             return []
         last = stream.last
         size = self.mean_size(key)
         versions = _scaled_versions(last, size)
+        times = self.predict(key, t_from=t_from, t_to=t_to)
+        ranked = self._ranked(stream) if times and spread else None
+        if ranked is not None:
+            return self._spread(key, ranked, times, last, versions, size)
         out: list[Message] = []
-        for i, t in enumerate(self.predict(key, t_from=t_from, t_to=t_to)):
+        for i, t in enumerate(times):
             if not out or not math.isfinite(t):
                 out.append(
                     Message(
@@ -189,6 +246,21 @@ class StreamForecaster:
                 )
             else:  # the first one was validated; the others differ only in seq and t_gen
                 out.append(_with_seq_time(out[0], -1 - i, t))
+        return out
+
+    def _spread(self, key: StreamKeyT, ranked: list[tuple[float, Message]], times: list[float],
+                last: Message, versions: tuple[Version, ...], size: int) -> list[Message]:
+        """Forecasts at ``times`` carrying the data of ``ranked`` at golden-ratio quantiles."""
+        period = self._estimate(key)[0] or self.prior_period or 1.0
+        offset = zlib.crc32(f"{key[0]}/{key[1]}".encode()) / 2**32
+        template = Message(sender=last.sender, seq=-1, type=last.type, t_gen=times[0],
+                           size=versions[0].size if versions else size, data=last.data,
+                           versions=versions, version=0 if versions else None)
+        out: list[Message] = []
+        for i, t in enumerate(times):
+            u = (round(t / period) * _GOLDEN + offset) % 1.0
+            source = ranked[min(len(ranked) - 1, int(u * len(ranked)))][1]
+            out.append(_with_data(template, -1 - i, t, source.data))
         return out
 
     def forget(self, older_than: float) -> None:
@@ -219,6 +291,13 @@ def _with_seq_time(message: Message, seq: int, t_gen: float) -> Message:
         object.__setattr__(copy, name, getattr(message, name))
     object.__setattr__(copy, "seq", seq)
     object.__setattr__(copy, "t_gen", t_gen)
+    return copy
+
+
+def _with_data(message: Message, seq: int, t_gen: float, data: Any) -> Message:
+    """:func:`_with_seq_time` carrying ``data`` of another validated message of the stream."""
+    copy = _with_seq_time(message, seq, t_gen)
+    object.__setattr__(copy, "data", data)
     return copy
 
 

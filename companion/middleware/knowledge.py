@@ -13,12 +13,15 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 
 from companion.middleware.forecast import LatencyEstimator, StreamForecaster
-from companion.middleware.incremental import FixedItem, PlanItem, stream_of
+from companion.middleware.incremental import FixedItem, PlanItem, option_message, stream_of
 from utility_specs.errors import UtilitySpecsError
 from utility_specs.message import Message
 from utility_specs.spec import MissionSpec
 
-__all__ = ["FleetKnowledge", "PlanningView", "settle_inflight", "usable"]
+__all__ = ["WORTH_SPAN_S", "FleetKnowledge", "PlanningView", "settle_inflight", "usable"]
+
+WORTH_SPAN_S = 3.0
+"""A message's worth (:meth:`FleetKnowledge.worth`) is its utility over this long."""
 
 
 def usable(spec: MissionSpec, message: Message) -> bool:
@@ -68,10 +71,14 @@ class FleetKnowledge:
         "spec",
     )
 
-    def __init__(self, spec: MissionSpec, *, agent: str, default_latency_s: float) -> None:
+    def __init__(self, spec: MissionSpec, *, agent: str, default_latency_s: float,
+                 spread_forecasts: bool = True) -> None:
         self.spec = spec
         self.agent = agent
-        self.forecaster = StreamForecaster()
+        self.forecaster = StreamForecaster(worth=self.worth if spread_forecasts else None)
+        """``spread_forecasts``: a stream's forecasts are drawn from its recent messages'
+        worths (:meth:`StreamForecaster.forecast`), so the optimiser sees the value of
+        waiting for a better frame; False: copies of the last message (the baselines)."""
         self.latency = LatencyEstimator(default_s=default_latency_s)
         self._delivered: dict[tuple[str, str | None], tuple[Message, float]] = {}
         self._inflight: dict[tuple[str, int], tuple[Message, float]] = {}
@@ -171,6 +178,19 @@ class FleetKnowledge:
         self.forecaster.forget(floor - 10.0 * keep_s)
 
     # --- reads ---------------------------------------------------------------------------
+    def worth(self, message: Message) -> float | None:
+        """What ``message`` in its best version is worth over :data:`WORTH_SPAN_S` after its
+        generation (the forecaster ranks a stream's recent messages by it); None when its
+        utility is not a curve of the message alone."""
+        info = self.spec.types.get(message.type)
+        if info is None or info.utility.impulse:
+            return None
+        try:
+            curve = info.utility.curve(option_message(message, 1))
+        except (NotImplementedError, UtilitySpecsError):
+            return None
+        return info.weight * curve.integral(message.t_gen, message.t_gen + WORTH_SPAN_S)
+
     def sender_rates(self, *, now: float, lag_s: float, window_s: float
                      ) -> dict[str, tuple[float, float]]:
         """Per other agent: (bytes/s, mean message bytes) it is known to have sent over the
@@ -217,7 +237,8 @@ class FleetKnowledge:
             if key[1] not in self.spec.types:
                 continue
             if key[0] != self.agent:
-                for m in self.forecaster.forecast(key, t_from=now - high, t_to=now):
+                for m in self.forecaster.forecast(key, t_from=now - high, t_to=now,
+                                                  spread=False):
                     items.append(
                         PlanItem(message=m, send_t=m.t_gen, rcv_t=max(m.t_gen + mean, now),
                                  kind="inflight")
@@ -275,7 +296,7 @@ class FleetKnowledge:
 
 
 def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, tuple[float, float]],
-                    lag_s: float, keep: int = 0) -> PlanningView:
+                    lag_s: float, keep: int = 0, settle_versions: bool = False) -> PlanningView:
     """The view with what other agents sent in the last ``lag_s`` (not known before it
     arrives) estimated, and their possibly in-flight messages taken as already decided.
 
@@ -292,7 +313,13 @@ def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, tuple[fl
     same window (the fleet sent 2.5 times its budget in the companion benchmark).
 
     The newest ``keep`` in-flight messages stay in the tree: a few levels cost the search
-    little, and without a backlog (the fig. 5.7 fleet) that is all there is.
+    little, and without a backlog (the fig. 5.7 fleet) that is all there is. With
+    ``settle_versions`` (the middleware's default since issue 18 round 5) messages with
+    versions are always settled: which version their sender chose is unknown, the tree's
+    smaller versions of them add nothing over drop (ties), and with four such options per
+    level the search spread its visits so that its most visited path fell short of the
+    decided message (greedy fallbacks); their bytes join the windows by the sender's rate
+    like any settled message's.
     """
     window = list(view.root_window)
     if lag_s > 0:
@@ -301,6 +328,8 @@ def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, tuple[fl
             n = math.floor(rate * lag_s / size + 0.5) if size > 0 else 0
             window += [(now - lag_s + (i + 0.5) * lag_s / n, int(size)) for i in range(n)]
     inflight = [it for it in view.items if it.kind == "inflight"]
-    settled = {id(it) for it in inflight[: max(0, len(inflight) - keep)]}
+    plain = [it for it in inflight if not (settle_versions and it.message.versions)]
+    kept = {id(it) for it in plain[max(0, len(plain) - keep):]} if keep > 0 else set()
+    settled = {id(it) for it in inflight if id(it) not in kept}
     return replace(view, items=[it for it in view.items if id(it) not in settled],
                    root_window=sorted(window))

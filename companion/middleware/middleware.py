@@ -34,6 +34,7 @@ from companion.middleware.decider import (
     ParamValue,
 )
 from companion.middleware.errors import MiddlewareError, ParamError, UnknownParamError
+from companion.middleware.gate import priced_option
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge, settle_inflight, usable
 from companion.middleware.margin import OvershootMargin
@@ -106,6 +107,9 @@ class MiddlewareConfig:
     speak first take the window). Then a message the tree would send if the others had not
     planned for the window goes out, once, and makes the stream known ("mcts-announce").
     None: off."""
+    price_bytes: bool = True
+    """A message with versions is sent only in a version that earns the horizon's utility per
+    byte (:mod:`~companion.middleware.gate`); False: the tree's option as it is."""
     announce_over_budget: bool = True
     """Announce even over the sends known to fill the window: at most one planned window
     violation per stream per ``announce_after_s`` (counter ``over_budget``). False: zero
@@ -240,7 +244,8 @@ class Middleware:
         lag = max(self.knowledge.latency.high_s, self.knowledge.latency.mean_s)
         view = settle_inflight(view, now=now, lag_s=lag, keep=self.config.search_inflight,
                                rates=self.knowledge.sender_rates(now=now, lag_s=lag,
-                                                                 window_s=window_s))
+                                                                 window_s=window_s),
+                               settle_versions=True)  # issue 18 round 5
         unheard_s = self.config.plan_unheard_s
         if unheard_s is not None and now - self._started <= unheard_s:
             view = self.unheard.add_to(view, self.spec, now=now,
@@ -274,6 +279,8 @@ class Middleware:
             self.counters["fallback"] += 1
         else:
             option, reason = result.option, "mcts-exact" if result.exhausted else "mcts"
+            if self.config.price_bytes and message.versions:  # issue 18 round 5, gate.py
+                option = priced_option(problem, level, option, search.lam)
         if option == 0 and view.root_window and self._invisible(message.type, now) \
                 and _dense_enough(problem, level, search.lam):
             # What the tree would do if the fleet, knowing of this stream, had left room:

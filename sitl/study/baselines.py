@@ -44,7 +44,8 @@ __all__ = ["KnapsackFill", "image_fleet", "main", "run_one"]
 
 POLICIES = ("mcts300", "mcts300ks", "greedy", "knapsack", "knapsack-fill", "random")
 """mcts300ks: the same MCTS seeded with the knapsack-greedy plan (``knapsack_seed``); any
-``mcts<N>[ks][m]`` runs with ``run_one`` (m: ``learn_margin``)."""
+``mcts<N>[ks][m][c]`` runs with ``run_one`` (m: ``learn_margin``; c: forecasts are copies
+of each stream's last message, the model before the spread forecasts of round 5)."""
 IMAGE_VERSIONS = (Version(name="full", size=40_000, quality=1.0),
                   Version(name="half", size=10_000, quality=0.5),
                   Version(name="quarter", size=2_500, quality=0.25))
@@ -91,9 +92,9 @@ def image_fleet(make_policy: Callable[[str, int], Policy], *, n: int = 4,
 
 
 def _mcts_name(name: str) -> tuple[int, str]:
-    """``mcts<iterations>[ks][m]``: ks seeds the search with knapsack-greedy's plan, m plans
-    with the overshoot margin (``learn_margin``)."""
-    digits = name[4:].rstrip("ksm")
+    """``mcts<iterations>[ks][m][c]``: ks seeds the search with knapsack-greedy's plan, m plans
+    with the overshoot margin (``learn_margin``), c forecasts copies of the last message."""
+    digits = name[4:].rstrip("ksmc")
     return int(digits), name[4 + len(digits):]
 
 
@@ -107,8 +108,11 @@ def _policy(name: str, param: float, *, spec: MissionSpec, agent: str, index: in
         config = MiddlewareConfig(spec=spec, agent=agent, max_iterations=iterations,
                                   horizon_s=horizon_s, knapsack_seed="ks" in suffix,
                                   learn_margin="m" in suffix.replace("ks", ""))
-        return Middleware(config, rng=np.random.default_rng([seed, index]),
-                          constraint=constraint())
+        middleware = Middleware(config, rng=np.random.default_rng([seed, index]),
+                                constraint=constraint())
+        if suffix.endswith("c"):
+            middleware.knowledge.forecaster.worth = None
+        return middleware
     if name == "random":
         return RandomDrop(param, rng=np.random.default_rng([seed, index, 1]))
     if name == "greedy":
