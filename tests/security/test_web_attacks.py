@@ -128,3 +128,11 @@ async def test_bad_bodies_get_a_short_error_without_a_traceback(
         assert resp.status in (200, 400, 409, 422), (path, body, resp.status)
         text = await resp.text()
         assert "Traceback" not in text and "File \"" not in text, text
+
+
+def test_secure_defaults() -> None:
+    """Loopback only, no key, no public reads unless the operator says so."""
+    config = GroundConfig()
+    assert (config.http_host, config.udp_host) == ("127.0.0.1", "127.0.0.1")
+    assert config.fleet_key is None and config.command_key is None
+    assert not config.public_read
