@@ -119,7 +119,11 @@ async def test_login_cookie_is_httponly_and_strict(gs_client: TestClient[Any, An
 
 
 @pytest.mark.parametrize("body", [b"{", b"[]", b'{"delay_s": "NaN"}', b'{"delay_s": 1e999}',
-                                  b"\xff\xfe", b'{"name": "' + b"\\ud800" + b'"}'])
+                                  b"\xff\xfe", b'{"name": "' + b"\\ud800" + b'"}',
+                                  b'{"a": ' + b"[" * 200_000 + b"]" * 200_000 + b"}",
+                                  b'{"delay_s": [1]}', b'{"t_exec": true}',
+                                  b'{"params": {"alpha": [[{}]]}}', b'{"when": "at 99:99"}',
+                                  b'{"params": "' + b"a=" * 1000 + b'"}', b'{"delay_s": -1e308}'])
 async def test_bad_bodies_get_a_short_error_without_a_traceback(
         gs_client: TestClient[Any, Any], body: bytes) -> None:
     for path in ("/api/mission/start", "/api/mission/params"):
