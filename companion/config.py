@@ -22,6 +22,7 @@ from companion.protocol.errors import LocalProtocolError
 from companion.protocol.signing import decode_key_text
 from companion.protocol.wire import MAX_ID_BYTES, MIN_KEY_BYTES
 from companion.scoring import SCORERS
+from companion.secret_files import UnsafeKeyFile, read_secret
 
 __all__ = [
     "DEFAULT_CONFIG_PATH",
@@ -181,7 +182,9 @@ def _fleet_key(t: Table, base: Path) -> bytes | None:
     key_text = t.string("fleet_key", None)
     if key_file is not None:
         try:
-            key = _resolve(key_file, base).read_bytes().strip()
+            key = read_secret(_resolve(key_file, base)).strip()
+        except UnsafeKeyFile as exc:
+            t.fail("fleet_key_file", "a key file only its owner can read", str(exc))
         except OSError as exc:
             t.fail("fleet_key_file", "a readable key file", f"{key_file} ({exc.strerror})")
     elif key_text is not None:

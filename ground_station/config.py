@@ -14,8 +14,11 @@ from typing import Any
 from companion.protocol.errors import LocalProtocolError
 from companion.protocol.signing import KEY_BYTES, decode_key_text
 from companion.protocol.wire import MIN_KEY_BYTES
+from companion.secret_files import UnsafeKeyFile, read_secret
 
 __all__ = ["ConfigError", "GroundConfig", "load_config", "missing_keys"]
+
+_PRIVATE = "a key file only its owner can read"
 
 
 class ConfigError(ValueError):
@@ -223,14 +226,18 @@ def config_from_mapping(raw: dict[str, Any], *, file: str = "<config>") -> Groun
             path = Path(str(value)).expanduser()
             path = path if path.is_absolute() else base / path
             try:
-                values["fleet_key"] = path.read_bytes().strip()
+                values["fleet_key"] = read_secret(path).strip()
+            except UnsafeKeyFile as exc:
+                raise ConfigError(file, key, _PRIVATE, str(exc)) from exc
             except OSError as exc:
                 raise ConfigError(file, key, "a readable key file", str(exc)) from exc
         elif key == "command_key_file":
             path = Path(str(value)).expanduser()
             path = path if path.is_absolute() else base / path
             try:
-                values["command_key"] = decode_key_text(path.read_bytes(), "command key")
+                values["command_key"] = decode_key_text(read_secret(path), "command key")
+            except UnsafeKeyFile as exc:
+                raise ConfigError(file, key, _PRIVATE, str(exc)) from exc
             except OSError as exc:
                 raise ConfigError(file, key, "a readable key file", str(exc)) from exc
             except LocalProtocolError as exc:
@@ -276,9 +283,9 @@ def missing_keys(config: GroundConfig) -> GroundConfig | str:
     changes: dict[str, bytes] = {}
     try:
         if config.fleet_key is None and files.fleet_key.is_file():
-            changes["fleet_key"] = files.fleet_key.read_bytes().strip()
+            changes["fleet_key"] = read_secret(files.fleet_key).strip()
         if config.command_key is None and files.command_key.is_file():
-            changes["command_key"] = decode_key_text(files.command_key.read_bytes(),
+            changes["command_key"] = decode_key_text(read_secret(files.command_key),
                                                      "command key")
         config = config.with_overrides(**changes) if changes else config
     except (OSError, LocalProtocolError, ConfigError) as exc:

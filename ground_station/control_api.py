@@ -31,7 +31,7 @@ async def _body(request: web.Request) -> dict[str, Any]:
         return {}
     try:
         body = await request.json()
-    except (json.JSONDecodeError, UnicodeDecodeError):
+    except (ValueError, RecursionError):  # bad JSON or text; nesting deeper than Python's stack
         raise web.HTTPBadRequest(
             text=json.dumps({"error": "body must be a JSON object"}),
             content_type="application/json",

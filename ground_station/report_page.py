@@ -3,18 +3,22 @@
 Utility here is what the station received: the summed utility weight (eq. 7.1/7.2 times the
 version's quality, the gallery's U) of each drone's images per ``bin_s`` of reception time.
 ``GET /report`` is the page, ``GET /api/report`` its numbers, ``GET /api/report.png`` the
-plot, also written to ``DATA_DIR/missions/MISSION/utility.png``; ``uav-sitl fleet`` writes
+plot, also written to ``DATA_DIR/missions/MISSION/utility.png`` when the station holds data
+of that mission (a read never creates files for made-up names); ``uav-sitl fleet`` writes
 the same PNG into its run folder at the end (:func:`write_png`).
 """
 
 from __future__ import annotations
 
 import asyncio
+import io
 import sqlite3
 from pathlib import Path
 from typing import Any
 
 from aiohttp import web
+
+from ground_station.storage_records import safe_name
 
 __all__ = ["add_report_routes", "render_png", "utility_series", "write_png"]
 
@@ -56,8 +60,8 @@ def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S
                        for d, v in sorted(drones.items())}}
 
 
-def render_png(series: dict[str, Any], path: Path) -> Path:
-    """Draw the series into ``path`` (matplotlib, no display)."""
+def render_png(series: dict[str, Any], path: Path | None) -> bytes:
+    """Draw the series (matplotlib, no display); also written to ``path`` unless None."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -74,10 +78,14 @@ def render_png(series: dict[str, Any], path: Path) -> Path:
     if series["drones"]:
         ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    out = io.BytesIO()
+    fig.savefig(out, format="png")
     plt.close(fig)
-    return path
+    body = out.getvalue()
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(body)
+    return body
 
 
 def write_png(db_path: Path, mission: str, path: Path) -> Path | None:
@@ -89,7 +97,8 @@ def write_png(db_path: Path, mission: str, path: Path) -> Path | None:
         series = utility_series(con, mission)
     finally:
         con.close()
-    return render_png(series, path)
+    render_png(series, path)
+    return path
 
 
 def add_report_routes(app: web.Application, *, static_dir: Path) -> None:
@@ -111,11 +120,12 @@ def add_report_routes(app: web.Application, *, static_dir: Path) -> None:
     async def png(request: web.Request) -> web.Response:
         series = await series_of(request)
         config = request.app[CONFIG]
-        if "/" in series["mission"] or series["mission"].startswith("."):
-            raise web.HTTPBadRequest(text="bad mission name")
-        path = Path(config.data_dir) / "missions" / series["mission"] / "utility.png"
+        # A GET writes nothing for a mission the station never heard of: any query string
+        # would otherwise create a folder and a file (disk filling by reads, path tricks).
+        path = (Path(config.data_dir) / "missions" / safe_name(series["mission"])
+                / "utility.png") if series["drones"] else None
         body = await asyncio.get_running_loop().run_in_executor(
-            None, lambda: render_png(series, path).read_bytes())
+            None, lambda: render_png(series, path))
         return web.Response(body=body, content_type="image/png",
                             headers={"Cache-Control": "no-cache"})
 

@@ -127,7 +127,8 @@ class DecoderLimits:
     max_senders: int = 256
     """Senders whose replay state is kept (least recently heard evicted)."""
     max_pending_events: int = 10_000
-    """Events kept for ``next_event``; the oldest is dropped (and counted) beyond this."""
+    """Events kept for ``next_event``; beyond this a drop notice is discarded first, then the
+    oldest event (counted in ``events_overflow``)."""
     recent_messages: int = 4096
     """Completed or expired messages remembered so their late fragments are dropped."""
 
@@ -294,6 +295,8 @@ class Decoder:
         self.limits = limits or DecoderLimits()
         self.counters: dict[str, int] = dict.fromkeys(COUNTER_NAMES, 0)
         self._events: deque[Event] = deque()
+        self._queued_drops = 0
+        """How many of ``_events`` are PacketDropped (they give way first on overflow)."""
         self._partials: OrderedDict[MessageKey, _Partial] = OrderedDict()
         self._buffered = 0
         self._recent: OrderedDict[MessageKey, None] = OrderedDict()
@@ -327,7 +330,12 @@ class Decoder:
 
     def next_event(self) -> Event | None:
         """The oldest pending event, or ``None``."""
-        return self._events.popleft() if self._events else None
+        if not self._events:
+            return None
+        event = self._events.popleft()
+        if isinstance(event, PacketDropped):
+            self._queued_drops -= 1
+        return event
 
     def get_timer(self) -> float | None:
         """Absolute time of the next reassembly timeout, or ``None`` without partials."""
@@ -822,10 +830,26 @@ class Decoder:
         self._emit(PacketDropped(reason=reason, detail=detail, addr=addr))
 
     def _emit(self, event: Event) -> None:
-        if len(self._events) >= self.limits.max_pending_events:
-            self._events.popleft()
+        """Queue ``event``. When the queue is full, a drop notice gives way before anything
+        delivered: a flood of forged datagrams in one batch must not push an authenticated
+        message's event out (its drops stay counted in ``counters`` either way)."""
+        events = self._events
+        dropped = isinstance(event, PacketDropped)
+        if len(events) >= self.limits.max_pending_events:
             self.counters["events_overflow"] += 1
-        self._events.append(event)
+            if dropped:
+                return
+            if self._queued_drops:
+                for i, old in enumerate(events):
+                    if isinstance(old, PacketDropped):
+                        del events[i]
+                        self._queued_drops -= 1
+                        break
+            else:
+                events.popleft()
+        events.append(event)
+        if dropped:
+            self._queued_drops += 1
 
 
 def _versions(raw: Any) -> tuple[Version, ...]:

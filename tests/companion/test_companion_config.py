@@ -87,6 +87,7 @@ def test_missing_file_and_bad_toml(tmp_path: Path) -> None:
 
 def test_relative_paths_and_key_file(tmp_path: Path) -> None:
     (tmp_path / "fleet.key").write_bytes(b"0123456789abcdef-secret\n")
+    (tmp_path / "fleet.key").chmod(0o600)  # a secret others may read is refused
     path = _write(tmp_path, '[drone]\nid = "d"\n[mission]\nspec = "spec.toml"\n'
                             'log = "logs/m.jsonl"\n[ground_station]\n'
                             'fleet_key_file = "fleet.key"\n')

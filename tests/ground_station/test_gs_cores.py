@@ -190,6 +190,7 @@ async def test_slow_client_drops_oldest_and_never_blocks() -> None:
 def test_config_from_toml(tmp_path: Path) -> None:
     key = tmp_path / "fleet.key"
     key.write_text("0123456789abcdef-key\n")
+    key.chmod(0o600)  # a secret others may read is refused (tests/security/test_key_files.py)
     path = tmp_path / "gs.toml"
     path.write_text(
         '[ground_station]\nfleet_id = 9\nfleet_key_file = "fleet.key"\ndata_dir = "data"\n'

@@ -1,0 +1,36 @@
+"""Reading secret key files the way ssh does: refuse one that others may read.
+
+A fleet key (HMAC) or a command key (Ed25519 seed) readable by group or others is a key
+another local user may already have copied; starting with it would hide that. The check is
+on the file as opened (no race between the check and the read).
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+
+__all__ = ["UnsafeKeyFile", "read_secret"]
+
+
+class UnsafeKeyFile(OSError):
+    """The key file is readable or writable by group/others (or not a regular file)."""
+
+
+def read_secret(path: Path) -> bytes:
+    """The bytes of a secret key file; raises :class:`UnsafeKeyFile` when its mode lets
+    anyone but the owner read or change it, OSError when it cannot be read."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise UnsafeKeyFile(f"{path} is not a regular file")
+        mode = stat.S_IMODE(info.st_mode)
+        if mode & 0o077:
+            raise UnsafeKeyFile(
+                f"{path} has mode {mode:04o}: others may read it (chmod 600 {path})")
+        with os.fdopen(os.dup(fd), "rb") as handle:
+            return handle.read()
+    finally:
+        os.close(fd)

@@ -1,0 +1,99 @@
+"""Secret key files others may read are refused, by both console scripts, with one line on
+stderr and exit 2 (like ssh with a private key of mode 0644); wrong contents likewise."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.keys import write_test_keys
+
+BIN = Path(sys.executable).parent
+
+
+def _run(*argv: str) -> subprocess.CompletedProcess[str]:
+    tool = BIN / argv[0]
+    if not tool.exists():
+        pytest.skip(f"{argv[0]} is not installed in this environment (pip install -e .)")
+    return subprocess.run([str(tool), *argv[1:]], capture_output=True, text=True, timeout=60)
+
+
+def _one_line_error(result: subprocess.CompletedProcess[str], fragment: str) -> None:
+    assert result.returncode == 2, (result.returncode, result.stderr)
+    assert "Traceback" not in result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, result.stderr
+    assert fragment in lines[0], lines[0]
+
+
+@pytest.mark.parametrize(("name", "key"), [("fleet.key", "fleet_key_file"),
+                                           ("command.key", "command_key_file")])
+def test_station_refuses_a_key_others_can_read(tmp_path: Path, name: str, key: str) -> None:
+    keys = write_test_keys(tmp_path / "keys")
+    (keys / name).chmod(0o644)
+    config = tmp_path / "gs.toml"
+    config.write_text('[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
+                      'command_key_file = "keys/command.key"\n')
+    result = _run("uav-ground-station", "run", "--config", str(config), "--data-dir",
+                  str(tmp_path / "data"), "--udp-port", "0", "--http-port", "0")
+    _one_line_error(result, f"has mode 0644: others may read it (chmod 600 {keys / name})")
+    assert key in result.stderr
+
+
+def test_station_refuses_keys_others_can_read_in_the_data_dir(tmp_path: Path) -> None:
+    keys = write_test_keys(tmp_path / "data" / "keys")
+    (keys / "command.key").chmod(0o640)
+    result = _run("uav-ground-station", "run", "--data-dir", str(tmp_path / "data"),
+                  "--udp-port", "0", "--http-port", "0")
+    _one_line_error(result, "has mode 0640: others may read it")
+
+
+def test_companion_refuses_a_fleet_key_others_can_read(tmp_path: Path) -> None:
+    keys = write_test_keys(tmp_path / "keys")
+    (keys / "fleet.key").chmod(0o604)
+    config = tmp_path / "companion.toml"
+    config.write_text('[drone]\nid = "d1"\n[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
+                      'command_public_key_file = "keys/command.pub"\n')
+    result = _run("uav-companion", "check", "--config", str(config), "--skip-mavlink",
+                  "--skip-camera")
+    _one_line_error(result, "ground_station.fleet_key_file: expected a key file only its owner")
+
+
+@pytest.mark.parametrize(("content", "fragment"), [
+    (b"short\n", "fleet_key"),
+    (b"", "fleet_key"),
+])
+def test_station_refuses_a_fleet_key_of_the_wrong_length(tmp_path: Path, content: bytes,
+                                                         fragment: str) -> None:
+    keys = write_test_keys(tmp_path / "keys")
+    (keys / "fleet.key").write_bytes(content)
+    config = tmp_path / "gs.toml"
+    config.write_text('[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
+                      'command_key_file = "keys/command.key"\n')
+    result = _run("uav-ground-station", "run", "--config", str(config), "--data-dir",
+                  str(tmp_path / "data"), "--udp-port", "0", "--http-port", "0")
+    _one_line_error(result, fragment)
+
+
+def test_station_refuses_a_command_key_of_the_wrong_length(tmp_path: Path) -> None:
+    keys = write_test_keys(tmp_path / "keys")
+    (keys / "command.key").write_bytes(b"QUJD\n")  # base64 of 3 bytes
+    config = tmp_path / "gs.toml"
+    config.write_text('[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
+                      'command_key_file = "keys/command.key"\n')
+    result = _run("uav-ground-station", "run", "--config", str(config), "--data-dir",
+                  str(tmp_path / "data"), "--udp-port", "0", "--http-port", "0")
+    _one_line_error(result, "command_key_file")
+
+
+@pytest.mark.parametrize("text", ['[ground_station]\nbogus = 1\n', "[ground_station\n",
+                                  '[ground_station]\nhttp_port = "x"\n'])
+def test_station_bad_config_is_one_line(tmp_path: Path, text: str) -> None:
+    config = tmp_path / "gs.toml"
+    config.write_text(text)
+    result = _run("uav-ground-station", "run", "--config", str(config), "--data-dir",
+                  str(tmp_path / "data"))
+    _one_line_error(result, str(config))
