@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 
 from sitl.fleet.processes import FleetError, Stop
-from sitl.fleet.warmup import warm_drones, wait_for_warm_up
+from sitl.fleet.warmup import wait_for_warm_up, warm_drones
 
 
 def _fleet(**ready: bool | None) -> dict[str, Any]:
