@@ -14,10 +14,10 @@ import json
 import logging
 import math
 from collections.abc import Callable, Mapping, MutableMapping
-from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 from companion.config import CompanionConfig
+from companion.decider_thread import DeciderThread
 from companion.linkhealth import LinkHealth
 from companion.middleware.decider import COMPANION_ALWAYS_SEND
 from companion.mission import MissionWindow
@@ -60,7 +60,7 @@ class Dispatcher:
         self._log = mission_log
         self._mission = mission
         self._seq = 0
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="decide")
+        self._pool = DeciderThread("decide")  # a daemon: a stop never waits for a compile
         self._timer: asyncio.TimerHandle | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stopping: asyncio.Event | None = None
