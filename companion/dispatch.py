@@ -14,10 +14,10 @@ import json
 import logging
 import math
 from collections.abc import Callable, Mapping, MutableMapping
-from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 from companion.config import CompanionConfig
+from companion.decider_thread import DeciderThread
 from companion.linkhealth import LinkHealth
 from companion.middleware.decider import COMPANION_ALWAYS_SEND
 from companion.mission import MissionWindow
@@ -60,15 +60,18 @@ class Dispatcher:
         self._log = mission_log
         self._mission = mission
         self._seq = 0
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="decide")
+        self._pool = DeciderThread("decide")  # a daemon: a stop never waits for a compile
         self._timer: asyncio.TimerHandle | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stopping: asyncio.Event | None = None
         self.health = LinkHealth()
+        """Δ and loss of this drone's own link, for its status messages."""
         self._warming = False
         """The optimiser's warm-up (numba compilation: up to seconds on a cold cache) runs:
         only the status heartbeat goes out, so the station does not see the drone vanish."""
-        """Δ and loss of this drone's own link, for its status messages."""
+        self.optimiser_ready = False
+        """The warm-up is over (or the decider has none): the statuses say so, and the fleet
+        launcher starts the mission only once every drone's optimiser is ready."""
 
     # -- life cycle -------------------------------------------------------------------------
 
@@ -96,7 +99,14 @@ class Dispatcher:
         return self._stopping is not None and not self._stopping.is_set()
 
     async def warm_up(self) -> None:
-        """Run the decider's optional ``warm_up`` in its executor; a stop request wins."""
+        """Run the decider's optional ``warm_up`` in its executor; a stop request wins.
+        Afterwards :attr:`optimiser_ready` is true, however the warm-up ended."""
+        try:
+            await self._warm_up()
+        finally:
+            self.optimiser_ready = True
+
+    async def _warm_up(self) -> None:
         warm_up = getattr(self.decider, "warm_up", None)
         stopping = self._stopping
         if warm_up is None or stopping is None:

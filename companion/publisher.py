@@ -145,7 +145,8 @@ class TelemetryPublisher:
         data: dict[str, Any] = {"mode": snap.mode, "armed": snap.armed,
                                 "connected": snap.connected, "since": self._since,
                                 "failsafe": snap.system_status in FAILSAFE_STATES,
-                                "mission": self._mission.state, "autopilot": snap.autopilot}
+                                "mission": self._mission.state, "autopilot": snap.autopilot,
+                                "optimiser_ready": self._dispatcher.optimiser_ready}
         if snap.gps_fix_type is not None:
             data["fix_type"] = snap.gps_fix_type
         xi = self._dispatcher.constraint_limit()

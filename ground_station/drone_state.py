@@ -81,6 +81,8 @@ class DroneState:
     link_lost: bool = False
     failsafe: bool | None = None
     autopilot_connected: bool | None = None
+    optimiser_ready: bool | None = None
+    """The drone's optimiser has warmed up (numba compiled); None: its statuses do not say."""
     no_position: bool = False
     """The newest word on the position is "none" (no fix, no estimator origin)."""
     peers: dict[str, float] | None = None

@@ -174,6 +174,9 @@ class FleetView:
         connected = data.get("connected")
         if isinstance(connected, bool) and newer("autopilot_connected"):
             state.autopilot_connected = connected
+        ready = data.get("optimiser_ready")
+        if isinstance(ready, bool) and newer("optimiser_ready"):
+            state.optimiser_ready = ready
         fix = first_number(data, "gps_fix", "fix_type", "fix")
         if fix is not None and newer("gps_fix"):
             state.gps_fix = int(fix)
@@ -355,6 +358,7 @@ class FleetView:
             "link_lost": state.link_lost,
             "failsafe": state.failsafe,
             "autopilot_connected": state.autopilot_connected,
+            "optimiser_ready": state.optimiser_ready,
             "no_position": state.no_position,
             "peers": _peer_ages(state, now),
             "ages": ages,

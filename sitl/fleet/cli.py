@@ -64,6 +64,10 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--ready-timeout", type=float, default=90.0,
                    help="seconds to wait for every drone to be heard (default 90)")
+    p.add_argument("--warm-up-timeout", type=float, default=180.0, metavar="S",
+                   help="then wait this long for every companion's optimiser to warm up "
+                        "(numba compiles on a cold cache); after it, start anyway "
+                        "(default 180)")
     p.add_argument("--start-delay", type=float, default=1.0,
                    help="the mission starts this many seconds after the command (default 1)")
     p.add_argument("--http-port", type=int, default=0,
@@ -101,6 +105,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
         p.error("--drones must be in 1..64")
     if args.duration < 0:
         p.error("--duration must be >= 0")
+    if not args.warm_up_timeout >= 0:
+        p.error("--warm-up-timeout must be >= 0")
     if not 0.0 <= args.first_fix < 1e6:
         p.error("--first-fix must be a number of seconds >= 0")
     if not 0.0 <= args.drop_probability <= 1.0:

@@ -19,6 +19,7 @@ from sitl.fleet.netns import FleetNetns, Loopback
 from sitl.fleet.plan import make_plan
 from sitl.fleet.processes import Child, FleetError, Processes, Stop, signal_group, tool, wait
 from sitl.fleet.summary import evaluate_utility, finite, format_summary, summarize, write_report_png
+from sitl.fleet.warmup import wait_for_warm_up
 from sitl.fleet_config import DroneSlot, mavlink_host, write_run_configs
 
 
@@ -112,6 +113,14 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
 
         wait(stop, f"{args.drones} drones to be heard", args.ready_timeout, all_heard,
               [*station, *vehicles, *companions])
+        cold = wait_for_warm_up(lambda: _try(lambda: api.get("/api/fleet")),
+                                [s.drone_id for s in plan.drones], stop=stop,
+                                timeout_s=args.warm_up_timeout, out=out,
+                                watch=[*station, *vehicles, *companions])
+        if cold:  # they send statuses only until warm; the others need not wait for them
+            print(f"uav-sitl fleet: WARNING: {', '.join(cold)} still warming up after "
+                  f"{args.warm_up_timeout:g} s (optimiser compiling); starting the mission "
+                  "anyway: they send images once warm", file=sys.stderr)
         t_exec = time.time() + args.start_delay
         if _try(lambda: api.post("/api/mission/start", {"t_exec": t_exec})) is None:
             raise FleetError(f"the ground station did not take the start command; see "

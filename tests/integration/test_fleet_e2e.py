@@ -25,6 +25,8 @@ from typing import Any
 
 import pytest
 
+from tests.fleet_checks import summary_drones, warm_before_start, warm_up_progress
+
 FLEET = [sys.executable, "-m", "sitl.cli", "fleet"]
 LIGHT = ["--rate", "3", "--mcts-iterations", "150"]
 """Three frames/s per drone and a smaller search keep the 2 shared cores usable."""
@@ -93,6 +95,9 @@ def _fleet(run_dir: Path, *args: str, timeout_s: float = 240.0) -> dict[str, Any
     print(proc.stdout[-3000:])
     assert proc.returncode == 0, f"stdout:\n{proc.stdout[-3000:]}\nstderr:\n{proc.stderr[-3000:]}"
     _no_orphans(run_dir)
+    for name in summary_drones(run_dir):  # the mission started once every optimiser was warm
+        warm_before_start(run_dir, name)
+    warm_up_progress(proc.stdout, len(summary_drones(run_dir)))
     summary: dict[str, Any] = json.loads(summary_path.read_text())
     assert json.loads((run_dir / "summary.json").read_text()) == summary
     return summary

@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import math
 import struct
+from collections.abc import Callable
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -337,19 +338,30 @@ async def test_a_quiet_listener_keeps_its_stream_while_another_client_talks():
                                                    local_addr=("127.0.0.1", 0))
     talker, _ = await loop.create_datagram_endpoint(lambda: Client("talker"),
                                                     local_addr=("127.0.0.1", 0))
+    async def until(condition: Callable[[], bool], what: str) -> None:
+        """Wait on the effect, not a fixed time: a loaded CI machine may be slow to get there
+        (the vehicle streams several messages a second to every peer it keeps)."""
+        deadline = loop.time() + 20.0
+        while not condition():
+            assert loop.time() < deadline, what
+            await asyncio.sleep(0.02)
+
     try:
-        quiet.sendto(hb, ep.address)
-        await asyncio.sleep(0.2)
-        # Jump the protocol's idea of when the quiet one was heard 60 s into the past.
         peer = quiet.get_extra_info("sockname")
+        quiet.sendto(hb, ep.address)
+        await until(lambda: (peer[0], peer[1]) in ep.protocol.peers, "the quiet one unheard")
+        # Jump the protocol's idea of when the quiet one was heard 60 s into the past.
         ep.protocol.peers[(peer[0], peer[1])] -= 60.0
+        talker_addr = talker.get_extra_info("sockname")
         for _ in range(10):
             talker.sendto(hb, ep.address)
             await asyncio.sleep(0.1)
-        t_check = loop.time()
-        await asyncio.sleep(1.0)
-        assert any(t > t_check for t in got["talker"])
-        assert any(t > t_check for t in got["quiet"]), "the quiet listener was starved"
+        await until(lambda: (talker_addr[0], talker_addr[1]) in ep.protocol.peers,
+                    "the talker unheard")
+        t_check = loop.time()  # the talker has talked: a starving vehicle has dropped the other
+        await until(lambda: any(t > t_check for t in got["talker"]), "the talker got nothing")
+        await until(lambda: any(t > t_check for t in got["quiet"]),
+                    "the quiet listener was starved")
     finally:
         quiet.close()
         talker.close()
