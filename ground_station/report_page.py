@@ -73,7 +73,8 @@ def render_png(series: dict[str, Any], path: Path | None) -> bytes:
                 label=f"{drone} (total {d['total']:.0f})")
     ax.set_xlabel("mission time (s)")
     ax.set_ylabel(f"utility received per {series['bin_s']:g} s")
-    ax.set_title(f"mission {series['mission']}: utility over time per drone")
+    name = "".join(c if c.isprintable() else "?" for c in str(series["mission"]))[:80]
+    ax.set_title(f"mission {name}: utility over time per drone")
     ax.grid(alpha=0.3)
     if series["drones"]:
         ax.legend(loc="upper right", fontsize=8)
