@@ -53,7 +53,9 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--time-budget", type=float, default=0.05,
                    help="wall time per middleware decision in s (default 0.05)")
     p.add_argument("--alpha", type=float, default=None, help="α of eq. 7.1 (default: spec's)")
-    p.add_argument("--spec", default="image_streaming", help="mission spec name or TOML path")
+    p.add_argument("--spec", default=None,
+                   help="mission spec name or TOML path (default image_streaming; with --peers, "
+                        "peer_sharing)")
     p.add_argument("--speedup", type=float, default=1.0, help="vehicle simulation speed-up")
     p.add_argument("--flavour", choices=("px4", "ardupilot"), default="px4")
     p.add_argument("--first-fix", type=float, default=2.0, metavar="S",
@@ -99,7 +101,7 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
                    help="peer sharing (docs/peers.md): a broadcast medium (loopback, or the "
                         "--netns bridge), each "
                         "drone's peers in its autopilot (ADSB_VEHICLE) and at GET /peers; "
-                        "use a spec with receivers = [\"peers\"] (--spec peer_sharing)")
+                        "the spec defaults to peer_sharing (a spec with receivers = [\"peers\"])")
     args = p.parse_args(list(argv))
     if not 1 <= args.drones <= 64:
         p.error("--drones must be in 1..64")
@@ -138,6 +140,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     elif args.relay:  # thesis fig 7.4: a step of cross traffic at mid-mission
         args.background = Background(RELAY_BACKGROUND_SHARE * args.relay_rate,
                                      args.duration / 2 if args.duration else 60.0)
+    if args.spec is None:  # --peers alone must share something: a spec with a peers type
+        args.spec = "peer_sharing" if args.peers else "image_streaming"
     if args.constraint is None:
         shaped = args.netns or args.relay
         args.constraint = "adaptive" if shaped and args.goodput is None else "constant"

@@ -20,3 +20,11 @@ def test_each_learning_constraint_is_built_from_the_relay_parameters(name: str) 
 def test_the_fleet_offers_every_registered_constraint() -> None:
     for name in CONSTRAINTS:
         assert parse_args(["--constraint", name]).constraint == name
+
+
+def test_peers_alone_selects_a_spec_that_shares_with_peers() -> None:
+    """`uav-sitl fleet --peers` with the image-streaming spec shared nothing (no type has
+    peers among its receivers): every drone's peer list stayed empty."""
+    assert parse_args(["--peers"]).spec == "peer_sharing"
+    assert parse_args([]).spec == "image_streaming"
+    assert parse_args(["--peers", "--spec", "sync_swarm"]).spec == "sync_swarm"
