@@ -14,21 +14,14 @@ import argparse
 import os
 import sys
 import time
-from collections import defaultdict
 from typing import Any
 
-import numpy as np
-
-from sitl.study.peers import run_seed, table
+from sitl.study.peers import policy_means, run_seed, table
 
 
 def goals(rows: list[dict[str, Any]]) -> list[tuple[str, str, bool]]:
     """(goal, measured, met) for the total utility and the peers' mean position age."""
-    by: dict[str, list[dict[str, Any]]] = defaultdict(list)
-    for r in rows:
-        by[r["policy"]].append(r)
-    mean = {p: {k: float(np.mean([r[k] for r in rs]))
-                for k in ("utility_total_pct", "peer_age_mean_s")} for p, rs in by.items()}
+    mean = policy_means(rows)
     ours = mean["mcts"]
     out = []
     for p, m in mean.items():

@@ -236,15 +236,23 @@ def run_seed(seed: int, *, t_end: float, n: int = 4, iterations: int = 300,
     return rows
 
 
-def table(rows: Sequence[dict[str, Any]]) -> str:
-    """Mean over seeds per policy, and whether MCTS is at least every baseline's total."""
+TABLE_KEYS = ("delivered_bytes_per_s", "utility_drones_pct", "utility_ground_pct",
+              "utility_total_pct", "peer_age_mean_s", "peer_age_p95_s")
+
+
+def policy_means(rows: Sequence[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """Per policy, the mean over seeds of each :data:`TABLE_KEYS` column."""
     by: dict[str, list[dict[str, Any]]] = defaultdict(list)
     for r in rows:
         by[r["policy"]].append(r)
-    keys = ("delivered_bytes_per_s", "utility_drones_pct", "utility_ground_pct",
-            "utility_total_pct", "peer_age_mean_s", "peer_age_p95_s")
-    mean = {p: {k: float(np.mean([r[k] for r in rs])) for k in keys} for p, rs in by.items()}
-    seeds = len(by.get("mcts", []))
+    return {p: {k: float(np.mean([r[k] for r in rs])) for k in TABLE_KEYS}
+            for p, rs in by.items()}
+
+
+def table(rows: Sequence[dict[str, Any]]) -> str:
+    """Mean over seeds per policy, and whether MCTS is at least every baseline's total."""
+    mean = policy_means(rows)
+    seeds = sum(1 for r in rows if r["policy"] == "mcts")
     out = [f"peer sharing on a shared medium ({seeds} seeds, {rows[0]['drones']} drones, "
            f"{rows[0]['t_end']:g} s; baselines at the bytes MCTS delivered)", "",
            "| policy | delivered B/s | utility at drones % | at ground % | total % "
