@@ -142,6 +142,17 @@ class AdaptiveConstraint(LinkStatsConstraint):
         further for ``KNEE_HOLD_WINDOWS`` (a queue formed at the knee shows in one window),
         after which congestion that persists (more background, a slower link) gets the full
         SGD.
+    robust_backlog
+        Off (thesis-exact): ‖W‖_Δ from the window's mean latency (eq. 6.4/6.5). On: from its
+        median latency (:attr:`WindowStats.median_backlog_bytes_per_s`), for both the fit
+        and the knee memory. A queue the link cannot drain delays most messages of a window;
+        a latency glitch of the hosts does not: a stalled receiver releases a burst with a
+        ramp of latencies (90 ms down to 0 on the loaded veth link), scheduling jitter
+        delays single messages by 2-10 ms. Either lifts the mean over α for a whole window
+        at 2.5 Mbit/s, where α allows only ~2 ms of queueing, and each such window set a
+        spurious knee that ξ then crept towards (docs/adaptive.md). The median ignores any
+        glitch that touches fewer than half the window's messages; a real queue shows once
+        it has lasted half a window.
     window_s
         T of both the link statistics and the budget window (eq. 6.1).
     stats
@@ -163,6 +174,7 @@ class AdaptiveConstraint(LinkStatsConstraint):
         use_weighted: bool = False,
         knee_band: float = 0.0,
         knee_step: float = 0.01,
+        robust_backlog: bool = False,
         window_s: float = 2.5,
         base_window_s: float = 10.0,
         min_base_latency_s: float = 0.005,
@@ -178,6 +190,9 @@ class AdaptiveConstraint(LinkStatsConstraint):
             raise ConstraintError(f"min_coef must be >= 0, got {min_coef}")
         if not backlog_clip >= 1:
             raise ConstraintError(f"backlog_clip must be >= 1, got {backlog_clip}")
+        self.robust_backlog = bool(robust_backlog)
+        if self.robust_backlog:
+            self.stats.track_median = True
         self.min_coef = float(min_coef)
         self.backlog_clip = float(backlog_clip)
         self.use_weighted = bool(use_weighted)
@@ -250,12 +265,19 @@ class AdaptiveConstraint(LinkStatsConstraint):
             return self.min_bytes_per_s
         return min(self.max_bytes_per_s, max(self.min_bytes_per_s, xi))
 
+    def backlog_bytes_per_s(self, o: WindowStats) -> float:
+        """The window's ‖W‖_Δ as this constraint reads it (mean or, robust, median latency)."""
+        if self.robust_backlog and math.isfinite(o.median_backlog_bytes_per_s):
+            return o.median_backlog_bytes_per_s
+        return o.backlog_bytes_per_s
+
     def _learn(self, observations: list[WindowStats]) -> None:
         # One epoch of plain SGD over the batch, in order: one step per observation.
         scale = self.scale_bytes_per_s
         clip = self.backlog_clip * self.alpha_bytes_per_s
         x = np.array(
-            [[min(o.backlog_bytes_per_s, clip) / scale] for o in observations], dtype=np.float64
+            [[min(self.backlog_bytes_per_s(o), clip) / scale] for o in observations],
+            dtype=np.float64,
         )
         y = np.array([o.goodput_bytes_per_s / scale for o in observations], dtype=np.float64)
         xi_before = self.limit_bytes_per_s(now=0.0)  # ξ does not depend on now here
@@ -287,7 +309,7 @@ class AdaptiveConstraint(LinkStatsConstraint):
         xi = max(xi, 1e-9)
         weight = np.ones(len(observations))
         for i, o in enumerate(observations):
-            if o.backlog_bytes_per_s > self.alpha_bytes_per_s:
+            if self.backlog_bytes_per_s(o) > self.alpha_bytes_per_s:
                 # Congested: a full step; the episode's peak goodput is where the knee is.
                 if self._episode is None:
                     # The window that shows congestion first has already lost goodput: the

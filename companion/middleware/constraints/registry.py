@@ -30,7 +30,7 @@ CONSTRAINTS: Mapping[str, Callable[..., GoodputConstraint]] = {
     "adaptive": AdaptiveConstraint,
     "adaptive-thesis": functools.partial(AdaptiveConstraint, use_weighted=False, knee_band=0.0),
     "adaptive-smooth": functools.partial(AdaptiveConstraint, use_weighted=True, knee_band=0.05,
-                                         knee_step=0.01),
+                                         knee_step=0.01, robust_backlog=True),
     "aimd": AimdConstraint,
 }
 
