@@ -142,17 +142,13 @@ class AdaptiveConstraint(LinkStatsConstraint):
         further for ``KNEE_HOLD_WINDOWS`` (a queue formed at the knee shows in one window),
         after which congestion that persists (more background, a slower link) gets the full
         SGD.
-    robust_backlog
-        Off (thesis-exact): ‖W‖_Δ from the window's mean latency (eq. 6.4/6.5). On: from its
-        median latency (:attr:`WindowStats.median_backlog_bytes_per_s`), for both the fit
-        and the knee memory. A queue the link cannot drain delays most messages of a window;
-        a latency glitch of the hosts does not: a stalled receiver releases a burst with a
-        ramp of latencies (90 ms down to 0 on the loaded veth link), scheduling jitter
-        delays single messages by 2-10 ms. Either lifts the mean over α for a whole window
-        at 2.5 Mbit/s, where α allows only ~2 ms of queueing, and each such window set a
-        spurious knee that ξ then crept towards (docs/adaptive.md). The median ignores any
-        glitch that touches fewer than half the window's messages; a real queue shows once
-        it has lasted half a window.
+    queueing_budget_s
+        0 (thesis-exact): α is a fixed backlog. Above 0: α is raised, per window, to the
+        backlog this much queueing delay makes at the window's goodput, G·q/δ̂ (eq. 6.4), so
+        the tolerated queueing never shrinks below it as the link gets faster. A fixed α
+        tolerates q = α·δ̂/G: 5 ms at 1 Mbit/s with the real-link α, but 2 ms at 2.5 Mbit/s,
+        inside the 2-10 ms latency noise of a loaded host, where every noisy window read as
+        congestion (docs/adaptive.md). Below the rate where G·q/δ̂ = α nothing changes.
     window_s
         T of both the link statistics and the budget window (eq. 6.1).
     stats
@@ -174,7 +170,7 @@ class AdaptiveConstraint(LinkStatsConstraint):
         use_weighted: bool = False,
         knee_band: float = 0.0,
         knee_step: float = 0.01,
-        robust_backlog: bool = False,
+        queueing_budget_s: float = 0.0,
         window_s: float = 2.5,
         base_window_s: float = 10.0,
         min_base_latency_s: float = 0.005,
@@ -190,9 +186,9 @@ class AdaptiveConstraint(LinkStatsConstraint):
             raise ConstraintError(f"min_coef must be >= 0, got {min_coef}")
         if not backlog_clip >= 1:
             raise ConstraintError(f"backlog_clip must be >= 1, got {backlog_clip}")
-        self.robust_backlog = bool(robust_backlog)
-        if self.robust_backlog:
-            self.stats.track_median = True
+        if not queueing_budget_s >= 0:
+            raise ConstraintError(f"queueing_budget_s must be >= 0, got {queueing_budget_s}")
+        self.queueing_budget_s = float(queueing_budget_s)
         self.min_coef = float(min_coef)
         self.backlog_clip = float(backlog_clip)
         self.use_weighted = bool(use_weighted)
@@ -226,6 +222,9 @@ class AdaptiveConstraint(LinkStatsConstraint):
             if not math.isfinite(value):
                 raise ConstraintError(f"{name} must be finite, got {value}")
         self.alpha_bytes_per_s = float(alpha_bytes_per_s)
+        self.alpha_now_bytes_per_s = self.alpha_bytes_per_s
+        """α as of the last learned window (above ``alpha_bytes_per_s`` only with
+        ``queueing_budget_s``): ξ = R(α_now)."""
         self.min_bytes_per_s = float(min_bytes_per_s)
         self.max_bytes_per_s = float(max_bytes_per_s)
         self.scale_bytes_per_s = float(scale_bytes_per_s)
@@ -260,23 +259,25 @@ class AdaptiveConstraint(LinkStatsConstraint):
     def limit_bytes_per_s(self, *, now: float) -> float:
         """ξ(t) = R_t(α) clamped to [min, max] (eq. 6.7)."""
         del now
-        xi = self.predict_bytes_per_s(self.alpha_bytes_per_s)
+        xi = self.predict_bytes_per_s(self.alpha_now_bytes_per_s)
         if not math.isfinite(xi):
             return self.min_bytes_per_s
         return min(self.max_bytes_per_s, max(self.min_bytes_per_s, xi))
 
-    def backlog_bytes_per_s(self, o: WindowStats) -> float:
-        """The window's ‖W‖_Δ as this constraint reads it (mean or, robust, median latency)."""
-        if self.robust_backlog and math.isfinite(o.median_backlog_bytes_per_s):
-            return o.median_backlog_bytes_per_s
-        return o.backlog_bytes_per_s
+    def alpha_for(self, o: WindowStats) -> float:
+        """α for window ``o``: the fixed α, or the backlog ``queueing_budget_s`` makes."""
+        if self.queueing_budget_s == 0:
+            return self.alpha_bytes_per_s
+        divisor = max(o.base_latency_s, self.stats.min_base_latency_s)
+        return max(self.alpha_bytes_per_s,
+                   o.goodput_bytes_per_s * self.queueing_budget_s / divisor)
 
     def _learn(self, observations: list[WindowStats]) -> None:
         # One epoch of plain SGD over the batch, in order: one step per observation.
         scale = self.scale_bytes_per_s
-        clip = self.backlog_clip * self.alpha_bytes_per_s
         x = np.array(
-            [[min(self.backlog_bytes_per_s(o), clip) / scale] for o in observations],
+            [[min(o.backlog_bytes_per_s, self.backlog_clip * self.alpha_for(o)) / scale]
+             for o in observations],
             dtype=np.float64,
         )
         y = np.array([o.goodput_bytes_per_s / scale for o in observations], dtype=np.float64)
@@ -292,13 +293,14 @@ class AdaptiveConstraint(LinkStatsConstraint):
         if self.model.coef_[0] < self.min_coef:
             # Projected SGD onto increasing models: see the class docstring.
             self.model.coef_[0] = self.min_coef
+        self.alpha_now_bytes_per_s = self.alpha_for(observations[-1])
         if self.knee_band > 0 and self._episode is not None:
             # A new congestion episode takes ξ to just under what the link delivered, not
             # further, until it has lasted KNEE_HOLD_WINDOWS (then the link really has less).
             start, peak, xi_start = self._episode
             if observations[-1].t_end - start <= KNEE_HOLD_WINDOWS * self.window_s:
                 floor = min((1 - self.knee_band) * min(peak, xi_start), xi_before)
-                xi = self.predict_bytes_per_s(self.alpha_bytes_per_s)
+                xi = self.predict_bytes_per_s(self.alpha_now_bytes_per_s)
                 if xi < floor:
                     self.model.intercept_[0] += (floor - xi) / scale
 
@@ -309,7 +311,7 @@ class AdaptiveConstraint(LinkStatsConstraint):
         xi = max(xi, 1e-9)
         weight = np.ones(len(observations))
         for i, o in enumerate(observations):
-            if self.backlog_bytes_per_s(o) > self.alpha_bytes_per_s:
+            if o.backlog_bytes_per_s > self.alpha_for(o):
                 # Congested: a full step; the episode's peak goodput is where the knee is.
                 if self._episode is None:
                     # The window that shows congestion first has already lost goodput: the

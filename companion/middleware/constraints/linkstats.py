@@ -17,7 +17,6 @@ base-latency minimum and the mean latency are always on the same footing.
 from __future__ import annotations
 
 import math
-import statistics
 from collections import deque
 from dataclasses import dataclass
 from typing import Self
@@ -68,9 +67,6 @@ class WindowStats:
     """‖W‖_Δ = ‖W‖_G·‖W‖_L/δ̂ − ‖W‖_G (eq. 6.4), bytes per second (≥ 0; δ̂ floored)."""
     warm: bool
     """True once observations span at least one whole window (before, G is too low)."""
-    median_backlog_bytes_per_s: float = math.nan
-    """‖W‖_Δ with the window's *median* latency in place of the mean: the backlog most of
-    the window's messages saw. NaN unless the :class:`LinkStats` has ``track_median``."""
 
     @property
     def queueing_delay_s(self) -> float:
@@ -152,10 +148,23 @@ class ClockOffsetEstimator:
         # minimum-delay round trip of the history (sliding-window minimum).
         self._best: deque[tuple[float, float, float]] = deque()
         self._times: deque[float] = deque()
+        self.rejected = 0
+        """Round trips ignored because their delay was negative (impossible stamps)."""
 
     def update(self, round_trip: RoundTrip) -> Self:
-        """Add one round trip (assumed to arrive in order of ``t_rcv``)."""
-        t, delay = round_trip.t_rcv, round_trip.delay_s
+        """Add one round trip (assumed to arrive in order of ``t_rcv``).
+
+        A round trip shorter than the receiver's hold time ((t4 − t1) < (t3 − t2)) cannot
+        happen; a late t1/t3 or an early t4 stamp made it (a process that stamped a report's
+        arrival before draining its socket, on a loaded host). Its delay would read as 0,
+        the best possible, and its offset, wrong by up to the hold time, would win for
+        ``history_s``: such round trips are counted in ``rejected`` and ignored.
+        """
+        t = round_trip.t_rcv
+        delay = (t - round_trip.t_sent) - (round_trip.t_remote_sent - round_trip.t_remote_rcv)
+        if delay < 0:
+            self.rejected += 1
+            return self
         while self._best and self._best[-1][1] >= delay:
             self._best.pop()
         self._best.append((t, delay, round_trip.offset_s))
@@ -197,9 +206,6 @@ class LinkStats:
         has (air time of a packet). Without it, a path with microsecond base latency (a
         veth pair, loopback) turns sub-millisecond jitter into a backlog of several times
         the goodput, and a clock error that drives δ̂ to ≤ 0 would divide by zero.
-    track_median
-        Also compute :attr:`WindowStats.median_backlog_bytes_per_s` (O(n log n) in the
-        window's messages per read; off unless a constraint asks for it).
     """
 
     def __init__(
@@ -210,7 +216,6 @@ class LinkStats:
         clock: ClockOffsetEstimator | None = None,
         assumed_offset_s: float = 0.0,
         min_base_latency_s: float = 0.005,
-        track_median: bool = False,
     ) -> None:
         if not window_s > 0:
             raise LinkStatsError(f"window_s must be > 0, got {window_s}")
@@ -224,7 +229,6 @@ class LinkStats:
         self.clock = clock if clock is not None else ClockOffsetEstimator()
         self.assumed_offset_s = assumed_offset_s
         self.min_base_latency_s = min_base_latency_s
-        self.track_median = track_median
         self.counters: dict[str, int] = {"samples": 0, "duplicate": 0, "stale": 0, "invalid": 0}
         # (t_rcv, raw latency, size, key) in arrival order; keys dedupe repeated reports.
         self._window: deque[tuple[float, float, int, tuple[str, int] | None]] = deque()
@@ -312,12 +316,7 @@ class LinkStats:
         base = (self._min[0][1] if self._min else min(w[1] for w in self._window)) - offset
         # eq. 6.4 as G·(L − δ̂)/δ̂: identical for δ̂ > 0, and the numerator (queueing delay)
         # does not depend on the clock offset at all; only the divisor is floored.
-        divisor = max(base, self.min_base_latency_s)
-        backlog = goodput * max(0.0, mean_latency - base) / divisor
-        median_backlog = math.nan
-        if self.track_median:
-            median = statistics.median(w[1] for w in self._window) - offset
-            median_backlog = goodput * max(0.0, median - base) / divisor
+        backlog = goodput * max(0.0, mean_latency - base) / max(base, self.min_base_latency_s)
         return WindowStats(
             t_end=self._t_newest,
             window_s=self.window_s,
@@ -327,5 +326,4 @@ class LinkStats:
             base_latency_s=base,
             backlog_bytes_per_s=backlog,
             warm=self._t_newest - self._t_first >= self.window_s,
-            median_backlog_bytes_per_s=median_backlog,
         )

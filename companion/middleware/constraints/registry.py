@@ -30,7 +30,7 @@ CONSTRAINTS: Mapping[str, Callable[..., GoodputConstraint]] = {
     "adaptive": AdaptiveConstraint,
     "adaptive-thesis": functools.partial(AdaptiveConstraint, use_weighted=False, knee_band=0.0),
     "adaptive-smooth": functools.partial(AdaptiveConstraint, use_weighted=True, knee_band=0.05,
-                                         knee_step=0.01, robust_backlog=True),
+                                         knee_step=0.01, queueing_budget_s=0.005),
     "aimd": AimdConstraint,
 }
 
