@@ -116,9 +116,14 @@ def main(argv: list[str] | None = None) -> int:
             kind = LINK_CONSTRAINT_KINDS.get(name, name)
             print(f"running {scenario.name} with {name} ({scenario.duration_s:g} s) ...",
                   flush=True)
-            run = run_link_experiment(scenario, constraint=kind,
-                                      params=dict(REAL_LINK_CONSTRAINTS[name]),
-                                      workdir=args.out / "logs", progress=print)
+            try:
+                run = run_link_experiment(scenario, constraint=kind,
+                                          params=dict(REAL_LINK_CONSTRAINTS[name]),
+                                          workdir=args.out / "logs", progress=print)
+            except RuntimeError as exc:  # one run lost: report it, keep the others
+                print(f"run failed: {exc}", flush=True)
+                misses.append(f"{scenario.name} {name} run failed")
+                continue
             run.constraint = name
             runs.append(run)
             write_link_csv(run, args.out / f"{scenario.name}_{name}.csv")
@@ -150,7 +155,8 @@ def main(argv: list[str] | None = None) -> int:
                     "xi_cv": round(phase.xi_cv, 4),
                     "verdict": verdict,
                 })
-        plot_link_runs(runs, args.out / f"{scenario.name}.png")
+        if runs:
+            plot_link_runs(runs, args.out / f"{scenario.name}.png")
 
     print()
     print(header)

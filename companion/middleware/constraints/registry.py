@@ -7,9 +7,10 @@
 
 ``"adaptive"`` (the default) and ``"adaptive-thesis"`` are the thesis' SGD with equal steps;
 the studies that reproduce the thesis' figures name the latter, so they stay thesis-exact
-whatever the default becomes. ``"adaptive-smooth"`` adds use-weighted steps and the knee
-memory (:class:`AdaptiveConstraint`, docs/adaptive.md): smoother than AIMD in figure 6.5 and
-on the real link, but not yet robust at 2.5 Mbit/s on a loaded host, so not the default.
+whatever the default becomes. ``"adaptive-smooth"`` adds use-weighted steps, the knee
+memory and a 5 ms queueing budget (:class:`AdaptiveConstraint`, docs/adaptive.md): smoother
+than AIMD in figure 6.5 and mostly on the real link, but it still misses targets when the
+loaded host starves the sender, so it is not the default.
 """
 
 from __future__ import annotations

@@ -152,8 +152,16 @@ def run_link_experiment(
             else:
                 iperf.stop()
         remaining = t0 + scenario.duration_s + 15 - time.time()
-        if sender.wait(timeout=max(1.0, remaining)) != 0:
-            raise RuntimeError(f"probe sender failed with exit code {sender.returncode}")
+        try:
+            code = sender.wait(timeout=max(1.0, remaining))
+        except subprocess.TimeoutExpired:
+            # A starved host (seconds-long stalls): stop it here, so the namespaces close.
+            sender.kill()
+            sender.wait()
+            raise RuntimeError(f"probe sender of {tag} still running 15 s after the run's "
+                               "end (host starved?)") from None
+        if code != 0:
+            raise RuntimeError(f"probe sender failed with exit code {code}")
         time.sleep(0.3)  # last datagrams drain
         receiver.terminate()
         receiver.wait(timeout=5)
