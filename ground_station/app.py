@@ -31,6 +31,7 @@ from ground_station.control_api import (
     api_start,
 )
 from ground_station.fleet import RATE_WINDOW_S, FleetView, LatestImage
+from ground_station.host_guard import host_guard, origin_guard
 from ground_station.http_guard import add_security_headers, json_reply, same_origin
 from ground_station.keys import (
     BROADCASTER,
@@ -295,7 +296,9 @@ def create_app(
     config: GroundConfig, *, clock: Callable[[], float] = time.time, token: str | None = None
 ) -> web.Application:
     """Build the ground-station app; the token is read or created under ``config.data_dir``."""
-    app = web.Application(middlewares=[token_middleware], client_max_size=1 << 20)
+    guard = host_guard((*config.allowed_hosts, config.http_host))  # DNS rebinding
+    app = web.Application(middlewares=[guard, token_middleware, origin_guard()],
+                          client_max_size=1 << 20)
     app[CONFIG] = config
     app[CLOCK] = clock
     app[TOKEN] = token if token is not None else ensure_token(config.token_path)[0]

@@ -30,6 +30,8 @@ def _config(args: argparse.Namespace) -> GroundConfig:
     }
     if getattr(args, "public_read", False):
         overrides["public_read"] = True
+    if getattr(args, "allowed_host", None):  # added to the config file's names
+        overrides["allowed_hosts"] = (*config.allowed_hosts, *args.allowed_host)
     return config.with_overrides(**overrides) if overrides else config
 
 
@@ -68,6 +70,10 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--http-host", help="dashboard address (default 127.0.0.1)")
     run.add_argument("--http-port", type=int, help="dashboard port (default 8080)")
     run.add_argument("--public-read", action="store_true", help="dashboard readable without token")
+    run.add_argument("--allowed-host", action="append", metavar="NAME",
+                     help="a DNS name the dashboard is reached by (repeatable); requests for "
+                          "other names are refused (DNS rebinding). IP addresses and "
+                          "localhost always work")
     run.add_argument("-v", "--verbose", action="store_true")
     shell = sub.add_parser("shell", help="interactive mission manager (thesis fig. 3.7)")
     _common(shell)

@@ -6,6 +6,7 @@ A wrong file fails with :class:`ConfigError` naming the file, the key and what w
 
 from __future__ import annotations
 
+import re
 import tomllib
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -19,6 +20,8 @@ from companion.secret_files import UnsafeKeyFile, read_secret
 __all__ = ["ConfigError", "GroundConfig", "load_config", "missing_keys"]
 
 _PRIVATE = "a key file only its owner can read"
+_HOST_NAME = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)(\.(?!-)[A-Za-z0-9-]{1,63}(?<!-))*\.?")
+"""A DNS name (labels of letters, digits and inner hyphens); ``allowed_hosts`` entries."""
 
 
 class ConfigError(ValueError):
@@ -61,6 +64,9 @@ class GroundConfig:
     """Kernel receive buffer asked for (fragments of 100 images/s must not overflow it)."""
     http_host: str = "127.0.0.1"
     http_port: int = 8080
+    allowed_hosts: tuple[str, ...] = ()
+    """DNS names the dashboard answers to besides IP literals, ``localhost`` and
+    ``http_host`` (``--allowed-host``); any other ``Host`` is refused (DNS rebinding)."""
     http_max_connections: int = 128
     """Concurrent HTTP connections served; more are closed at once, so browsers and scanners
     can never take the file descriptors the UDP receiver and the storage need."""
@@ -138,6 +144,10 @@ class GroundConfig:
         for key, ok, expected in checks:
             if not ok:
                 raise ConfigError("<config>", key, expected, getattr(self, key))
+        for name in self.allowed_hosts:
+            if not _HOST_NAME.fullmatch(name) or len(name) > 253:
+                raise ConfigError("<config>", "allowed_hosts",
+                                  "DNS names like gs.example.org (no port, no scheme)", name)
         for key in ("mavlink_out", "mavlink_listen"):
             value = getattr(self, key)
             if value is not None:
@@ -176,6 +186,7 @@ _TYPES: dict[str, tuple[type | tuple[type, ...], str]] = {
     "udp_rcvbuf_bytes": (int, "an integer number of bytes"),
     "http_host": (str, "a host string"),
     "http_port": (int, "an integer port"),
+    "allowed_hosts": (list, "a list of DNS names"),
     "http_max_connections": (int, "an integer"),
     "http_idle_timeout_s": ((int, float), "a number of seconds"),
     "report_interval_s": ((int, float), "a number of seconds"),
@@ -222,6 +233,10 @@ def config_from_mapping(raw: dict[str, Any], *, file: str = "<config>") -> Groun
             values[key] = path if path.is_absolute() else base / path
         elif key == "fleet_key":
             values[key] = str(value).encode()
+        elif key == "allowed_hosts":
+            if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+                raise ConfigError(file, key, "a list of DNS names (strings)", value)
+            values[key] = tuple(value)
         elif key == "fleet_key_file":
             path = Path(str(value)).expanduser()
             path = path if path.is_absolute() else base / path

@@ -12,10 +12,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sitl.study.scaling import Goal, check_goals, growth, report_sizes, scaling_cell
+from sitl.study.scaling import (
+    CYCLE_S,
+    Goal,
+    check_goals,
+    growth,
+    growth_goals,
+    like_phase_blocks,
+    report_sizes,
+    scaling_cell,
+    within,
+)
 from utility_specs.message import Message
 
 SITL = Path(sys.executable).parent / "uav-sitl"
+BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_scaling.py"
 
 
 def _delivered(sender: str, seq: int, t: float) -> Message:
@@ -53,6 +64,71 @@ def test_growth_tells_a_real_increase_from_noise() -> None:
     assert lo <= 1.0 <= hi and 0.85 < same < 1.15
     doubled, lo2, _ = growth(base, 2 * rng.lognormal(0.0, 0.3, size=400), seed=2)
     assert doubled == pytest.approx(2.0, rel=0.15) and lo2 > 1.15
+
+
+def _phase_patterned(t_end: float, growth_ms_per_s: float, seed: int = 3) -> tuple[
+        np.ndarray, np.ndarray]:
+    """Decisions at the same 100 instants of every 10 s cycle (jittered, like the periodic
+    scenario's arrivals) whose cost follows the phase (x0.5..x1.5) and, optionally, grows."""
+    rng = np.random.default_rng(seed)
+    phases = rng.uniform(0.0, CYCLE_S, size=100)
+    t = np.sort((phases[None, :] + CYCLE_S * np.arange(int(t_end / CYCLE_S))[:, None]).ravel()
+                + np.abs(rng.normal(0.0, 0.1, size=phases.size * int(t_end / CYCLE_S))))
+    phase = 1.0 + 0.5 * np.sin(2 * np.pi * t / CYCLE_S)
+    return t, 4.0 * phase * rng.lognormal(0.0, 0.2, size=t.size) + growth_ms_per_s * t
+
+
+def test_like_phase_blocks_are_the_first_and_last_whole_cycles_after_the_warm_up() -> None:
+    assert like_phase_blocks(300.0) == ((10.0, 40.0), (270.0, 300.0))  # cycles 1-3, 27-29
+    assert like_phase_blocks(30.0) == ((10.0, 20.0), (20.0, 30.0))  # --quick
+    assert like_phase_blocks(40.0) == ((10.0, 20.0), (30.0, 40.0))
+    with pytest.raises(ValueError, match="need 2"):
+        like_phase_blocks(25.0)
+    t = np.arange(0.0, 300.0, 0.5)
+    assert within(t, 2 * t, (10.0, 40.0)).tolist() == (2 * np.arange(10.0, 40.0, 0.5)).tolist()
+
+
+def test_a_phase_pattern_passes_and_a_cost_growing_with_the_mission_trips() -> None:
+    def check(growth_ms_per_s: float) -> tuple[float, float]:
+        t, ms = _phase_patterned(300.0, growth_ms_per_s)
+        first, last = like_phase_blocks(300.0)
+        ratio, lo, _ = growth(within(t, ms, first).tolist(), within(t, ms, last).tolist(),
+                              seed=1)
+        return ratio, lo
+
+    ratio, lo = check(0.0)
+    assert 0.9 < ratio < 1.1 and lo <= 1.15
+    # +0.005 ms per second: +0.1 ms early, +1.4 ms late on ~4 ms, x1.3
+    ratio, lo = check(0.005)
+    assert ratio == pytest.approx(1.31, abs=0.1) and lo > 1.15
+
+
+def test_the_long_cell_trips_on_a_planted_growing_cost_and_passes_without() -> None:
+    """A real 3-agent, 40 s mission of the periodic battery scenario (~4 s each on the
+    loaded machine): the planted cost is CPU time, so it shows whatever the load."""
+    cell: dict[str, object] = {"kind": "long", "agents": 3, "t_end": 40.0}
+    clean = {**cell, **scaling_cell(cell, 11)}
+    planted_cell = {**cell, "inject_growth_us_per_s": 200.0}
+    planted = {**planted_cell, **scaling_cell(planted_cell, 11)}
+    # blocks: cycle 1 (t in 10..20 s: +2..4 ms planted) and cycle 3 (30..40 s: +6..8 ms)
+    assert planted["first_tenth_ms"] - clean["first_tenth_ms"] == pytest.approx(3.0, abs=1.0)
+    assert planted["last_tenth_ms"] - clean["last_tenth_ms"] == pytest.approx(7.0, abs=1.5)
+    (ok,) = growth_goals([clean])
+    (tripped,) = growth_goals([planted])
+    assert ok.ok, ok.measured
+    assert not tripped.ok and planted["growth_lo"] > 1.15, tripped.measured
+
+
+def test_bench_inject_growth_reports_a_miss_and_exits_1(tmp_path: Path) -> None:
+    """The bench's own self-test path (--growth-only --quick: 3 agents, 30 s; ~6 s)."""
+    run = subprocess.run([sys.executable, str(BENCH), "--growth-only", "--quick", "--agents",
+                          "3", "--inject-growth", "300", "--out", str(tmp_path)],
+                         capture_output=True, text=True, timeout=180)
+    assert run.returncode == 1, run.stdout[-2000:] + run.stderr[-2000:]
+    (line,) = [x for x in run.stdout.splitlines() if x.startswith("decide cpu last/first")]
+    assert "+300 us/s planted" in line and line.endswith("MISS")
+    rows = list(csv.DictReader((tmp_path / "bench_scaling.csv").open()))
+    assert [r["kind"] for r in rows] == ["long"] and float(rows[0]["growth_lo"]) > 1.15
 
 
 def _row(kind: str, agents: int, **values: float) -> dict[str, object]:

@@ -20,7 +20,9 @@ of the run (a lower bound: memory freed by an earlier cell of the same process i
 tracemalloc would slow the timed run ~3x) and each agent's retained state at the end
 (pickled; the mission spec they share counts once, so tiny fleets look heavier); utility.
 ``optimum`` cells compare MCTS with the exact offline optimum on short missions; ``long``
-cells measure whether decide time grows with mission length (first vs last tenth). Timing
+cells measure whether decide time grows with mission length: the battery scenario made
+periodic (every 10 s), decide CPU time in its last whole cycles against its first ones, so
+both hold the same phases of the load pattern. Timing
 cells run one at a time by default (``--workers 1``) so they do not compete for the CPU.
 Writes ``scaling.csv`` (streamed, resumable), ``scaling.png`` and prints the table with the
 goals of issue 16.
@@ -29,12 +31,21 @@ The package: ``workloads`` (the fleets and their reports), ``cell`` (one measure
 ``goals`` (issue 16's goals, the table), ``cli`` (the sweep, CSV and plot).
 """
 
-from sitl.study.scaling.cell import COLUMNS, growth, scaling_cell
+from sitl.study.scaling.cell import COLUMNS, growth, like_phase_blocks, scaling_cell, within
 from sitl.study.scaling.cli import _agents, main, plan
-from sitl.study.scaling.goals import GOAL_AGENTS, Goal, check_goals, table
+from sitl.study.scaling.goals import (
+    GOAL_AGENTS,
+    Goal,
+    check_goals,
+    growth_goals,
+    speed_goals,
+    table,
+)
 from sitl.study.scaling.workloads import (
+    CYCLE_S,
     FLEET_SIZES,
     RUNS,
+    GrowingCost,
     ReportSizes,
     fleet_spec,
     image_agents,
@@ -43,19 +54,25 @@ from sitl.study.scaling.workloads import (
 
 __all__ = [
     "COLUMNS",
+    "CYCLE_S",
     "FLEET_SIZES",
     "GOAL_AGENTS",
     "RUNS",
     "Goal",
+    "GrowingCost",
     "ReportSizes",
     "_agents",
     "check_goals",
     "fleet_spec",
     "growth",
+    "growth_goals",
     "image_agents",
+    "like_phase_blocks",
     "main",
     "plan",
     "report_sizes",
     "scaling_cell",
+    "speed_goals",
     "table",
+    "within",
 ]

@@ -1,5 +1,7 @@
 """One cell of the scaling sweep: run a workload and measure decide time, reports, memory,
-utility (and, for ``long``, whether decide time grows with the mission)."""
+utility (and, for ``long``, whether decide time grows with the mission: a young and an old
+mission of a periodic scenario in turns, compared at like phases, :func:`like_phase_blocks`
+and :mod:`~sitl.study.scaling.lockstep`)."""
 
 from __future__ import annotations
 
@@ -7,16 +9,20 @@ import gc
 import math
 import pickle
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from sitl.study.scaling.lockstep import run_interleaved
 from sitl.study.scaling.workloads import (
+    CYCLE_S,
     OPTIMUM_BUDGET_PER_AGENT,
     RUNS,
     WARMUP,
+    GrowingCost,
+    _battery_run,
     _image_run,
     report_sizes,
 )
@@ -41,6 +47,52 @@ def growth(first: Sequence[float], last: Sequence[float], *, seed: int = 0,
     return ratio, float(lo), float(hi)
 
 
+def like_phase_blocks(t_end: float, *, cycle_s: float = CYCLE_S,
+                      warmup_s: float = WARMUP["long"], share: float = 0.1) -> tuple[
+        tuple[float, float], tuple[float, float]]:
+    """The first and the last whole cycles of a periodic scenario after the warm-up (each
+    about ``share`` of the mission), as [start, end) in seconds. Both hold every phase of
+    the cycle once per cycle, so what differs between them is how long the mission has run,
+    not where in its load pattern each block falls."""
+    start = math.ceil(warmup_s / cycle_s)
+    end = math.floor(t_end / cycle_s + 1e-9)
+    cycles = end - start
+    if cycles < 2:
+        raise ValueError(f"a {t_end:g} s mission holds {max(0, cycles)} whole {cycle_s:g} s "
+                         f"cycle(s) after the {warmup_s:g} s warm-up; need 2")
+    m = max(1, min(cycles // 2, round(t_end / cycle_s * share)))
+    return (start * cycle_s, (start + m) * cycle_s), ((end - m) * cycle_s, end * cycle_s)
+
+
+def within(t: Sequence[float] | np.ndarray, values: Sequence[float] | np.ndarray,
+           block: tuple[float, float]) -> np.ndarray:
+    """``values`` whose ``t`` falls in [start, end)."""
+    tt = np.asarray(t, dtype=float)
+    return np.asarray(values, dtype=float)[(tt >= block[0]) & (tt < block[1])]
+
+
+def _long_run(n: int, t_end: float, seed: int, inject_us_per_s: float) -> tuple[
+        Any, Any, list[Any], np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The old and the young mission in turns (:mod:`~sitl.study.scaling.lockstep`): the
+    old one's run, its decisions' wall and CPU ms after the warm-up, and the decide CPU ms
+    of the young mission's first cycles and the old one's last cycles."""
+    first, last = like_phase_blocks(t_end)
+
+    def run(length: float, wrap: Callable[[Any], Any]) -> tuple[Any, Any, list[Any]]:
+        def planted(p: Any) -> Any:
+            return wrap(GrowingCost(p, inject_us_per_s))
+
+        return _battery_run(n, length, seed, cycle_s=CYCLE_S,
+                            wrap=planted if inject_us_per_s > 0 else wrap)
+
+    (spec, result, middlewares), old, young = run_interleaved(
+        run, t_end=t_end, offset_s=last[0] - first[0])
+    keep = np.asarray(old.t) >= WARMUP["long"]
+    return (spec, result, middlewares, np.asarray(old.wall_s)[keep] * 1e3,
+            old.cpu_ms()[keep], within(young.t, young.cpu_ms(), first),
+            within(old.t, old.cpu_ms(), last))
+
+
 def _nan_row() -> dict[str, Any]:
     return {name: math.nan for name in COLUMNS}
 
@@ -58,7 +110,9 @@ def _warm_up() -> None:
 
 
 def scaling_cell(params: Mapping[str, Any], seed: int) -> dict[str, Any]:
-    """One sweep cell: ``kind`` in images/battery/optimum/long, ``agents``, ``t_end``."""
+    """One sweep cell: ``kind`` in images/battery/optimum/long, ``agents``, ``t_end``
+    (``long`` also takes ``inject_growth_us_per_s``: a planted growing cost, the check's
+    self-test)."""
     from sitl.study.drop_rate import utility_pct
 
     kind, n, t_end = str(params["kind"]), int(params["agents"]), float(params["t_end"])
@@ -73,15 +127,18 @@ def scaling_cell(params: Mapping[str, Any], seed: int) -> dict[str, Any]:
         row.update(utility_pct=mcts_pct, optimum_pct=opt_pct)
     elif kind in RUNS or kind == "long":
         _warm_up()
-        run = RUNS["battery" if kind == "long" else kind]
         gc.collect()
         rss_start = _peak_rss_reset()
-        spec, result, middlewares = run(n, t_end, seed)
+        if kind == "long":  # a young and an old mission in turns, compared at like phases
+            spec, result, middlewares, wall, cpu, first, last = _long_run(
+                n, t_end, seed, float(params.get("inject_growth_us_per_s", 0.0)))
+        else:
+            spec, result, middlewares = RUNS[kind](n, t_end, seed)
+            wall, cpu = _timing(result, WARMUP[kind])
         row["rss_growth_mb"] = _rss_growth_mb(rss_start)
         # what each agent keeps at the end (fleet knowledge, constraint, last problem):
         # bounded if it does not grow with the fleet's history (compare long with battery)
         row["state_kB_per_agent"] = len(pickle.dumps(middlewares)) / n / 1e3
-        wall, cpu = _timing(result, WARMUP[kind])
         decisions = sum(mw.counters["decisions"] for mw in middlewares)
         fallback = sum(mw.counters["fallback"] for mw in middlewares)
         unknown = sum(mw.counters["unknown_type"] for mw in middlewares)
@@ -99,10 +156,9 @@ def scaling_cell(params: Mapping[str, Any], seed: int) -> dict[str, Any]:
             report_downlink_kBps=sizes.downlink_bytes_per_s / 1e3,
         )
         if kind == "long":
-            tenth = max(1, len(cpu) // 10)
-            ratio, lo, hi = growth(cpu[:tenth].tolist(), cpu[-tenth:].tolist(), seed=seed)
-            row.update(first_tenth_ms=float(np.median(cpu[:tenth])),
-                       last_tenth_ms=float(np.median(cpu[-tenth:])), growth=ratio,
+            ratio, lo, hi = growth(first.tolist(), last.tolist(), seed=seed)
+            row.update(first_tenth_ms=float(np.median(first)),
+                       last_tenth_ms=float(np.median(last)), growth=ratio,
                        growth_lo=lo, growth_hi=hi)
     else:
         raise ValueError(f"unknown cell kind {kind!r}")

@@ -29,7 +29,8 @@ def plan(agents: Sequence[int], *, quick: bool) -> list[dict[str, Any]]:
         cells.append({"kind": "battery", "agents": n, "t_end": t_bat})
     for n in OPTIMUM_AGENTS:
         cells.append({"kind": "optimum", "agents": n, "t_end": 4.0 if quick else 10.0})
-    cells.append({"kind": "long", "agents": min(agents), "t_end": 20.0 if quick else 300.0})
+    # two whole 10 s cycles after the warm-up at the least (first vs last, like phases)
+    cells.append({"kind": "long", "agents": min(agents), "t_end": 30.0 if quick else 300.0})
     return cells
 
 

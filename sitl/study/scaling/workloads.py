@@ -4,6 +4,7 @@ reports the ground station would send for them."""
 from __future__ import annotations
 
 import hashlib
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -25,6 +26,11 @@ REPORT_INTERVAL_S = 0.25
 """The ground station's report period (``ReportScheduler`` default in the product)."""
 WARMUP = {"images": 3.0, "battery": 5.0, "long": 5.0}
 """Decisions before this simulated time are left out: the fleet is not known yet."""
+CYCLE_S = 10.0
+"""The ``long`` cell's scenario repeats every 10 s: each agent's period is rounded to
+10 s / k (k = 8..12 for the reference's rates around 1 Hz), so the fleet's arrivals line up
+the same way in every cycle and early and late decisions can be compared at like phases
+(with free periods the alignment drifts over minutes and decide time follows it)."""
 
 
 def image_agents(n: int, make_policy: Callable[[str, int], Any]) -> list[Any]:
@@ -94,8 +100,11 @@ def fleet_spec(scenario: str, n: int) -> Any:
     return parse_spec(raw, source=f"{name} x {n} agents")
 
 
-def _battery_run(n: int, t_end: float, seed: int) -> tuple[Any, Any, list[Any]]:
-    """The reference scenario (mostly-low, 1500 iterations) with ``n`` agents."""
+def _battery_run(n: int, t_end: float, seed: int, *, cycle_s: float | None = None,
+                 wrap: Callable[[Any], Any] | None = None) -> tuple[Any, Any, list[Any]]:
+    """The reference scenario (mostly-low, 1500 iterations) with ``n`` agents; with
+    ``cycle_s`` every period divides it (a periodic scenario, see :data:`CYCLE_S`); ``wrap``
+    wraps each agent's policy (the ``long`` cell's turns and planted cost)."""
     from sitl.netsim import SimAgent, simulate
     from sitl.study.drop_rate import CHANNEL, _scenario_streams, policy_factory
 
@@ -103,12 +112,39 @@ def _battery_run(n: int, t_end: float, seed: int) -> tuple[Any, Any, list[Any]]:
     spec = fleet_spec("mostly-low", n)
     make = policy_factory("mcts1500", BATTERY_BUDGET_PER_10 * n / 10, seed=seed)
     streams = _scenario_streams("mostly-low", n, np.random.default_rng([seed, 7]))
+    if cycle_s is not None:
+        streams = [replace(s, period_s=cycle_s / max(1, round(cycle_s / s.period_s)))
+                   for s in streams]
     policies = [make(f"agent{i}", spec) for i in range(n)]
-    agents = [SimAgent(name=f"agent{i}", policy=policies[i], streams=[streams[i]])
+    deciders = [wrap(p) for p in policies] if wrap is not None else policies
+    agents = [SimAgent(name=f"agent{i}", policy=deciders[i], streams=[streams[i]])
               for i in range(n)]
     result = simulate(agents, channel=replace(CHANNEL, report_interval_s=REPORT_INTERVAL_S),
                       t_end=t_end, rng=np.random.default_rng([seed, 3]))
     return spec, result, policies
+
+
+class GrowingCost:
+    """A policy with a planted O(elapsed) cost, to prove the ``long`` check trips: every
+    decide also spends ``us_per_s`` microseconds of CPU per simulated second since the
+    start (what a history scanned on every decision would cost). CPU time of this thread,
+    the quantity the check measures, so the planted cost does not depend on the load."""
+
+    def __init__(self, policy: Any, us_per_s: float) -> None:
+        self.policy, self.us_per_s = policy, us_per_s
+
+    def decide(self, message: Any, now: float) -> Any:
+        decision = self.policy.decide(message, now)
+        until = time.thread_time() + self.us_per_s * now * 1e-6
+        while time.thread_time() < until:
+            pass
+        return decision
+
+    def on_delivered(self, messages: Any, now: float) -> None:
+        self.policy.on_delivered(messages, now)
+
+    def __getattr__(self, name: str) -> Any:  # the constraint, report hooks, counters
+        return getattr(self.policy, name)
 
 
 RUNS: dict[str, Callable[[int, float, int], tuple[Any, Any, list[Any]]]] = {
