@@ -16,6 +16,10 @@ drop share in all scenarios (interpolated), within 5 % of the offline optimum on
 Offline optimum (``--only optimum``): MCTS 1500 over 20 short 4-agent missions, mean >= 95 %.
 Anytime (``--only anytime``): mean utility over seeds 1-3 does not fall from 300 to 3000
 iterations (20 s study missions, mostly-low and uniform at tight budgets).
+Baselines (``--only baselines``, issue 18): MCTS (the companion's 300 iterations) minus
+knapsack-greedy >= 0 at equal budget and at equal delivered bytes, mean over 3 seeds of
+20 s study missions in the three fig. 5.7 scenarios; the pairing by seed and the bytes
+interpolation are the study's (``sitl.study.baselines.tables``).
 Like for like (``--only like-for-like``): the same checks against the thesis numbers on the
 reference code's own message sequence (data/infdist_preset0_seed0.csv), on which they were
 measured, instead of this project's draw of the scenario.
@@ -281,6 +285,55 @@ def anytime(seeds: tuple[int, ...] = (1, 2, 3), t_end: float = 20.0) -> None:
               min(falls) >= -1e-9)
 
 
+BASELINE_SCENARIOS = ("mostly-low", "uniform", "mostly-high")
+BASELINE_MCTS_BUDGETS = (9.25, 5.5, 2.5)
+BASELINE_KNAPSACK_BUDGETS = (25.0, 19.25, 12.0, 9.25, 5.5, 2.5)
+"""Knapsack leaves budget unused: it needs 1.2-2.3 times MCTS's budget to deliver MCTS's
+bytes (docs/middleware.md, round 5), so its curve reaches up to 25 msgs/T."""
+
+
+def _delta_cells(table: str) -> dict[tuple[str, float], dict[str, str]]:
+    """(scenario, budget) -> {column: cell} from ``sitl.study.baselines.tables``' markdown."""
+    cells: dict[tuple[str, float], dict[str, str]] = {}
+    scenario, header = "", [""]
+    for line in table.splitlines():
+        if line.startswith("**"):
+            scenario = line.split("**")[1]
+        elif line.startswith("| budget"):
+            header = [c.strip() for c in line.strip("|").split("|")]
+        elif line.startswith("| ") and not line.startswith("|---"):
+            row = [c.strip() for c in line.strip("|").split("|")]
+            cells[(scenario, float(row[0].split()[0]))] = dict(zip(header, row, strict=True))
+    return cells
+
+
+def baselines(seeds: tuple[int, ...] = (1, 2, 3), t_end: float = 20.0,
+              policy: str = "mcts300") -> None:
+    """MCTS against knapsack-greedy at equal budget and at equal delivered bytes (issue 18):
+    the study's missions (``run_one``) and its paired comparison (``tables``)."""
+    from sitl.study.baselines import run_one, tables
+
+    rows = []
+    for scenario in BASELINE_SCENARIOS:
+        for seed in seeds:
+            rows += [run_one(scenario, policy, b, seed=seed, t_end=t_end)
+                     for b in BASELINE_MCTS_BUDGETS]
+            rows += [run_one(scenario, "knapsack", b, seed=seed, t_end=t_end)
+                     for b in BASELINE_KNAPSACK_BUDGETS]
+    table = tables(rows, reference=policy)
+    cells = _delta_cells(table)
+    for scenario in BASELINE_SCENARIOS:
+        for kind in ("budget", "bytes"):
+            shown, worst = [], -np.inf
+            for b in BASELINE_MCTS_BUDGETS:
+                cell = cells[(scenario, b)][f"Δ knapsack equal {kind}"]
+                shown.append(f"{b:g}: {cell}")
+                if cell != "n/a":  # knapsack never delivers as many bytes at any budget
+                    worst = max(worst, float(cell.split()[0]))
+            check(f"{policy} - knapsack, {scenario}, equal {kind}", "; ".join(shown),
+                  "Δ knapsack <= 0 (mean)", worst <= 1e-9)
+
+
 def optimum(n_missions: int, t_end: float) -> None:
     """MCTS (1500 it.) against the exact optimum with full knowledge, 4 agents, 3 msgs/T."""
     ratios = []
@@ -297,7 +350,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("artifacts/bench_mcts"))
     parser.add_argument("--quick", action="store_true", help="shorter missions (indicative)")
-    parser.add_argument("--only", choices=["companion", "like-for-like", "anytime", "optimum"],
+    parser.add_argument("--only", choices=["companion", "like-for-like", "anytime", "optimum",
+                                           "baselines"],
                         help="run only these rows")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -315,6 +369,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.only == "optimum":
         optimum(6 if args.quick else 20, 20.0)
         return 0 if all(ok for *_, ok in ROWS) else 1
+    if args.only == "baselines":
+        baselines()
+        return 0 if all(ok for *_, ok in ROWS) else 1
     print("speed: reference setup", flush=True)
     speed_reference(t_end)
     print("speed: image streaming", flush=True)
@@ -328,6 +385,8 @@ def main(argv: list[str] | None = None) -> int:
     like_for_like(t_end)
     print("quality: anytime (more iterations never lower the mean utility)", flush=True)
     anytime()
+    print("quality: against knapsack-greedy at equal budget and equal bytes", flush=True)
+    baselines()
     print("quality: offline optimum", flush=True)
     optimum(6 if args.quick else 20, 20.0)
     print(f"\n{'check':42s} {'measured':34s} {'target':28s} result")

@@ -85,17 +85,17 @@ class MiddlewareConfig:
     frames between a red and a plain stream about 2 : 1 instead of the thesis' 4 : 1
     (tests/middleware/test_mw_fig73.py) and gains only 2.5 points in image streaming
     (docs/middleware.md)."""
-    best_plan: bool = False
+    best_plan: bool = True
     """Answer with the decided level's option of the best complete plan any iteration
     evaluated instead of the most visited path's: the model is deterministic, so the
-    answer's model utility never falls with more iterations (issue 18, round 5)."""
-    search_depth: int | None = None
+    answer's model utility never falls with more iterations (issue 18, rounds 5-6; the
+    most visited path's fell, and so did the fleet's utility). False: alg. 2's rule."""
+    search_depth: int | None = 10
     """Levels after the decided one that the tree searches; below them the default policy
-    alone plans (None: every level). With ``best_plan`` and a depth the budget covers (5 at
-    300 iterations in the fig. 5.7 fleet), more iterations give the same answer: measured,
-    mean utility is then flat from 300 to 3000 iterations, but 0.4-0.9 points below the
-    unbounded most-visited search at 300 and 93.4 instead of 94.1 % of the offline
-    optimum, so both are off by default (docs/middleware.md, round 5)."""
+    alone plans (None: every level). 10 (round 6): with ``best_plan`` the mean utility of
+    the fig. 5.7 anytime cases does not fall from 300 to 3000 iterations, 95.2 % of the
+    offline optimum (was 94.1), fig. 7.3 kept; 8 and 9 fall in mostly-low 2.5 msgs/T
+    (docs/middleware.md, round 6)."""
     learn_margin: bool = False
     """Plan against the budget less a margin learned from the fleet's observed overshoot
     (:class:`~companion.middleware.margin.OvershootMargin`): the others' sends are known
