@@ -34,7 +34,14 @@ import numpy as np
 
 from sitl.netsim import simulate
 from sitl.study import drop_rate as dr
-from sitl.study.sweep import add_cluster_options, cell_seed, dask_client, map_cells, run_sweep
+from sitl.study.sweep import (
+    add_cluster_options,
+    cell_seed,
+    dask_client,
+    error_text,
+    map_cells,
+    run_sweep,
+)
 
 __all__ = ["DROPS", "POLICIES", "cells", "characteristics", "fifths", "main", "mission_cell",
            "summarise"]
@@ -252,10 +259,10 @@ def main(argv: list[str] | None = None) -> int:
                 per_scenario[params["scenario"]].append(result["messages"])
                 check[f"{params['scenario']}/{params['drop']}"] = result["utility_pct"]
     except OSError as exc:  # no scheduler there, or the output cannot be written
-        print(f"uav-sitl study fig5.7: {exc}", file=sys.stderr)
+        print(f"uav-sitl study fig5.7: {error_text(exc)}", file=sys.stderr)
         return 1
     except ValueError as exc:  # --out holds a CSV of another sweep
-        print(f"uav-sitl study fig5.7: {exc}", file=sys.stderr)
+        print(f"uav-sitl study fig5.7: {error_text(exc)}", file=sys.stderr)
         return 1
     rows = [r for r in sweep.rows if r["scenario"] in scenarios and r["policy"] in policies]
     _same_draws(rows, check)

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from sitl.study.sweep import add_cluster_options, dask_client, run_sweep
+from sitl.study.sweep import add_cluster_options, dask_client, error_text, run_sweep
 
 __all__ = ["RED_SHARES", "fig73_cell", "fig74_cell", "main_73", "main_74"]
 
@@ -159,7 +159,7 @@ def _run(args: argparse.Namespace, fn: Any, cells: list[dict[str, Any]], name: s
             return run_sweep(fn, cells, out=out / f"{name.replace('.', '_')}.csv",
                              client=client, label=name)
     except (OSError, ValueError) as exc:
-        print(f"uav-sitl study {name}: {exc}", file=sys.stderr)
+        print(f"uav-sitl study {name}: {error_text(exc)}", file=sys.stderr)
         return None
 
 

@@ -112,8 +112,28 @@ def dask_client(
         n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
         dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR, env=one_thread,
     )
-    with cluster, Client(cluster) as local:  # type: ignore[no-untyped-call]
+    local = Client(cluster)  # type: ignore[no-untyped-call]
+    try:
         yield local
+    finally:
+        _shut_down(local, cluster)
+
+
+def _shut_down(client: Any, cluster: Any) -> None:
+    """Close the local cluster; a slow shutdown on a loaded host is not the sweep's failure
+    (every finished cell is already in the CSV), so it is a note, not an error."""
+    for closable in (client, cluster):
+        try:
+            closable.close()
+        except (TimeoutError, OSError) as exc:
+            print(f"note: the local Dask cluster shut down slowly ({error_text(exc)}); "
+                  "the results are complete", file=sys.stderr)
+
+
+def error_text(exc: BaseException) -> str:
+    """An exception as one line, also when it carries no message (Dask's TimeoutError)."""
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
 
 
 def add_cluster_options(parser: argparse.ArgumentParser) -> None:
@@ -267,7 +287,7 @@ def sweep_figure(fn: CellFn, cells: Sequence[Mapping[str, Any]], *, args: Any, n
         with dask_client(args.scheduler, workers=args.workers) as client:
             return run_sweep(fn, cells, out=out / f"{name}.csv", client=client, label=label)
     except (OSError, ValueError) as exc:
-        print(f"uav-sitl study {label}: {exc}", file=sys.stderr)
+        print(f"uav-sitl study {label}: {error_text(exc)}", file=sys.stderr)
         return None
 
 

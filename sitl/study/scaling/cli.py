@@ -45,7 +45,7 @@ def _agents(text: str) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from sitl.study.sweep import add_cluster_options, dask_client, run_sweep
+    from sitl.study.sweep import add_cluster_options, dask_client, error_text, run_sweep
 
     parser = argparse.ArgumentParser(
         prog="uav-sitl study scaling",
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
             sweep = run_sweep(scaling_cell, cells, out=out / "scaling.csv", client=client,
                               label="scaling")
     except (OSError, ValueError) as exc:  # no scheduler, unwritable --out, another sweep's CSV
-        print(f"uav-sitl study scaling: {exc}", file=sys.stderr)
+        print(f"uav-sitl study scaling: {error_text(exc)}", file=sys.stderr)
         return 1
     wanted = {(c["kind"], c["agents"], c["t_end"]) for c in cells}
     rows = [r for r in sweep.rows
