@@ -34,7 +34,7 @@ from companion.middleware.decider import (
     ParamValue,
 )
 from companion.middleware.errors import MiddlewareError, ParamError, UnknownParamError
-from companion.middleware.gate import priced_option
+from companion.middleware.gate import creates_violation, price_per_byte, priced_option
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge, settle_inflight, usable
 from companion.middleware.margin import OvershootMargin
@@ -122,6 +122,13 @@ class MiddlewareConfig:
     fleet leaves room for a heavy stream it has not heard of yet. After it a type still
     unheard is taken as absent. None: off."""
 
+    small_share: float | None = 0.01
+    """A message of at most this share of the budget (a position, a battery report) that the
+    tree drops is still sent when it earns the price per byte and breaks no window that was
+    within the budget (:func:`~companion.middleware.gate.creates_violation`): a window the
+    others' frames already put over the budget prunes every send in the tree, and starved
+    the telemetry at tight budgets (issue 18 round 6). None: off."""
+
     def __post_init__(self) -> None:
         if not self.agent:
             raise MiddlewareError("agent must not be empty")
@@ -140,6 +147,8 @@ class MiddlewareConfig:
             raise MiddlewareError("announce_after_s must be > 0 or None")
         if self.time_budget_s is not None and not self.time_budget_s > 0:
             raise MiddlewareError("time_budget_s must be > 0 or None")
+        if self.small_share is not None and not 0 < self.small_share <= 1:
+            raise MiddlewareError("small_share must be in (0, 1] or None")
 
 
 def _dense_enough(problem: Problem, level: int, lam: float) -> bool:
@@ -279,8 +288,15 @@ class Middleware:
             self.counters["fallback"] += 1
         else:
             option, reason = result.option, "mcts-exact" if result.exhausted else "mcts"
-            if self.config.price_bytes and message.versions:  # issue 18 round 5, gate.py
-                option = priced_option(problem, level, option, search.lam)
+            if self.config.price_bytes and message.versions:  # issue 18 rounds 5-6, gate.py
+                option = priced_option(problem, level, option, price_per_byte(problem))
+            small = self.config.small_share
+            if small is not None and option == 0 and message.size <= small * budget:
+                option = self._small_option(problem, level, search.lam, now=now,
+                                            budget=budget, window_s=window_s)
+                if option:
+                    reason = "mcts-rescue"
+                    self.counters["rescue"] += 1
         if option == 0 and view.root_window and self._invisible(message.type, now) \
                 and _dense_enough(problem, level, search.lam):
             # What the tree would do if the fleet, knowing of this stream, had left room:
@@ -322,6 +338,23 @@ class Middleware:
         self._after(message, decision, now)
         return decision
 
+    def _small_option(self, problem: Problem, level: int, lam: float, *, now: float,
+                      budget: float, window_s: float) -> int:
+        """The best option of a small message the tree dropped, if it earns ``lam`` per byte
+        and adds no violated window to the sends this agent knows of (eq. 5.5 counts
+        violated instants: a window the others already broke stays one), else 0."""
+        best = max(range(1, int(problem.nopt[level])),
+                   key=lambda o: float(problem.gain[level, o, 0]), default=0)
+        if not best:
+            return 0
+        size = int(problem.size[level, best])
+        if float(problem.gain[level, best, 0]) < lam * max(1, size):
+            return 0
+        if creates_violation(self.knowledge.known_sends(), now=now, size=size,
+                             window_s=window_s, budget_bytes=budget):
+            return 0
+        return best
+
     def _invisible(self, type_name: str, now: float) -> bool:
         """Has the fleet not heard of this agent's ``type_name`` stream for a long time?"""
         after = self.config.announce_after_s
@@ -350,9 +383,11 @@ class Middleware:
         if decision.send:
             self._last_sent[message.type] = now
             sent = option_message(message, (decision.version or 0) + 1)
-            known = self.knowledge.sent_in_window(now=now, window_s=self.constraint.window_s)
-            if known + sent.size > self.constraint.budget_bytes(now=now) + 1e-9:
-                # a planned violation: the window as this agent knows it is over budget
+            if creates_violation(self.knowledge.known_sends(), now=now, size=sent.size,
+                                 window_s=self.constraint.window_s,
+                                 budget_bytes=self.constraint.budget_bytes(now=now)):
+                # a planned violation: a window of the sends this agent knows of that was
+                # within the budget is over it now (eq. 5.5 counts violated instants)
                 self.counters["over_budget"] += 1
             self.knowledge.on_sent(sent, now=now)
             self.constraint.on_sent(sent.size, now=now)

@@ -1,0 +1,106 @@
+"""Image streaming at tight budgets (issue 18, round 6): telemetry is not starved by windows
+the others' frames already broke, and the price on bytes counts each message's bytes in the
+version its density is of."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from companion.middleware import ConstantConstraint, Middleware, MiddlewareConfig
+from companion.middleware.gate import creates_violation, price_per_byte
+from companion.middleware.incremental import PlanItem, build_problem
+from companion.middleware.mcts import rollout_threshold
+from utility_specs.files import builtin_spec
+from utility_specs.message import Message, Version
+
+FULL = Version(name="full", size=24_000, quality=1.0)
+HALF = Version(name="half", size=7_000, quality=0.5)
+QUARTER = Version(name="quarter", size=2_500, quality=0.25)
+
+
+@pytest.mark.parametrize(("sends", "now", "size", "created"), [
+    ([(0.0, 600), (1.0, 300)], 2.0, 100, False),     # 1000 of 1000: still within
+    ([(0.0, 600), (1.0, 300)], 2.0, 101, True),      # the window from 0.0 breaks
+    ([(0.0, 1200)], 1.0, 64, False),                 # already broken by the others: no new one
+    ([(0.0, 1200), (1.0, 500)], 1.5, 400, False),    # the window from 1.0 holds 900
+    ([(0.0, 1200), (1.0, 500)], 1.5, 600, True),     # ... and now 1100: a new violation
+    ([(-3.0, 5000)], 0.0, 1000, False),              # older than T: in no window with now
+    ([], 0.0, 1001, True),                           # alone over the budget
+])
+def test_a_send_creates_a_violation_only_if_it_breaks_a_window_that_was_within(
+        sends: list[tuple[float, int]], now: float, size: int, created: bool) -> None:
+    """Eq. 5.5/5.7: windows [t, t + T] from each send instant; budget 1000 B, T = 2.5 s."""
+    assert creates_violation(sends, now=now, size=size, window_s=2.5,
+                             budget_bytes=1000.0) is created
+
+
+def _agent(**config: Any) -> Middleware:
+    spec = builtin_spec("image_streaming")
+    return Middleware(MiddlewareConfig(spec=spec, agent="a", max_iterations=300, **config),
+                      rng=np.random.default_rng(1),
+                      constraint=ConstantConstraint(limit_bytes_per_s=10_000.0, window_s=2.5))
+
+
+def _peer_frame(t_sent: float, size: int) -> Message:
+    return Message(sender="b", seq=1, type="image", t_gen=t_sent, t_sent=t_sent,
+                   t_rcv=t_sent + 0.2, size=size, data={"red": 0.1},
+                   versions=(Version(name="full", size=size, quality=1.0),), version=0)
+
+
+def _position(seq: int, t: float) -> Message:
+    return Message(sender="a", seq=seq, type="position", t_gen=t, size=64,
+                   data={"lat_deg": 47.0, "lon_deg": 8.0, "alt_m": 30.0})
+
+
+def test_a_position_goes_out_in_a_window_the_others_already_broke() -> None:
+    """The peer's 30 kB frame, delivered, puts the 25 kB window over the budget: the tree
+    prunes every send there, but a 64-byte position adds no violated window, so it goes out
+    on its gain per byte (round 6); it is not a planned violation."""
+    mw = _agent()
+    mw.on_delivered([_peer_frame(0.5, 30_000)], now=0.8)
+    decision = mw.decide(_position(0, 1.0), 1.0)
+    assert decision.send and decision.reason == "mcts-rescue"
+    assert mw.counters["over_budget"] == 0 and mw.counters["rescue"] == 1
+    off = _agent(small_share=None)
+    off.on_delivered([_peer_frame(0.5, 30_000)], now=0.8)
+    assert not off.decide(_position(0, 1.0), 1.0).send
+
+
+def test_a_position_that_would_break_a_window_within_the_budget_stays_dropped() -> None:
+    """24 990 of 25 000 bytes known: 64 more would make a violation of this agent's own."""
+    mw = _agent()
+    mw.on_delivered([_peer_frame(0.5, 24_990)], now=0.8)
+    decision = mw.decide(_position(0, 1.0), 1.0)
+    assert not decision.send and mw.counters["rescue"] == 0
+
+
+def test_the_price_counts_each_message_in_its_densest_version_with_that_versions_bytes(
+        ) -> None:
+    """Four drones' frames over 3 s in full/half/quarter, a 5 kB window: the quarter is the
+    densest version of every frame. Counted with its own 2.5 kB, two of them fill 6 kB (the
+    budget over the 3 s span); counted at full size (the rollout's threshold) the first
+    frame alone fills it, and the price is the densest frame's: nothing but a drone's very
+    best frame could earn it."""
+    spec = builtin_spec("image_streaming")
+    items = []
+    for k in range(12):
+        red = 0.3 * (k % 4) / 3
+        frame = Message(sender=f"d{k % 4}", seq=k // 4, type="image", t_gen=0.25 * k,
+                        size=FULL.size, data={"red": red}, versions=(FULL, HALF, QUARTER),
+                        version=0)
+        items.append(PlanItem(message=frame, send_t=frame.t_gen, rcv_t=frame.t_gen + 0.1,
+                              kind="decide" if k == 0 else "forecast"))
+    problem = build_problem(spec, items=items, fixed=[], horizon_end=3.0, budget_bytes=5000.0,
+                            window_s=2.5)
+    quarter = [float(problem.gain[i, 3, 0]) / QUARTER.size for i in range(problem.n)]
+    densities = sorted(quarter, reverse=True)
+    span = float(problem.send_t[-1] - problem.send_t[0])
+    fits = int(5000.0 * span / 2.5 // QUARTER.size)
+    assert all(q >= float(problem.gain[i, o, 0]) / problem.size[i, o]
+               for i, q in enumerate(quarter) for o in (1, 2))
+    assert price_per_byte(problem) == pytest.approx(densities[fits])
+    assert rollout_threshold(problem) == pytest.approx(densities[0])
+    assert price_per_byte(problem) < rollout_threshold(problem)
