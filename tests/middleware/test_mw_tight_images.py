@@ -58,20 +58,21 @@ def _position(seq: int, t: float) -> Message:
 def test_a_position_goes_out_in_a_window_the_others_already_broke() -> None:
     """The peer's 30 kB frame, delivered, puts the 25 kB window over the budget: the tree
     prunes every send there, but a 64-byte position adds no violated window, so it goes out
-    on its gain per byte (round 6); it is not a planned violation."""
-    mw = _agent()
+    on its gain per byte with the opt-in ``small_share`` (round 6). The counter of planned
+    violations still counts it: the window it joins is over the budget as this agent knows it."""
+    mw = _agent(small_share=0.01)
     mw.on_delivered([_peer_frame(0.5, 30_000)], now=0.8)
     decision = mw.decide(_position(0, 1.0), 1.0)
     assert decision.send and decision.reason == "mcts-rescue"
-    assert mw.counters["over_budget"] == 0 and mw.counters["rescue"] == 1
-    off = _agent(small_share=None)
+    assert mw.counters["over_budget"] == 1 and mw.counters["rescue"] == 1
+    off = _agent()  # the default: off
     off.on_delivered([_peer_frame(0.5, 30_000)], now=0.8)
     assert not off.decide(_position(0, 1.0), 1.0).send
 
 
 def test_a_position_that_would_break_a_window_within_the_budget_stays_dropped() -> None:
     """24 990 of 25 000 bytes known: 64 more would make a violation of this agent's own."""
-    mw = _agent()
+    mw = _agent(small_share=0.01)
     mw.on_delivered([_peer_frame(0.5, 24_990)], now=0.8)
     decision = mw.decide(_position(0, 1.0), 1.0)
     assert not decision.send and mw.counters["rescue"] == 0
