@@ -65,7 +65,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--pattern", choices=("survey", "orbit"), default="survey")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--ready-timeout", type=float, default=90.0,
-                   help="seconds to wait for every drone to be heard (default 90)")
+                   help="seconds to wait for the vehicles, the ground station's API and then "
+                   "every drone to be heard, each (default 90; a loaded host is slow)")
     p.add_argument("--warm-up-timeout", type=float, default=180.0, metavar="S",
                    help="then wait this long for every companion's optimiser to warm up "
                         "(numba compiles on a cold cache); after it, start anyway "

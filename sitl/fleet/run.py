@@ -97,8 +97,8 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
         for slot in plan.drones:
             vargv += ["--out", f"{mavlink_host(plan, slot)}:{slot.mavlink_port}"]
         vehicles.append(procs.start("vehicles", where.wrap_vehicles(vargv)))
-        wait(stop, "the vehicles", 30.0, ready_file.exists, vehicles)
-        wait(stop, "the ground station's API", 30.0,
+        wait(stop, "the vehicles", args.ready_timeout, ready_file.exists, vehicles)
+        wait(stop, "the ground station's API", args.ready_timeout,
               lambda: _try(lambda: api.get("/api/stats")) is not None, station)
         for slot in plan.drones:
             companions.append(procs.start(slot.drone_id, where.wrap_drone(
