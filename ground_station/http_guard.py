@@ -173,8 +173,8 @@ def serve(app: web.Application, *, host: str, port: int, max_connections: int,
         asyncio.get_running_loop().set_exception_handler(_loop_exception)
         runner = web.AppRunner(app, handle_signals=True, access_log_class=RedactingAccessLogger,
                                keepalive_timeout=idle_timeout_s)
-        await runner.setup()
-        try:
+        try:  # Ctrl-C during the app's startup still runs its cleanup (storage threads)
+            await runner.setup()
             site = LimitedSite(runner, host, port, max_connections=max_connections)
             await site.start()
             while True:
