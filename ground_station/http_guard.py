@@ -15,6 +15,7 @@ import asyncio
 import json
 import logging
 import re
+import signal
 import time
 from typing import Any
 
@@ -170,16 +171,25 @@ def serve(app: web.Application, *, host: str, port: int, max_connections: int,
     """
 
     async def main() -> None:
-        asyncio.get_running_loop().set_exception_handler(_loop_exception)
-        runner = web.AppRunner(app, handle_signals=True, access_log_class=RedactingAccessLogger,
+        loop = asyncio.get_running_loop()
+        loop.set_exception_handler(_loop_exception)
+        # Our own SIGINT/SIGTERM handlers before anything awaits: a Ctrl-C during the app's
+        # startup then stops the server once startup is done, instead of cancelling the
+        # startup (a cancellation lost inside it left the station serving after Ctrl-C).
+        stop = asyncio.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        runner = web.AppRunner(app, handle_signals=False, access_log_class=RedactingAccessLogger,
                                keepalive_timeout=idle_timeout_s)
-        try:  # Ctrl-C during the app's startup still runs its cleanup (storage threads)
+        try:
             await runner.setup()
-            site = LimitedSite(runner, host, port, max_connections=max_connections)
-            await site.start()
-            while True:
-                await asyncio.sleep(3600)
+            if not stop.is_set():
+                site = LimitedSite(runner, host, port, max_connections=max_connections)
+                await site.start()
+                await stop.wait()
         finally:
+            for sig in (signal.SIGINT, signal.SIGTERM):  # a second Ctrl-C forces the exit
+                loop.remove_signal_handler(sig)
             await runner.cleanup()
 
     t0 = time.monotonic()
