@@ -99,8 +99,14 @@ def test_a_best_plan_decision_is_worth_no_less_with_more_iterations() -> None:
                                  4.1).score)
         return out
 
-    for kw in ({"best_plan": True}, {"best_plan": True, "search_depth": 5}):
+    for kw in ({"best_plan": True}, {"best_plan": True, "search_depth": 5},
+               {"best_plan": True, "search_depth": 10}):  # 10: round 6's opt-in setting
         got = scores(**kw)
         assert got == sorted(got), (kw, got)
-    old = scores(best_plan=False, search_depth=None)  # the most visited path's score falls
+    old = scores()  # the default: the most visited path, whose score falls
     assert old != sorted(old), old
+
+
+def test_the_defaults_are_alg_2s_most_visited_path() -> None:
+    config = MiddlewareConfig(spec=builtin_spec("sim_mostly_low"), agent="agent0")
+    assert config.best_plan is False and config.search_depth is None
