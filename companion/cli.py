@@ -109,10 +109,11 @@ def _load(path: str) -> Any:
 
 def _run(args: argparse.Namespace) -> int:
     import asyncio
-    import signal
 
     from companion.app import AppSetupError, create_app
+    from companion.stop_signals import EarlyStop
 
+    stop_signals = EarlyStop()
     config = _load(args.config)
     if config is None:
         return 2
@@ -123,9 +124,7 @@ def _run(args: argparse.Namespace) -> int:
         except AppSetupError as exc:
             print(f"cannot start: {exc}", file=sys.stderr)
             return 2
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            loop.add_signal_handler(sig, app.stop)
+        stop_signals.attach(asyncio.get_running_loop(), app.stop)
         await app.run()
         return 0
 

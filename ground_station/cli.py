@@ -139,10 +139,12 @@ def _login_url(config: GroundConfig, token: str) -> str:
 
 
 def _run(args: argparse.Namespace, config: GroundConfig) -> int:
+    from companion.stop_signals import EarlyStop
     from ground_station.app import create_app
     from ground_station.http_guard import raise_open_file_limit, serve
     from ground_station.utility import image_utility_from_spec
 
+    stop_signals = EarlyStop()  # a stop signal right after "dashboard:" is not lost
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
@@ -183,7 +185,7 @@ def _run(args: argparse.Namespace, config: GroundConfig) -> int:
     try:
         serve(app, host=config.http_host, port=config.http_port,
               max_connections=config.http_max_connections,
-              idle_timeout_s=config.http_idle_timeout_s)
+              idle_timeout_s=config.http_idle_timeout_s, stop_signals=stop_signals)
     except OSError as exc:  # address in use, permission denied...
         print(f"uav-ground-station: cannot serve: {exc}", file=sys.stderr)
         return 1

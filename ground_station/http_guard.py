@@ -15,13 +15,14 @@ import asyncio
 import json
 import logging
 import re
-import signal
 import time
 from typing import Any
 
 from aiohttp import web
 from aiohttp.abc import AbstractAccessLogger
 from aiohttp.web_protocol import RequestHandler
+
+from companion.stop_signals import STOP_SIGNALS, EarlyStop
 
 __all__ = [
     "SECURITY_HEADERS",
@@ -163,12 +164,14 @@ def _loop_exception(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) ->
 
 
 def serve(app: web.Application, *, host: str, port: int, max_connections: int,
-          idle_timeout_s: float) -> None:
+          idle_timeout_s: float, stop_signals: EarlyStop | None = None) -> None:
     """``web.run_app`` with the connection cap, idle timeout and redacting access log.
 
-    Returns when SIGINT/SIGTERM stops the server (after the app's cleanup ran). OSError
-    (address in use...) propagates to the caller.
+    Returns when SIGINT/SIGTERM stops the server (after the app's cleanup ran), including
+    one that ``stop_signals`` caught before the server started. OSError (address in
+    use...) propagates to the caller.
     """
+    early = EarlyStop() if stop_signals is None else stop_signals
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
@@ -177,8 +180,7 @@ def serve(app: web.Application, *, host: str, port: int, max_connections: int,
         # startup then stops the server once startup is done, instead of cancelling the
         # startup (a cancellation lost inside it left the station serving after Ctrl-C).
         stop = asyncio.Event()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, stop.set)
+        early.attach(loop, stop.set)
         runner = web.AppRunner(app, handle_signals=False, access_log_class=RedactingAccessLogger,
                                keepalive_timeout=idle_timeout_s)
         try:
@@ -188,7 +190,7 @@ def serve(app: web.Application, *, host: str, port: int, max_connections: int,
                 await site.start()
                 await stop.wait()
         finally:
-            for sig in (signal.SIGINT, signal.SIGTERM):  # a second Ctrl-C forces the exit
+            for sig in STOP_SIGNALS:  # a second Ctrl-C forces the exit
                 loop.remove_signal_handler(sig)
             await runner.cleanup()
 

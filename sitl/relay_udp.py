@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from companion.stop_signals import EarlyStop
 from sitl.relay import BackgroundLoad, ShapedQueue
 
 __all__ = ["UdpRelay", "main", "parse_background_bytes"]
@@ -171,6 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--background", type=parse_background_bytes, default=None)
     p.add_argument("--stats", type=Path, default=None)
     args = p.parse_args(argv)
+    stop_signals = EarlyStop()  # a stop signal right after the relay line is not lost
     try:
         queue: ShapedQueue[tuple[bytes, Address]] = ShapedQueue(
             rate_bytes_per_s=args.rate, queue_limit_bytes=args.queue, burst_bytes=args.burst,
@@ -190,8 +192,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{args.rate:g} B/s, queue {args.queue} B", flush=True)
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            loop.add_signal_handler(sig, stop.set)
+        stop_signals.attach(loop, stop.set)
         loop.add_signal_handler(signal.SIGUSR1, relay.mission_started)
         await stop.wait()
         relay.close()

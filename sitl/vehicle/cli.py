@@ -13,11 +13,11 @@ import asyncio
 import contextlib
 import json
 import os
-import signal
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from companion.stop_signals import EarlyStop
 from sitl.geo import Enu, GeoPoint, geo_from_enu
 
 if TYPE_CHECKING:  # pymavlink is imported only after MAVLINK20 is set in main()
@@ -174,7 +174,7 @@ def build_configs(args: argparse.Namespace) -> list[VehicleConfig]:
     return configs
 
 
-async def _serve(args: argparse.Namespace) -> int:
+async def _serve(args: argparse.Namespace, stop_signals: EarlyStop) -> int:
     from sitl.vehicle.serial_pty import PtySerialLink, start_serial_vehicle
     from sitl.vehicle.shell import VehicleEndpoint, start_vehicles
 
@@ -220,10 +220,7 @@ async def _serve(args: argparse.Namespace) -> int:
                   f"{exc.strerror or exc}", file=sys.stderr)
             return 1
     stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError, RuntimeError):
-            loop.add_signal_handler(sig, stop.set)
+    stop_signals.attach(asyncio.get_running_loop(), stop.set)
     try:
         if args.duration is not None:
             with contextlib.suppress(TimeoutError):
@@ -244,11 +241,12 @@ async def _serve(args: argparse.Namespace) -> int:
 def main(argv: list[str]) -> int:
     os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported anywhere
     args = parse_args(argv)
+    stop_signals = EarlyStop()  # a stop signal right after READY is not lost
     from sitl.scenes import SceneError
     from sitl.vehicle.patterns import PatternError
 
     try:
-        return asyncio.run(_serve(args))
+        return asyncio.run(_serve(args, stop_signals))
     except (SceneError, PatternError) as exc:
         print(f"uav-sitl vehicle: {exc}", file=sys.stderr)
         return 2

@@ -138,7 +138,12 @@ async def test_run_shell_token_export(tmp_path: Path) -> None:
         assert token not in line and line.startswith("dashboard:")
     finally:
         again.send_signal(signal.SIGINT)
-        again.wait(timeout=15)
+        try:
+            assert again.wait(timeout=15) == 0
+        finally:
+            if again.poll() is None:
+                again.kill()
+                again.wait()
 
 
 async def test_config_error_exit_code(tmp_path: Path) -> None:
