@@ -34,7 +34,13 @@ from companion.middleware.decider import (
     ParamValue,
 )
 from companion.middleware.errors import MiddlewareError, ParamError, UnknownParamError
-from companion.middleware.gate import creates_violation, price_per_byte, priced_option
+from companion.middleware.fleetshare import start_share
+from companion.middleware.gate import (
+    creates_violation,
+    price_per_byte,
+    priced_option,
+    surplus_option,
+)
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge, settle_inflight, usable
 from companion.middleware.margin import OvershootMargin
@@ -130,6 +136,16 @@ class MiddlewareConfig:
     (:func:`~companion.middleware.gate.creates_violation`). It rescues telemetry at tight
     budgets but adds sends to windows already over the budget (fleet window violations
     32-53 instead of 4-18 per run at 25 kB/s), so it is off by default. None: off."""
+
+    fleet_size: int | None = None  # issue 18 round 7 (fleetshare.py)
+    """Agents the mission declares: until it has heard of a peer, for ``start_share_s``
+    after its first decision, an agent leaves that peer its equal share of the budget."""
+    start_share_s: float = 5.0
+    start_ramp_s: float | None = None
+    inflight_expected: bool = False
+    inflight_rate_s: float | None = None
+    price_surplus: bool = False  # issue 18 round 7 (gate.surplus_option)
+    """The gate keeps the option with the most utility left after paying the price."""
 
     def __post_init__(self) -> None:
         if not self.agent:
@@ -254,9 +270,11 @@ class Middleware:
         )
         lag = max(self.knowledge.latency.high_s, self.knowledge.latency.mean_s)
         view = settle_inflight(view, now=now, lag_s=lag, keep=self.config.search_inflight,
-                               rates=self.knowledge.sender_rates(now=now, lag_s=lag,
-                                                                 window_s=window_s),
-                               settle_versions=True)  # issue 18 round 5
+                               rates=self.knowledge.sender_rates(
+                                   now=now, lag_s=lag,
+                                   window_s=self.config.inflight_rate_s or window_s),
+                               settle_versions=True,  # issue 18 round 5
+                               expected=self.config.inflight_expected)
         unheard_s = self.config.plan_unheard_s
         if unheard_s is not None and now - self._started <= unheard_s:
             view = self.unheard.add_to(view, self.spec, now=now,
@@ -264,6 +282,10 @@ class Middleware:
                                        latency_s=self.knowledge.latency.mean_s,
                                        max_items=self.config.max_items)
         budget = self.constraint.budget_bytes(now=now)
+        budget = start_share(budget, fleet=self.config.fleet_size,  # round 7, fleetshare.py
+                             heard=len(self.knowledge.peers_of(self.config.agent)),
+                             elapsed_s=now - self._started, for_s=self.config.start_share_s,
+                             ramp_s=self.config.start_ramp_s)
         if self.config.learn_margin:
             self.margin.observe(self.knowledge.known_sends(), now=now, settle_s=lag,
                                 window_s=window_s, budget_bytes=budget)
@@ -291,7 +313,8 @@ class Middleware:
         else:
             option, reason = result.option, "mcts-exact" if result.exhausted else "mcts"
             if self.config.price_bytes and message.versions:  # issue 18 rounds 5-6, gate.py
-                option = priced_option(problem, level, option, price_per_byte(problem))
+                gate = surplus_option if self.config.price_surplus else priced_option
+                option = gate(problem, level, option, price_per_byte(problem))
             small = self.config.small_share
             if small is not None and option == 0 and message.size <= small * budget:
                 option = self._small_option(problem, level, search.lam, now=now,
