@@ -28,7 +28,7 @@ import numpy as np
 
 from companion.middleware.incremental import Problem
 
-__all__ = ["creates_violation", "price_per_byte", "priced_option", "surplus_option"]
+__all__ = ["creates_violation", "price_per_byte", "priced_option"]
 
 
 def priced_option(problem: Problem, level: int, option: int, lam: float) -> int:
@@ -46,25 +46,6 @@ def priced_option(problem: Problem, level: int, option: int, lam: float) -> int:
     cap = int(problem.size[level, option])
     smaller = [o for o in earning if int(problem.size[level, o]) <= cap]
     return max(smaller, key=lambda o: float(problem.gain[level, o, 0]), default=0)
-
-
-def surplus_option(problem: Problem, level: int, option: int, lam: float) -> int:
-    """The option, no larger than the tree's ``option``, with the most utility left after
-    paying ``lam`` per byte (gain − lam·bytes, over the stream's base); 0 (drop) when none
-    is left with a surplus. Unlike :func:`priced_option`, a full frame that earns the price
-    on average but whose bytes beyond the half version's do not gives way to the half."""
-    if option == 0 or lam <= 0 or not 0 <= level < problem.n:
-        return option
-    cap = int(problem.size[level, option])
-    best, best_surplus = 0, 0.0
-    for o in range(1, int(problem.nopt[level])):
-        size = int(problem.size[level, o])
-        if size > cap:
-            continue
-        surplus = float(problem.gain[level, o, 0]) - lam * max(1, size)
-        if surplus >= best_surplus and (best == 0 or surplus > best_surplus):
-            best, best_surplus = o, surplus
-    return best
 
 
 def creates_violation(sends: Iterable[tuple[float, int]], *, now: float, size: int,

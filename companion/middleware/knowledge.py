@@ -296,8 +296,7 @@ class FleetKnowledge:
 
 
 def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, tuple[float, float]],
-                    lag_s: float, keep: int = 0, settle_versions: bool = False,
-                    expected: bool = False) -> PlanningView:
+                    lag_s: float, keep: int = 0, settle_versions: bool = False) -> PlanningView:
     """The view with what other agents sent in the last ``lag_s`` (not known before it
     arrives) estimated, and their possibly in-flight messages taken as already decided.
 
@@ -328,9 +327,6 @@ def settle_inflight(view: PlanningView, *, now: float, rates: dict[str, tuple[fl
             # whole messages: a fraction of one would block a send the budget has room for
             n = math.floor(rate * lag_s / size + 0.5) if size > 0 else 0
             window += [(now - lag_s + (i + 0.5) * lag_s / n, int(size)) for i in range(n)]
-            rest = rate * lag_s - n * size
-            if expected and rest > 0:
-                window.append((now - 0.5 * lag_s, int(rest)))
     inflight = [it for it in view.items if it.kind == "inflight"]
     plain = [it for it in inflight if not (settle_versions and it.message.versions)]
     kept = {id(it) for it in plain[max(0, len(plain) - keep):]} if keep > 0 else set()

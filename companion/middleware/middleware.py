@@ -35,12 +35,7 @@ from companion.middleware.decider import (
 )
 from companion.middleware.errors import MiddlewareError, ParamError, UnknownParamError
 from companion.middleware.fleetshare import start_share
-from companion.middleware.gate import (
-    creates_violation,
-    price_per_byte,
-    priced_option,
-    surplus_option,
-)
+from companion.middleware.gate import creates_violation, price_per_byte, priced_option
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge, settle_inflight, usable
 from companion.middleware.margin import OvershootMargin
@@ -137,15 +132,11 @@ class MiddlewareConfig:
     budgets but adds sends to windows already over the budget (fleet window violations
     32-53 instead of 4-18 per run at 25 kB/s), so it is off by default. None: off."""
 
-    fleet_size: int | None = None  # issue 18 round 7 (fleetshare.py)
-    """Agents the mission declares: until it has heard of a peer, for ``start_share_s``
-    after its first decision, an agent leaves that peer its equal share of the budget."""
+    fleet_size: int | None = None  # issue 18 round 7
+    """Agents the mission declares. At the mission start (for ``start_share_s``) an agent
+    leaves each peer it has not heard of its equal share of the budget and ramps its own
+    plan up over the first window (:mod:`~companion.middleware.fleetshare`). None: off."""
     start_share_s: float = 5.0
-    start_ramp_s: float | None = None
-    inflight_expected: bool = False
-    inflight_rate_s: float | None = None
-    price_surplus: bool = False  # issue 18 round 7 (gate.surplus_option)
-    """The gate keeps the option with the most utility left after paying the price."""
 
     def __post_init__(self) -> None:
         if not self.agent:
@@ -159,6 +150,8 @@ class MiddlewareConfig:
             raise MiddlewareError("need horizon_s > 0, c >= 0, default_latency_s >= 0, tail_s >= 0")
         if self.search_depth is not None and self.search_depth < 0:
             raise MiddlewareError("search_depth must be >= 0 or None")
+        if (self.fleet_size is not None and self.fleet_size < 1) or not self.start_share_s > 0:
+            raise MiddlewareError("fleet_size must be >= 1 or None, start_share_s > 0")
         if self.plan_unheard_s is not None and not self.plan_unheard_s > 0:
             raise MiddlewareError("plan_unheard_s must be > 0 or None")
         if self.announce_after_s is not None and not self.announce_after_s > 0:
@@ -270,11 +263,9 @@ class Middleware:
         )
         lag = max(self.knowledge.latency.high_s, self.knowledge.latency.mean_s)
         view = settle_inflight(view, now=now, lag_s=lag, keep=self.config.search_inflight,
-                               rates=self.knowledge.sender_rates(
-                                   now=now, lag_s=lag,
-                                   window_s=self.config.inflight_rate_s or window_s),
-                               settle_versions=True,  # issue 18 round 5
-                               expected=self.config.inflight_expected)
+                               rates=self.knowledge.sender_rates(now=now, lag_s=lag,
+                                                                 window_s=window_s),
+                               settle_versions=True)  # issue 18 round 5
         unheard_s = self.config.plan_unheard_s
         if unheard_s is not None and now - self._started <= unheard_s:
             view = self.unheard.add_to(view, self.spec, now=now,
@@ -284,8 +275,8 @@ class Middleware:
         budget = self.constraint.budget_bytes(now=now)
         budget = start_share(budget, fleet=self.config.fleet_size,  # round 7, fleetshare.py
                              heard=len(self.knowledge.peers_of(self.config.agent)),
-                             elapsed_s=now - self._started, for_s=self.config.start_share_s,
-                             ramp_s=self.config.start_ramp_s)
+                             elapsed_s=now - self._started, window_s=window_s,
+                             for_s=self.config.start_share_s)
         if self.config.learn_margin:
             self.margin.observe(self.knowledge.known_sends(), now=now, settle_s=lag,
                                 window_s=window_s, budget_bytes=budget)
@@ -313,8 +304,7 @@ class Middleware:
         else:
             option, reason = result.option, "mcts-exact" if result.exhausted else "mcts"
             if self.config.price_bytes and message.versions:  # issue 18 rounds 5-6, gate.py
-                gate = surplus_option if self.config.price_surplus else priced_option
-                option = gate(problem, level, option, price_per_byte(problem))
+                option = priced_option(problem, level, option, price_per_byte(problem))
             small = self.config.small_share
             if small is not None and option == 0 and message.size <= small * budget:
                 option = self._small_option(problem, level, search.lam, now=now,
