@@ -276,7 +276,9 @@ class Middleware:
         budget = start_share(budget, fleet=self.config.fleet_size,  # round 7, fleetshare.py
                              heard=len(self.knowledge.peers_of(self.config.agent)),
                              elapsed_s=now - self._started, window_s=window_s,
-                             for_s=self.config.start_share_s)
+                             for_s=self.config.start_share_s,
+                             floor_bytes=min((v.size for v in message.versions),
+                                             default=message.size))
         if self.config.learn_margin:
             self.margin.observe(self.knowledge.known_sends(), now=now, settle_s=lag,
                                 window_s=window_s, budget_bytes=budget)

@@ -31,6 +31,9 @@ def test_start_share_values() -> None:
                        for_s=5.0) == 100.0
     assert start_share(100.0, heard=0, elapsed_s=0.0, fleet=1, window_s=2.5,
                        for_s=5.0) == 100.0
+    # never below the smallest version of the decided message, never above the budget
+    assert start_share(100.0, heard=0, elapsed_s=0.0, floor_bytes=20.0, **share) == 20.0
+    assert start_share(100.0, heard=0, elapsed_s=0.0, floor_bytes=500.0, **share) == 100.0
 
 
 @settings(max_examples=200, deadline=None)
@@ -55,17 +58,17 @@ def test_fleet_size_is_checked() -> None:
         MiddlewareConfig(spec=spec, agent="uav0", fleet_size=4, start_share_s=0.0)
 
 
-def _first_frame(fleet_size: int | None) -> int | None:
-    """The version (0 full) a drone sends its first frame in, at 75 kB/s over 2.5 s."""
+def _first_frame(fleet_size: int | None, rate: float = 75_000) -> int | None:
+    """The version (0 full, None dropped) a drone sends its first frame in, at ``rate``
+    bytes/s over 2.5 s."""
     spec = builtin_spec("image_streaming")
     mw = Middleware(MiddlewareConfig(spec=spec, agent="uav0", max_iterations=300,
                                      fleet_size=fleet_size),
-                    constraint=ConstantConstraint(limit_bytes_per_s=75_000, window_s=2.5))
+                    constraint=ConstantConstraint(limit_bytes_per_s=rate, window_s=2.5))
     frame = Message(sender="uav0", seq=0, type="image", t_gen=0.0, size=40_000,
                     data={"red": 0.05}, versions=study.IMAGE_VERSIONS, version=0)
     decision = mw.decide(frame, 0.0)
-    assert decision.send
-    return decision.version
+    return decision.version if decision.send else None
 
 
 def test_the_first_frame_leaves_room_for_the_unheard_peers() -> None:
@@ -73,6 +76,13 @@ def test_the_first_frame_leaves_room_for_the_unheard_peers() -> None:
     assert _first_frame(None) == 0
     # with 3 peers declared and none heard: 1/4 of the budget, ramped to 1/4 of that
     assert _first_frame(4) not in (None, 0)
+
+
+def test_a_large_fleet_does_not_wait_for_each_other_in_silence() -> None:
+    # 10 drones at 20 kB/s: 1/100 of the 50 kB window is 500 B, less than the quarter frame
+    # (2.5 kB); without the floor nobody sent, nobody was heard, and the fleet stayed
+    # silent for start_share_s (fig. 5.7's uniform fleet lost 8-10 points that way)
+    assert _first_frame(10, rate=20_000) == 2  # the quarter version
 
 
 def _first_reports(fleet_size: int | None) -> tuple[float, int]:
