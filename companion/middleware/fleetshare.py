@@ -16,7 +16,7 @@ peer that never sends must not shrink the budget for ever. The share never falls
 the smallest version of the message decided (``floor_bytes``): with ten agents and a budget
 of a few messages per window (the fig. 5.7 fleet) 1/100 of it is less than any message, no
 agent sent, none was heard, and the fleet was silent until ``for_s`` (uniform 5.5-12
-msgs/T: 8-10 points lost).
+msgs/T: 8-13 points lost).
 """
 
 from __future__ import annotations

@@ -81,7 +81,7 @@ def test_the_first_frame_leaves_room_for_the_unheard_peers() -> None:
 def test_a_large_fleet_does_not_wait_for_each_other_in_silence() -> None:
     # 10 drones at 20 kB/s: 1/100 of the 50 kB window is 500 B, less than the quarter frame
     # (2.5 kB); without the floor nobody sent, nobody was heard, and the fleet stayed
-    # silent for start_share_s (fig. 5.7's uniform fleet lost 8-10 points that way)
+    # silent for start_share_s (fig. 5.7's uniform fleet lost 8-13 points that way)
     assert _first_frame(10, rate=20_000) == 2  # the quarter version
 
 
