@@ -47,7 +47,11 @@ from utility_specs.errors import UtilitySpecsError
 from utility_specs.message import Message, Version
 from utility_specs.spec import MissionSpec
 
-__all__ = ["Decision", "Middleware", "MiddlewareConfig", "MiddlewareError"]
+__all__ = ["MISSION_KEYS", "Decision", "Middleware", "MiddlewareConfig", "MiddlewareError"]
+
+MISSION_KEYS = ("fleet_size",)
+"""``MiddlewareConfig`` fields the ``[middleware]`` table sets besides :data:`LIVE_KEYS`;
+fixed for a mission, so not live: ``fleet_size`` acts only in the first seconds of it."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -208,11 +212,12 @@ class Middleware:
     @classmethod
     def from_setup(cls, setup: DeciderSetup, *, alpha: ParamValue = None,
                    **params: ParamValue) -> Self:
-        """The ``mcts`` policy of the registry: ``params`` are :data:`LIVE_KEYS`, ``alpha``
-        sets α of the mission's utility functions (eq. 7.1/7.2)."""
+        """The ``mcts`` policy of the registry: ``params`` are :data:`LIVE_KEYS` and
+        :data:`MISSION_KEYS`, ``alpha`` sets α of the mission's utility functions (eq. 7.1/7.2)."""
         for key in params:
-            if key not in LIVE_KEYS:
-                raise UnknownParamError(key, ("alpha", *LIVE_KEYS), owner="the mcts policy")
+            if key not in LIVE_KEYS and key not in MISSION_KEYS:
+                raise UnknownParamError(key, ("alpha", *LIVE_KEYS, *MISSION_KEYS),
+                                        owner="the mcts policy")
         spec = setup.spec if alpha is None else with_alpha(setup.spec, alpha)
         try:
             config = MiddlewareConfig(spec=spec, agent=setup.agent,
