@@ -173,9 +173,10 @@ class FleetPlan:
     policy: str = "mcts"
     """The companions' ``[middleware] policy`` (``random_drop``: any version, status kept)."""
     drop_probability: float = 0.5
-    fleet_share: bool = False
+    fleet_share: bool = True
     """mcts: write ``[middleware] fleet_size`` = the number of drones (the share of the
-    budget at the mission start, issue 18); off by default (measured: docs/middleware.md)."""
+    budget at the mission start, issue 18): measured on the demo fleet, the first seconds'
+    full frames no longer overflow the relay's queue (docs/middleware.md, round 7)."""
     peers_medium: str | None = None
     """the shared medium of ``--peers`` (sitl.fleet_peers); None: unicast."""
     peers_http_ports: Mapping[str, int] = field(default_factory=dict)
