@@ -122,8 +122,8 @@ class CompanionConfig:
     telemetry: TelemetryConfig = field(default_factory=TelemetryConfig)
     middleware: Mapping[str, Any] = field(default_factory=dict)
     """``policy`` (a name of ``companion.middleware.policies.DECIDERS``, default ``mcts``),
-    ``seed``, and the policy's own keys (``alpha``, ``drop_probability``...), checked when
-    the policy is built."""
+    ``seed``, ``fleet_size`` (mcts: drones in the mission, checked here) and the policy's
+    own keys (``alpha``, ``drop_probability``...), checked when the policy is built."""
     peers: PeersSettings = field(default_factory=PeersSettings)
     """The ``[peers]`` table (shared medium, ADSB_VEHICLE, /peers endpoint: docs/peers.md)."""
     source: str = "<memory>"
@@ -136,6 +136,17 @@ def _check_policy(name: Any, source: str) -> None:
     if not isinstance(name, str) or name not in DECIDERS:
         raise ConfigError(f"{source}: middleware.policy: expected one of "
                           f"{', '.join(sorted(DECIDERS))}, got {name!r}")
+
+
+def _check_fleet_size(middleware: Mapping[str, Any], source: str) -> None:
+    """``[middleware] fleet_size``: the drones the mission declares (the mcts policy's share
+    of the budget at the mission start, issue 18); a whole number >= 1."""
+    if "fleet_size" not in middleware:
+        return
+    value = middleware["fleet_size"]
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ConfigError(f"{source}: middleware.fleet_size: expected an integer >= 1, "
+                          f"got {value!r}")
 
 
 def _resolve(path: str, base: Path) -> Path:
@@ -307,6 +318,7 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
 
     middleware = root.mapping("middleware")
     _check_policy(middleware.get("policy", "mcts"), source)
+    _check_fleet_size(middleware, source)
     try:
         peers = parse_peers_settings(root.mapping("peers"))
     except ValueError as exc:

@@ -173,6 +173,10 @@ class FleetPlan:
     policy: str = "mcts"
     """The companions' ``[middleware] policy`` (``random_drop``: any version, status kept)."""
     drop_probability: float = 0.5
+    fleet_share: bool = True
+    """mcts: write ``[middleware] fleet_size`` = the number of drones (the share of the
+    budget at the mission start, issue 18): measured on the demo fleet, the first seconds'
+    full frames no longer overflow the relay's queue (docs/middleware.md, round 7)."""
     peers_medium: str | None = None
     """the shared medium of ``--peers`` (sitl.fleet_peers); None: unicast."""
     peers_http_ports: Mapping[str, int] = field(default_factory=dict)
@@ -253,6 +257,8 @@ def companion_toml(plan: FleetPlan, drone: DroneSlot) -> str:
         "middleware": {"seed": plan.seed + drone.index}
         | ({"alpha": plan.alpha} if plan.alpha is not None else {})
         | ({"policy": plan.policy} if plan.policy != "mcts" else {})
+        | ({"fleet_size": len(plan.drones)} if plan.fleet_share and plan.policy == "mcts"
+           else {})
         | ({"drop_probability": plan.drop_probability, "any_version": True}
            if plan.policy == "random_drop" else {}),
     }

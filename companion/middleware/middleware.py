@@ -34,6 +34,7 @@ from companion.middleware.decider import (
     ParamValue,
 )
 from companion.middleware.errors import MiddlewareError, ParamError, UnknownParamError
+from companion.middleware.fleetshare import start_share
 from companion.middleware.gate import creates_violation, price_per_byte, priced_option
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge, settle_inflight, usable
@@ -46,7 +47,11 @@ from utility_specs.errors import UtilitySpecsError
 from utility_specs.message import Message, Version
 from utility_specs.spec import MissionSpec
 
-__all__ = ["Decision", "Middleware", "MiddlewareConfig", "MiddlewareError"]
+__all__ = ["MISSION_KEYS", "Decision", "Middleware", "MiddlewareConfig", "MiddlewareError"]
+
+MISSION_KEYS = ("fleet_size",)
+"""``MiddlewareConfig`` fields the ``[middleware]`` table sets besides :data:`LIVE_KEYS`;
+fixed for a mission, so not live: ``fleet_size`` acts only in the first seconds of it."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -131,6 +136,12 @@ class MiddlewareConfig:
     budgets but adds sends to windows already over the budget (fleet window violations
     32-53 instead of 4-18 per run at 25 kB/s), so it is off by default. None: off."""
 
+    fleet_size: int | None = None  # issue 18 round 7
+    """Agents the mission declares. At the mission start (for ``start_share_s``) an agent
+    leaves each peer it has not heard of its equal share of the budget and ramps its own
+    plan up over the first window (:mod:`~companion.middleware.fleetshare`). None: off."""
+    start_share_s: float = 5.0
+
     def __post_init__(self) -> None:
         if not self.agent:
             raise MiddlewareError("agent must not be empty")
@@ -143,6 +154,8 @@ class MiddlewareConfig:
             raise MiddlewareError("need horizon_s > 0, c >= 0, default_latency_s >= 0, tail_s >= 0")
         if self.search_depth is not None and self.search_depth < 0:
             raise MiddlewareError("search_depth must be >= 0 or None")
+        if (self.fleet_size is not None and self.fleet_size < 1) or not self.start_share_s > 0:
+            raise MiddlewareError("fleet_size must be >= 1 or None, start_share_s > 0")
         if self.plan_unheard_s is not None and not self.plan_unheard_s > 0:
             raise MiddlewareError("plan_unheard_s must be > 0 or None")
         if self.announce_after_s is not None and not self.announce_after_s > 0:
@@ -199,11 +212,12 @@ class Middleware:
     @classmethod
     def from_setup(cls, setup: DeciderSetup, *, alpha: ParamValue = None,
                    **params: ParamValue) -> Self:
-        """The ``mcts`` policy of the registry: ``params`` are :data:`LIVE_KEYS`, ``alpha``
-        sets α of the mission's utility functions (eq. 7.1/7.2)."""
+        """The ``mcts`` policy of the registry: ``params`` are :data:`LIVE_KEYS` and
+        :data:`MISSION_KEYS`, ``alpha`` sets α of the mission's utility functions (eq. 7.1/7.2)."""
         for key in params:
-            if key not in LIVE_KEYS:
-                raise UnknownParamError(key, ("alpha", *LIVE_KEYS), owner="the mcts policy")
+            if key not in LIVE_KEYS and key not in MISSION_KEYS:
+                raise UnknownParamError(key, ("alpha", *LIVE_KEYS, *MISSION_KEYS),
+                                        owner="the mcts policy")
         spec = setup.spec if alpha is None else with_alpha(setup.spec, alpha)
         try:
             config = MiddlewareConfig(spec=spec, agent=setup.agent,
@@ -264,6 +278,12 @@ class Middleware:
                                        latency_s=self.knowledge.latency.mean_s,
                                        max_items=self.config.max_items)
         budget = self.constraint.budget_bytes(now=now)
+        budget = start_share(budget, fleet=self.config.fleet_size,  # round 7, fleetshare.py
+                             heard=len(self.knowledge.peers_of(self.config.agent)),
+                             elapsed_s=now - self._started, window_s=window_s,
+                             for_s=self.config.start_share_s,
+                             floor_bytes=min((v.size for v in message.versions),
+                                             default=message.size))
         if self.config.learn_margin:
             self.margin.observe(self.knowledge.known_sends(), now=now, settle_s=lag,
                                 window_s=window_s, budget_bytes=budget)

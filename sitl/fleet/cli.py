@@ -98,6 +98,11 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--relay-queue", type=int, default=RELAY_QUEUE_BYTES, metavar="BYTES",
                    help=f"the relay's queue limit in bytes (default {RELAY_QUEUE_BYTES})")
     p.add_argument("--quiet", action="store_true", help="no live progress line")
+    p.add_argument("--fleet-share", action=argparse.BooleanOptionalAction, default=True,
+                   help="mcts: give each companion the fleet's size ([middleware] fleet_size): "
+                        "at the mission start it leaves unheard peers their share of the "
+                        "budget (default on: the start's full frames no longer overflow the "
+                        "relay; measured in docs/middleware.md, round 7)")
     p.add_argument("--peers", action="store_true",
                    help="peer sharing (docs/peers.md): a broadcast medium (loopback, or the "
                         "--netns bridge), each "

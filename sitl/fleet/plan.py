@@ -56,6 +56,7 @@ def make_plan(args: argparse.Namespace, run_dir: Path, *, netns: bool = False) -
         mcts_iterations=args.mcts_iterations, time_budget_s=args.time_budget,
         constraint=args.constraint, constraint_params=params, alpha=args.alpha, seed=args.seed,
         policy=COMPANION_POLICY[args.policy], drop_probability=args.drop_probability,
+        fleet_share=args.fleet_share,
         **_peers_plan(args, drones, netns=netns))
 
 

@@ -50,6 +50,7 @@ IMAGE_VERSIONS = (Version(name="full", size=40_000, quality=1.0),
                   Version(name="half", size=10_000, quality=0.5),
                   Version(name="quarter", size=2_500, quality=0.25))
 IMAGE_WINDOW_S = 2.5
+IMAGE_DRONES = 4
 IMAGE_CHANNEL = ChannelConfig(capacity_bytes_per_s=125_000.0)
 
 
@@ -99,7 +100,8 @@ def _mcts_name(name: str) -> tuple[int, str]:
 
 
 def _policy(name: str, param: float, *, spec: MissionSpec, agent: str, index: int, seed: int,
-            budget_bytes: float, window_s: float, horizon_s: float) -> Policy:
+            budget_bytes: float, window_s: float, horizon_s: float,
+            fleet_size: int | None = None) -> Policy:
     def constraint() -> ConstantConstraint:
         return ConstantConstraint(limit_bytes_per_s=budget_bytes / window_s, window_s=window_s)
 
@@ -107,7 +109,8 @@ def _policy(name: str, param: float, *, spec: MissionSpec, agent: str, index: in
         iterations, suffix = _mcts_name(name)
         config = MiddlewareConfig(spec=spec, agent=agent, max_iterations=iterations,
                                   horizon_s=horizon_s, knapsack_seed="ks" in suffix,
-                                  learn_margin="m" in suffix.replace("ks", ""))
+                                  learn_margin="m" in suffix.replace("ks", ""),
+                                  fleet_size=fleet_size)
         middleware = Middleware(config, rng=np.random.default_rng([seed, index]),
                                 constraint=constraint())
         if suffix.endswith("c"):
@@ -132,9 +135,11 @@ def run_one(scenario: str, policy: str, param: float, *, seed: int, t_end: float
         spec = builtin_spec("image_streaming")
         window_s, horizon_s = IMAGE_WINDOW_S, 3.0
         budget = param * window_s
+        # the mission declares its 4 drones: MCTS shares the budget at the start (round 7)
         agents = image_fleet(lambda a, i: _policy(
             policy, param, spec=spec, agent=a, index=i, seed=seed, budget_bytes=budget,
-            window_s=window_s, horizon_s=horizon_s), seed=seed)
+            window_s=window_s, horizon_s=horizon_s, fleet_size=IMAGE_DRONES),
+            n=IMAGE_DRONES, seed=seed)
         channel = IMAGE_CHANNEL
     else:
         window_s, horizon_s = dr.WINDOW_S, dr.HORIZON_S

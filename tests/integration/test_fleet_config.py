@@ -217,7 +217,8 @@ def test_random_baseline_drops_at_its_rate_and_picks_any_version(tmp_path: Path)
     assert built.always_send == {"status"}
     mcts = _plan(tmp_path / "mcts")
     write_run_configs(mcts)
-    assert dict(load_companion_config(mcts.drones[0].config_path).middleware) == {"seed": 0}
+    assert dict(load_companion_config(mcts.drones[0].config_path).middleware) == {
+        "seed": 0, "fleet_size": 3}
 
     versions = tuple(Version(name=n, size=s, quality=q)
                      for n, s, q in (("full", 4000, 1.0), ("half", 1500, 0.5),
