@@ -25,7 +25,7 @@ budget spent early shows up as sends the default policy can no longer make, and 
 discovery factor c = 0.35 keeps one meaning at every level. A horizon where nothing can be
 gained (U(𝓜) = 0) scores 1.
 
-With ``best_plan`` (the middleware's default since issue 18 round 6, with ``depth`` 10) the
+With ``best_plan`` (opt-in since issue 18 round 6, measured with ``depth`` 10) the
 decision is the decided level's option of the best complete plan any iteration evaluated:
 the model is deterministic, so more iterations never lower the answer's model utility.
 Otherwise it follows the most visited path (alg. 2); ties go to the higher mean score, then
