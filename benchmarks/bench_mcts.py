@@ -23,12 +23,15 @@ interpolation are the study's (``sitl.study.baselines.tables``).
 Like for like (``--only like-for-like``): the same checks against the thesis numbers on the
 reference code's own message sequence (data/infdist_preset0_seed0.csv), on which they were
 measured, instead of this project's draw of the scenario.
+Decision rule (``--rule``, issue 18 round 7): every MCTS of the run answers by another rule
+than the default (alg. 2's most visited path), so a candidate is measured on the same rows.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import itertools
 import sys
 import time
@@ -58,6 +61,25 @@ from utility_specs.files import builtin_spec
 from utility_specs.message import Version
 
 ROWS: list[tuple[str, str, str, bool]] = []
+
+RULES: dict[str, dict[str, Any]] = {
+    "default": {},
+    "best-plan": {"best_plan": True, "search_depth": 10},
+    "veto": {"best_plan": True, "search_depth": 10, "veto": 1.5},
+}
+"""``--rule``: MiddlewareConfig fields of each decision rule (docs/middleware.md, round 7)."""
+
+
+def use_rule(name: str) -> None:
+    """Every MiddlewareConfig this benchmark and the study missions build gets the rule's
+    fields (a benchmark option: the product's default is not changed)."""
+    import sitl.study.baselines
+    import sitl.study.drop_rate
+
+    make = functools.partial(MiddlewareConfig, **RULES[name])
+    for module in (sitl.study.drop_rate, sitl.study.baselines):
+        module.MiddlewareConfig = make  # type: ignore[attr-defined,misc]
+    globals()["MiddlewareConfig"] = make
 
 
 def check(name: str, value: str, target: str, ok: bool) -> None:
@@ -353,7 +375,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", choices=["companion", "like-for-like", "anytime", "optimum",
                                            "baselines"],
                         help="run only these rows")
+    parser.add_argument("--rule", choices=sorted(RULES), default="default",
+                        help="decision rule of every MCTS (default: the product's)")
     args = parser.parse_args(argv)
+    use_rule(args.rule)
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     t_end = 30.0 if args.quick else 100.0

@@ -25,12 +25,18 @@ budget spent early shows up as sends the default policy can no longer make, and 
 discovery factor c = 0.35 keeps one meaning at every level. A horizon where nothing can be
 gained (U(𝓜) = 0) scores 1.
 
-With ``best_plan`` (the middleware's default since issue 18 round 6, with ``depth`` 10) the
+With ``best_plan`` (opt-in since issue 18 round 6, measured with ``depth`` 10) the
 decision is the decided level's option of the best complete plan any iteration evaluated:
 the model is deterministic, so more iterations never lower the answer's model utility.
 Otherwise it follows the most visited path (alg. 2); ties go to the higher mean score, then
 to sending. If the budget ends before the decided message's level is reached on that path,
 :func:`greedy_option` answers instead (stated in the decision's reason).
+
+With ``veto`` (opt-in, issue 18 round 7) a second, unbounded tree runs the same iterations
+and its most visited path may veto a send: the bounded best plan's send goes out unless, at
+the decided level of the second tree's most visited path, the drop child has more than
+``veto`` times the visits of that send's child. A send then needs both the best plan found
+and the averaged statistics of a tree in which the others' choices vary.
 
 With ``knapsack_seed`` the search starts from knapsack-greedy's plan (expanded first at
 every node, and a second default policy that follows it) and answers with the decided
@@ -122,11 +128,11 @@ class MCTS:
     """One decision's search: build with a :class:`Problem`, :meth:`run`, read :meth:`result`."""
 
     __slots__ = ("best", "best_at", "best_plan", "c", "depth_limit", "lam", "plan", "problem",
-                 "top", "tree")
+                 "robust", "top", "tree", "veto")
 
     def __init__(self, problem: Problem, *, c: float = 0.35, max_nodes: int = 1501,
                  knapsack_seed: bool = False, best_plan: bool = False,
-                 depth: int | None = None) -> None:
+                 depth: int | None = None, veto: float | None = None) -> None:
         if not c >= 0:
             raise ValueError(f"discovery factor c must be >= 0, got {c}")
         self.problem = problem
@@ -151,6 +157,11 @@ class MCTS:
         """Utility of the best complete plan any iteration evaluated."""
         self.best_at = np.full(1, -1, dtype=np.int64)
         """That plan's option at the decided level (-1: none yet)."""
+        if veto is not None and not veto > 0:
+            raise ValueError(f"veto must be > 0 or None, got {veto}")
+        self.veto = veto
+        self.robust = MCTS(problem, c=c, max_nodes=max_nodes) if veto is not None else None
+        """The unbounded, most visited tree whose statistics may veto a send (``veto``)."""
 
     @property
     def iterations(self) -> int:
@@ -165,6 +176,8 @@ class MCTS:
         p, t = self.problem, self.tree
         if iterations <= 0 or p.n == 0:
             return 0
+        if self.robust is not None:
+            self.robust.run(iterations)
         with np.errstate(over="ignore"):
             return int(
                 _kernel.search(
@@ -193,6 +206,24 @@ class MCTS:
             if best is None or cand > best:
                 best, best_node = cand, ch
         return best_node
+
+    def _vetoed(self, option: int) -> bool:
+        """The unbounded tree's most visited path reaches the decided level and there its
+        drop child has more than ``veto`` times the visits of ``option``'s child."""
+        robust = self.robust
+        assert robust is not None and self.veto is not None
+        level = self.problem.decided_level
+        path = robust.most_visited_path()
+        if not 0 <= level < len(path):
+            return False
+        t = robust.tree
+        node = int(t.parent[path[level]])
+
+        def visits(o: int) -> int:
+            ch = int(t.children[node, o])
+            return int(t.visits[ch]) if ch >= 0 and not t.dead[ch] else 0
+
+        return visits(0) > self.veto * visits(option)
 
     def most_visited_path(self) -> list[int]:
         """Nodes from the root's child down, following the most visited child (alg. 2)."""
@@ -230,6 +261,8 @@ class MCTS:
             option = int(t.option[chosen])
             score = t.mean(chosen)
             visits = int(t.visits[chosen])
+        if option and self.robust is not None and self._vetoed(option):
+            option, score, visits = 0, float("nan"), 0
         return SearchResult(
             option=option,
             score=score,

@@ -102,6 +102,10 @@ class MiddlewareConfig:
     """Levels after the decided one that the tree searches; below them the default policy
     alone plans (None: every level). 10 with ``best_plan``: the fig. 5.7 anytime cases do
     not fall from 300 to 3000 iterations; 8 and 9 fall in mostly-low 2.5 msgs/T."""
+    veto: float | None = None
+    """Opt-in (issue 18 round 7; with ``best_plan`` and ``search_depth``): an unbounded
+    most visited tree vetoes the best plan's send when its drop child has more than this
+    many times the send's visits (:class:`~companion.middleware.mcts.MCTS`). None: off."""
     learn_margin: bool = False
     """Plan against the budget less a margin learned from the fleet's observed overshoot
     (:class:`~companion.middleware.margin.OvershootMargin`): the others' sends are known
@@ -156,6 +160,8 @@ class MiddlewareConfig:
             raise MiddlewareError("search_depth must be >= 0 or None")
         if (self.fleet_size is not None and self.fleet_size < 1) or not self.start_share_s > 0:
             raise MiddlewareError("fleet_size must be >= 1 or None, start_share_s > 0")
+        if self.veto is not None and not self.veto > 0:
+            raise MiddlewareError("veto must be > 0 or None")
         if self.plan_unheard_s is not None and not self.plan_unheard_s > 0:
             raise MiddlewareError("plan_unheard_s must be > 0 or None")
         if self.announce_after_s is not None and not self.announce_after_s > 0:
@@ -301,7 +307,7 @@ class Middleware:
         self.last_problem = problem
         search = MCTS(problem, c=self.config.c, max_nodes=self.config.max_iterations + 1,
                       knapsack_seed=self.config.knapsack_seed, best_plan=self.config.best_plan,
-                      depth=self.config.search_depth)
+                      depth=self.config.search_depth, veto=self.config.veto)
         self._run(search, deadline)
         result = search.result()
         level = problem.decided_level
@@ -334,7 +340,8 @@ class Middleware:
             )
             relaxed = MCTS(free, c=self.config.c, max_nodes=self.config.max_iterations + 1,
                            knapsack_seed=self.config.knapsack_seed,
-                           best_plan=self.config.best_plan, depth=self.config.search_depth)
+                           best_plan=self.config.best_plan, depth=self.config.search_depth,
+                           veto=self.config.veto)
             self._run(relaxed, deadline)
             announce = relaxed.result()
             if announce.option:
