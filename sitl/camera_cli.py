@@ -79,9 +79,13 @@ def main(argv: list[str]) -> int:
     if not poses:
         poses = [(0.0, 0.0, scene.default_alt_m)]
     w, h = args.size or (None, None)
-    cam = SyntheticCamera(scene, width_px=w, height_px=h, hfov_deg=args.hfov,
-                          mount_pitch_deg=args.mount_pitch, gimbal_stabilised=args.gimbal,
-                          noise_std=args.noise, seed=args.seed)
+    try:
+        cam = SyntheticCamera(scene, width_px=w, height_px=h, hfov_deg=args.hfov,
+                              mount_pitch_deg=args.mount_pitch, gimbal_stabilised=args.gimbal,
+                              noise_std=args.noise, seed=args.seed)
+    except ValueError as exc:  # an option out of the camera's range (--hfov 200)
+        print(f"uav-sitl camera: {exc}", file=sys.stderr)
+        return 2
     try:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
