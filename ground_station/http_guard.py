@@ -16,6 +16,7 @@ import json
 import logging
 import re
 import time
+from collections.abc import Callable
 from typing import Any
 
 from aiohttp import web
@@ -164,12 +165,14 @@ def _loop_exception(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) ->
 
 
 def serve(app: web.Application, *, host: str, port: int, max_connections: int,
-          idle_timeout_s: float, stop_signals: EarlyStop | None = None) -> None:
+          idle_timeout_s: float, stop_signals: EarlyStop | None = None,
+          on_serving: Callable[[int], None] | None = None) -> None:
     """``web.run_app`` with the connection cap, idle timeout and redacting access log.
 
     Returns when SIGINT/SIGTERM stops the server (after the app's cleanup ran), including
     one that ``stop_signals`` caught before the server started. OSError (address in
-    use...) propagates to the caller.
+    use...) propagates to the caller. ``on_serving(port)`` runs once the site listens, with
+    the port it got (``port=0`` picks one), so a URL shown to a person is one that answers.
     """
     early = EarlyStop() if stop_signals is None else stop_signals
 
@@ -188,6 +191,8 @@ def serve(app: web.Application, *, host: str, port: int, max_connections: int,
             if not stop.is_set():
                 site = LimitedSite(runner, host, port, max_connections=max_connections)
                 await site.start()
+                if on_serving is not None:
+                    on_serving(int(runner.addresses[0][1]))
                 await stop.wait()
         finally:
             for sig in STOP_SIGNALS:  # a second Ctrl-C forces the exit
