@@ -21,6 +21,7 @@ from sitl.fleet.link import (
 from sitl.fleet.plan import POLICIES
 from sitl.fleet.processes import FleetError
 from sitl.fleet.run import run
+from sitl.fleet_config import mission_spec_path
 
 
 def parse_args(argv: Sequence[str]) -> argparse.Namespace:
@@ -143,12 +144,27 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
                                      args.duration / 2 if args.duration else 60.0)
     if args.spec is None:  # --peers alone must share something: a spec with a peers type
         args.spec = "peer_sharing" if args.peers else "image_streaming"
+    _check_spec(p, args.spec)
+    if not 0 <= args.http_port <= 65535:
+        p.error(f"--http-port must be in 0..65535, got {args.http_port}")
     if args.constraint is None:
         shaped = args.netns or args.relay
         args.constraint = "adaptive" if shaped and args.goodput is None else "constant"
     if args.goodput is None:
         args.goodput = 40_000.0
     return args
+
+
+def _check_spec(p: argparse.ArgumentParser, spec: str) -> None:
+    """A wrong --spec fails here, before the fleet starts and prints a dashboard link (the
+    ground station used to find it, after the launcher had announced the run)."""
+    from utility_specs import UtilitySpecsError
+    from utility_specs.files import load_spec
+
+    try:
+        load_spec(mission_spec_path(spec))
+    except UtilitySpecsError as exc:
+        p.error(f"--spec {spec}: {exc}")
 
 
 def main(argv: list[str]) -> int:

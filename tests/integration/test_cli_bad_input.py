@@ -101,6 +101,14 @@ CASES = [
     ("uav-sitl", "study drop-rate-vs-utility --quick --out /proc/nope", 1,
      "uav-sitl study drop-rate-vs-utility: /proc/nope: No such file or directory"),
     ("uav-sitl", "study bogus", 2, "unknown study 'bogus'; expected one of adaptive-vs-aimd"),
+    # a wrong spec or port fails before the launcher starts anything (it failed later in the
+    # ground station, after the run had been announced with a dashboard link)
+    ("uav-sitl", "fleet --drones 1 --duration 1 --spec {binary} --out {folder}/run", 2,
+     "--spec "),
+    ("uav-sitl", "fleet --drones 1 --duration 1 --spec nosuch --out {folder}/run", 2,
+     "nosuch.toml: no such spec file"),
+    ("uav-sitl", "fleet --drones 1 --duration 1 --http-port 99999 --out {folder}/run", 2,
+     "--http-port must be in 0..65535, got 99999"),
     ("uav-utility", "evaluate --spec {deep_toml} {deep_jsonl}", 2, "nested too deeply"),
     ("uav-utility", "evaluate --spec telemetry {deep_jsonl}", 2,
      "deep.jsonl:1: JSON nested too deeply"),
