@@ -107,7 +107,7 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     args = p.parse_args(list(argv))
     if not 1 <= args.drones <= 64:
         p.error("--drones must be in 1..64")
-    if args.duration < 0:
+    if not args.duration >= 0:  # nan too
         p.error("--duration must be >= 0")
     if not args.warm_up_timeout >= 0:
         p.error("--warm-up-timeout must be >= 0")
@@ -125,6 +125,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
         w, h = (int(x) for x in args.size.lower().split("x"))
     except ValueError:
         p.error(f"--size: expected WxH, got {args.size!r}")
+    if not (16 <= w <= 8192 and 16 <= h <= 8192):
+        p.error(f"--size: width and height must be in 16..8192, got {args.size!r}")
     args.width, args.height = w, h
     if args.relay_rate < 0 or args.relay_queue <= 0:
         p.error("--relay-rate must be >= 0 and --relay-queue > 0")
