@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -113,6 +114,21 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
         p.error("--warm-up-timeout must be >= 0")
     if not 0.0 <= args.first_fix < 1e6:
         p.error("--first-fix must be a number of seconds >= 0")
+    # checked here, not by each child after the launcher announced the run
+    positive = {"--rate": args.rate, "--time-budget": args.time_budget,
+                "--window": args.window, "--speedup": args.speedup,
+                "--ready-timeout": args.ready_timeout}
+    for flag, value in positive.items():
+        if not 0 < value < math.inf:
+            p.error(f"{flag} must be a finite number > 0, got {value}")
+    if not 1 <= args.mcts_iterations <= 1_000_000:
+        p.error(f"--mcts-iterations must be in 1..1000000, got {args.mcts_iterations}")
+    if args.goodput is not None and not 0 <= args.goodput < math.inf:
+        p.error(f"--goodput must be a finite number of bytes/s >= 0, got {args.goodput}")
+    if not 0 <= args.start_delay < math.inf:
+        p.error(f"--start-delay must be a number of seconds >= 0, got {args.start_delay}")
+    if args.alpha is not None and not math.isfinite(args.alpha):
+        p.error(f"--alpha must be a finite number, got {args.alpha}")
     if not 0.0 <= args.drop_probability <= 1.0:
         p.error("--drop-probability must be in [0, 1]")
     if args.link_rate <= 0:
