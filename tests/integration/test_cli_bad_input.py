@@ -39,6 +39,7 @@ def bad(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         "port": root / "port.toml",
         "no_db": root / "no_db",
         "keyed": root / "keyed.toml",
+        "keyed_companion": root / "keyed_companion.toml",
     }
     files["binary"].write_bytes(bytes(range(256)) * 4)
     files["deep_toml"].write_text("a = " + "[" * DEEP + "]" * DEEP + "\n")
@@ -51,6 +52,9 @@ def bad(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     write_test_keys(root / "keys")
     files["keyed"].write_text('[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
                               'command_key_file = "keys/command.key"\n')
+    files["keyed_companion"].write_text(
+        '[drone]\nid = "d1"\n[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
+        'command_public_key_file = "keys/command.pub"\n')
     return files
 
 
@@ -68,6 +72,10 @@ CASES = [
     ("uav-companion", "run --config {long_id}", 2,
      "drone.id: expected a printable sender id of 1..32 UTF-8 bytes"),
     ("uav-companion", "install-service --dry-run --config {binary}", 2, "not a text file"),
+    ("uav-companion", "install-service --dry-run --user a:b --config {binary}", 2,
+     "argument --user: expected a user name like pi, got 'a:b'"),
+    ("uav-companion", "install-service --no-enable --user nosuchuser0 --unit-dir {folder} "
+     "--config {keyed_companion}", 1, "no user 'nosuchuser0' on this machine"),
     ("uav-ground-station", "run --config {keyed} --data-dir {a_file} --udp-port 0 --http-port 0",
      2, "is a file, not a folder"),
     ("uav-ground-station",
