@@ -81,7 +81,8 @@ def _parser() -> argparse.ArgumentParser:
     inst.add_argument("--dry-run", action="store_true", help="print the unit, change nothing")
     inst.add_argument("--no-enable", action="store_true",
                       help="write the unit but do not run systemctl")
-    inst.add_argument("--user", default=None, help="run the service as this user")
+    inst.add_argument("--user", type=_user_name, default=None,
+                      help="run the service as this user")
     return parser
 
 
@@ -251,6 +252,16 @@ def _probe_camera(config: Any, snapshot: Any) -> tuple[list[str], bool]:
             f"sent as {cam.width}x{cam.height} at {cam.rate_hz:g} Hz"], True
 
 
+def _user_name(text: str) -> str:
+    """A POSIX user name: anything else (a space, a newline and a second ``ExecStart=``)
+    went into the unit as written, and systemd refused the unit or ran what it said."""
+    import re
+
+    if not re.fullmatch(r"[a-z_][a-z0-9_-]{0,31}", text):
+        raise argparse.ArgumentTypeError(f"expected a user name like pi, got {text!r}")
+    return text
+
+
 def _install(args: argparse.Namespace) -> int:
     from companion.service import DEFAULT_UNIT_DIR, install_service
 
@@ -258,6 +269,15 @@ def _install(args: argparse.Namespace) -> int:
         return 2
     config_path = Path(args.config).resolve()
     unit_dir = Path(args.unit_dir) if args.unit_dir else DEFAULT_UNIT_DIR
+    if args.user and not args.dry_run:
+        import pwd
+
+        try:
+            pwd.getpwnam(args.user)
+        except KeyError:
+            print(f"install-service failed: no user {args.user!r} on this machine "
+                  "(create it, or drop --user)", file=sys.stderr)
+            return 1
     try:
         result = install_service(config_path=config_path, unit_dir=unit_dir,
                                  dry_run=args.dry_run, enable=not args.no_enable,

@@ -130,6 +130,13 @@ class AdsbReport:
                 self.emitter_type, self.tslc, self.flags, self.squawk)
 
 
+def _clamped(value: float, low: int, high: int) -> int:
+    """``value`` rounded into a MAVLink integer field. A peer's message may hold any finite
+    number (1e308 m/s): unclamped, it overflowed to inf and ``round`` raised, which stopped
+    the ADSB_VEHICLE injection of every peer."""
+    return low if math.isnan(value) else round(max(low, min(high, value)))
+
+
 class PeerTable:
     """Latest state of every peer (sans-I/O; module docstring)."""
 
@@ -239,14 +246,14 @@ class PeerTable:
             amsl = p.alt_amsl_m
             if amsl is not None:
                 flags |= ADSB_FLAGS_VALID_ALTITUDE
-                altitude = round(amsl * 1000)
+                altitude = _clamped(amsl * 1000, -2**31, 2**31 - 1)  # int32 mm
             heading = p.heading_deg
             hor = ver = 0
             if p.velocity_ned_m_s is not None:
                 vn, ve, vd = p.velocity_ned_m_s
                 flags |= ADSB_FLAGS_VALID_VELOCITY
-                hor = min(65535, round(math.hypot(vn, ve) * 100))
-                ver = max(-32768, min(32767, round(-vd * 100)))
+                hor = _clamped(math.hypot(vn, ve) * 100, 0, 65535)
+                ver = _clamped(-vd * 100, -32768, 32767)
                 if math.hypot(vn, ve) > 0.5:  # course over ground when moving
                     heading = math.degrees(math.atan2(ve, vn)) % 360
             if heading is not None:
@@ -255,7 +262,7 @@ class PeerTable:
                 icao_address=icao_for(drone), lat=round(p.lat_deg * 1e7),
                 lon=round(p.lon_deg * 1e7), altitude_type=ADSB_ALTITUDE_TYPE_GEOMETRIC,
                 altitude=altitude,
-                heading=0 if heading is None else round(heading * 100) % 36000,
+                heading=0 if heading is None else round(heading % 360 * 100) % 36000,
                 hor_velocity=hor, ver_velocity=ver, callsign=callsign_for(drone).encode(),
                 emitter_type=ADSB_EMITTER_TYPE_UAV,
                 tslc=min(255, int(max(0.0, now - p.t_position))), flags=flags))

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import ipaddress
 import json
 import logging
 import math
@@ -141,6 +142,22 @@ class AdsbInjector:
         self._stop.set()
 
 
+def _local_host(host: str) -> bool:
+    """A ``Host`` value naming an IP literal or localhost (with or without a port)."""
+    name = host.strip()
+    if name.startswith("["):  # [v6] or [v6]:port
+        name = name[1:name.find("]")] if "]" in name else name
+    elif name.count(":") == 1:  # name:port or v4:port
+        name = name.rsplit(":", 1)[0]
+    if name.lower().rstrip(".") == "localhost":
+        return True
+    try:
+        ipaddress.ip_address(name.split("%", 1)[0])
+    except ValueError:
+        return False
+    return True
+
+
 class PeerHttp:
     """Read-only local JSON: ``GET /peers`` and ``GET /peers/<drone>``; nothing else.
 
@@ -176,13 +193,17 @@ class PeerHttp:
         try:
             async with asyncio.timeout(self.READ_TIMEOUT_S):
                 head = await reader.readuntil(b"\r\n\r\n")
-            status, body = self.respond(head.split(b"\r\n", 1)[0])
+            line, *fields = head.decode("latin-1").split("\r\n")
+            hosts = [v for k, _, v in (f.partition(":") for f in fields)
+                     if k.strip().lower() == "host"]
+            status, body = self.respond(line.encode("latin-1"),
+                                        host=hosts[0].strip() if hosts else None)
         except (asyncio.IncompleteReadError, asyncio.LimitOverrunError, TimeoutError,
                 ConnectionError):
             status, body = 400, {"error": "bad request"}
         payload = json.dumps(body).encode()
         reason = {200: "OK", 400: "Bad Request", 404: "Not Found",
-                  405: "Method Not Allowed"}[status]
+                  405: "Method Not Allowed", 421: "Misdirected Request"}[status]
         try:
             writer.write(f"HTTP/1.0 {status} {reason}\r\nContent-Type: application/json\r\n"
                          f"Content-Length: {len(payload)}\r\nCache-Control: no-store\r\n"
@@ -193,11 +214,18 @@ class PeerHttp:
         finally:
             writer.close()
 
-    def respond(self, request_line: bytes) -> tuple[int, dict[str, Any]]:
-        """Status and JSON body for one request line (sans-I/O, tested directly)."""
+    def respond(self, request_line: bytes, host: str | None = None
+                ) -> tuple[int, dict[str, Any]]:
+        """Status and JSON body for one request line and its ``Host`` header (sans-I/O,
+        tested directly). Only IP literals and ``localhost`` are served: a page on
+        ``evil.example`` rebound to 127.0.0.1 sends ``Host: evil.example`` and, the
+        endpoint having no token, could otherwise read every peer's position."""
         parts = request_line.decode("latin-1").split(" ")
         if len(parts) != 3 or not parts[2].startswith("HTTP/"):
             return 400, {"error": "bad request"}
+        if host is not None and not _local_host(host):
+            return 421, {"error": "Host must be an IP address or localhost "
+                                  "(DNS rebinding protection)"}
         method, path = parts[0], parts[1].split("?", 1)[0]
         if method != "GET":
             return 405, {"error": "read-only: GET only"}

@@ -128,14 +128,14 @@ def _warn_every_interface(config: GroundConfig) -> None:
             )
 
 
-def _login_url(config: GroundConfig, token: str) -> str:
+def _login_url(config: GroundConfig, token: str, port: int | None = None) -> str:
     import time
 
     from ground_station.token import login_code
 
     host = "127.0.0.1" if config.http_host in ("0.0.0.0", "::", "") else config.http_host
     code = login_code(token, now=time.time())
-    return f"http://{host}:{config.http_port}/?login={code}"
+    return f"http://{host}:{config.http_port if port is None else port}/?login={code}"
 
 
 def _run(args: argparse.Namespace, config: GroundConfig) -> int:
@@ -179,13 +179,19 @@ def _run(args: argparse.Namespace, config: GroundConfig) -> int:
     app = create_app(config, token=token)
     if created:
         print(f"control token (shown once, stored 0600 in {config.token_path}): {token}")
-    print(f"dashboard: {_login_url(config, token)} (one-time login link, valid 10 min; "
-          f"another: uav-ground-station token --url --data-dir {config.data_dir})")
     sys.stdout.flush()
+
+    def announce(port: int) -> None:  # once listening: a login code never goes to a port
+        # another program holds, and --http-port 0 shows the port it got
+        print(f"dashboard: {_login_url(config, token, port)} (one-time login link, valid "
+              f"10 min; another: uav-ground-station token --url --data-dir {config.data_dir})",
+              flush=True)
+
     try:
         serve(app, host=config.http_host, port=config.http_port,
               max_connections=config.http_max_connections,
-              idle_timeout_s=config.http_idle_timeout_s, stop_signals=stop_signals)
+              idle_timeout_s=config.http_idle_timeout_s, stop_signals=stop_signals,
+              on_serving=announce)
     except OSError as exc:  # address in use, permission denied...
         print(f"uav-ground-station: cannot serve: {exc}", file=sys.stderr)
         return 1

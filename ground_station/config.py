@@ -143,7 +143,10 @@ class GroundConfig:
         ]
         for key, ok, expected in checks:
             if not ok:
-                raise ConfigError("<config>", key, expected, getattr(self, key))
+                got = getattr(self, key)
+                if key in ("fleet_key", "command_key"):  # a secret: its length, never bytes
+                    got = f"{len(got)} bytes"
+                raise ConfigError("<config>", key, expected, got)
         for name in self.allowed_hosts:
             if not _HOST_NAME.fullmatch(name) or len(name) > 253:
                 raise ConfigError("<config>", "allowed_hosts",

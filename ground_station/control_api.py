@@ -10,6 +10,7 @@ from typing import Any
 
 from aiohttp import web
 
+from companion.protocol import Command, LocalProtocolError
 from ground_station.fleet import Alert
 from ground_station.http_guard import json_reply
 from ground_station.keys import (
@@ -21,7 +22,8 @@ from ground_station.keys import (
     MISSIONS,
     STORAGE,
 )
-from ground_station.mission_input import MissionError, parse_params, parse_when
+from ground_station.mission_input import MissionError, check_params, parse_params, parse_when
+from ground_station.missions import COMMAND_NAMES
 
 __all__ = ["api_end", "api_params", "api_report", "api_reset_reports", "api_start"]
 
@@ -61,6 +63,17 @@ def _t_exec(body: dict[str, Any], now: float) -> float:
     return parse_when(when, now=now)
 
 
+def _fits_one_datagram(app: web.Application, verb: str, t_exec: float,
+                      args: dict[str, Any]) -> None:
+    """A command too big for one datagram is refused now: accepted, it was never sent, and
+    every retry raised a "command not sent" alert."""
+    try:
+        command = Command(command_id=1, name=COMMAND_NAMES[verb], t_exec=t_exec, args=args)
+        app[LINK].encoder.encode_command(command, 0.0)
+    except (LocalProtocolError, ValueError) as exc:  # ValueError: t_exec of 1e999
+        raise MissionError(f"{verb}: {exc}") from None
+
+
 async def _issue(request: web.Request, verb: str) -> web.Response:
     app = request.app
     now = app[CLOCK]()
@@ -73,11 +86,12 @@ async def _issue(request: web.Request, verb: str) -> web.Response:
             if isinstance(raw, str):
                 args = parse_params(raw)
             elif isinstance(raw, dict) and raw:
-                args = dict(raw)
+                args = check_params(raw)
             else:
                 raise MissionError("params: expected an object or 'NAME=VALUE,...' text")
         elif isinstance(body.get("args"), dict):
-            args = dict(body["args"])
+            args = check_params(body["args"]) if body["args"] else {}
+        _fits_one_datagram(app, verb, t_exec, args)
         issued = app[MISSIONS].issue(verb, t_exec=t_exec, now=now, args=args)
     except MissionError as exc:
         return json_reply({"error": str(exc)}, status=400)

@@ -3,7 +3,8 @@
 * security headers on every response (CSP without inline scripts, no framing, nosniff, no
   Referer), added in ``on_response_prepare`` so static files and errors get them too;
 * a same-origin check for cookie-authenticated requests and the WebSocket;
-* an access log that never shows a token or login code (request line and Referer);
+* an access log that never shows a token or login code (request line and Referer), and a
+  request aiohttp cannot parse logged as one line, not a traceback quoting its raw bytes;
 * a listening site that caps concurrent connections, plus a short idle timeout, so HTTP
   clients can never use up the file descriptors the UDP receiver and storage need;
 * the soft open-file limit raised to the hard one at start.
@@ -16,10 +17,12 @@ import json
 import logging
 import re
 import time
+from collections.abc import Callable
 from typing import Any
 
 from aiohttp import web
 from aiohttp.abc import AbstractAccessLogger
+from aiohttp.http_exceptions import HttpProcessingError
 from aiohttp.web_protocol import RequestHandler
 
 from companion.stop_signals import STOP_SIGNALS, EarlyStop
@@ -28,6 +31,7 @@ __all__ = [
     "SECURITY_HEADERS",
     "LimitedSite",
     "RedactingAccessLogger",
+    "UnparsableRequestFilter",
     "add_security_headers",
     "json_reply",
     "raise_open_file_limit",
@@ -83,6 +87,26 @@ class RedactingAccessLogger(AbstractAccessLogger):
         agent = request.headers.get("User-Agent", "-")
         self.logger.info('%s "%s" %d %d "%s" "%s" %.3fs', request.remote, line,
                          response.status, response.body_length, referer, agent, time)
+
+
+class UnparsableRequestFilter(logging.Filter):
+    """aiohttp logs a request it cannot parse (an unknown method, an 8 kB header, a NUL in
+    the URL: a port scanner or an attacker) as an ERROR with a traceback that quotes the
+    raw bytes, a cookie or token among them. Such a record becomes one WARNING line naming
+    the client and the error class; the 400 reply is aiohttp's."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        if isinstance(exc, HttpProcessingError):
+            client = record.args[0] if isinstance(record.args, tuple) and record.args else "?"
+            record.msg, record.args = "HTTP request refused (%s %s) from %s", (
+                exc.code, type(exc).__name__, client)
+            record.exc_info, record.exc_text = None, None
+            record.levelno, record.levelname = logging.WARNING, "WARNING"
+        return True
+
+
+_UNPARSABLE_FILTER = UnparsableRequestFilter()
 
 
 class _Refused(asyncio.Protocol):
@@ -164,14 +188,17 @@ def _loop_exception(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) ->
 
 
 def serve(app: web.Application, *, host: str, port: int, max_connections: int,
-          idle_timeout_s: float, stop_signals: EarlyStop | None = None) -> None:
+          idle_timeout_s: float, stop_signals: EarlyStop | None = None,
+          on_serving: Callable[[int], None] | None = None) -> None:
     """``web.run_app`` with the connection cap, idle timeout and redacting access log.
 
     Returns when SIGINT/SIGTERM stops the server (after the app's cleanup ran), including
     one that ``stop_signals`` caught before the server started. OSError (address in
-    use...) propagates to the caller.
+    use...) propagates to the caller. ``on_serving(port)`` runs once the site listens, with
+    the port it got (``port=0`` picks one), so a URL shown to a person is one that answers.
     """
     early = EarlyStop() if stop_signals is None else stop_signals
+    logging.getLogger("aiohttp.server").addFilter(_UNPARSABLE_FILTER)  # idempotent
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
@@ -188,6 +215,8 @@ def serve(app: web.Application, *, host: str, port: int, max_connections: int,
             if not stop.is_set():
                 site = LimitedSite(runner, host, port, max_connections=max_connections)
                 await site.start()
+                if on_serving is not None:
+                    on_serving(int(runner.addresses[0][1]))
                 await stop.wait()
         finally:
             for sig in STOP_SIGNALS:  # a second Ctrl-C forces the exit

@@ -73,6 +73,23 @@ def _value(text: str) -> Any:
     return value
 
 
+def check_params(params: Mapping[str, Any]) -> dict[str, Any]:
+    """The API's ``{"params": {...}}`` held to the shell's rules: names as in
+    :func:`parse_params`, values a bool, an integer, a finite number or text. A JSON object
+    let 1e400 (Infinity, which breaks every dashboard's JSON.parse) and nested values in."""
+    if not params:
+        raise MissionError("expected at least one NAME=VALUE parameter")
+    for name, value in params.items():
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.]{0,63}", name):
+            raise MissionError(f"parameter name {name[:40]!r}: expected up to 64 letters, "
+                               "digits, '_' or '.'")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise MissionError(f"parameter {name}: expected a finite number")
+        if not isinstance(value, bool | int | float | str):
+            raise MissionError(f"parameter {name}: expected a number, true/false or text")
+    return dict(params)
+
+
 def parse_params(text: str) -> dict[str, Any]:
     """``"alpha=10, mcts_iterations=300"`` -> ``{"alpha": 10, "mcts_iterations": 300}``."""
     params: dict[str, Any] = {}

@@ -102,9 +102,14 @@ class UdpTransport:
         loop = asyncio.get_running_loop()
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            # No SO_REUSEADDR: on a UDP socket it lets a second station bind the same port
+            # and silently take the fleet's datagrams from the first; UDP has no TIME_WAIT.
             self.granted_rcvbuf_bytes = set_receive_buffer(sock, self.rcvbuf_bytes)
-            sock.bind((self.host, self.port))
+            try:
+                sock.bind((self.host, self.port))
+            except OSError as exc:
+                raise OSError(exc.errno, f"UDP {self.host}:{self.port}: {exc.strerror}"
+                              ) from None
             sock.setblocking(False)
         except BaseException:
             sock.close()

@@ -203,7 +203,7 @@ class SyntheticCamera:
         self.scene = scene
         self.width_px = width_px or spec.width_px
         self.height_px = height_px or spec.height_px
-        self.hfov_deg = hfov_deg or spec.hfov_deg
+        self.hfov_deg = spec.hfov_deg if hfov_deg is None else hfov_deg
         self.mount_pitch_deg = spec.mount_pitch_deg if mount_pitch_deg is None else (
             mount_pitch_deg)
         if not 1.0 <= self.hfov_deg < 179.0:

@@ -13,7 +13,10 @@ import sys
 import time
 from pathlib import Path
 
-__all__ = ["main"]
+__all__ = ["MAX_SIDE", "main"]
+
+MAX_SIDE = 8192
+"""Largest frame side in pixels (an 8K frame)."""
 
 
 def _pose(text: str) -> tuple[float, ...]:
@@ -24,6 +27,8 @@ def _pose(text: str) -> tuple[float, ...]:
                                          ) from None
     if len(values) not in (3, 6):
         raise argparse.ArgumentTypeError(f"expected 3 or 6 numbers, got {text!r}")
+    if not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected finite numbers, got {text!r}")
     return values
 
 
@@ -32,8 +37,8 @@ def _size(text: str) -> tuple[int, int]:
         w, h = (int(x) for x in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
-    if w < 16 or h < 16:
-        raise argparse.ArgumentTypeError("width and height must be >= 16")
+    if not (16 <= w <= MAX_SIDE and 16 <= h <= MAX_SIDE):  # 100000x100000: a 149 GiB array
+        raise argparse.ArgumentTypeError(f"width and height must be in 16..{MAX_SIDE}")
     return w, h
 
 
@@ -79,9 +84,13 @@ def main(argv: list[str]) -> int:
     if not poses:
         poses = [(0.0, 0.0, scene.default_alt_m)]
     w, h = args.size or (None, None)
-    cam = SyntheticCamera(scene, width_px=w, height_px=h, hfov_deg=args.hfov,
-                          mount_pitch_deg=args.mount_pitch, gimbal_stabilised=args.gimbal,
-                          noise_std=args.noise, seed=args.seed)
+    try:
+        cam = SyntheticCamera(scene, width_px=w, height_px=h, hfov_deg=args.hfov,
+                              mount_pitch_deg=args.mount_pitch, gimbal_stabilised=args.gimbal,
+                              noise_std=args.noise, seed=args.seed)
+    except ValueError as exc:  # an option out of the camera's range (--hfov 200)
+        print(f"uav-sitl camera: {exc}", file=sys.stderr)
+        return 2
     try:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -45,17 +45,24 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if argv else 2
     command, rest = argv[0], argv[1:]
     if command == "study":
-        if not rest or rest[0] not in STUDIES:
+        if not rest or rest[0] in ("-h", "--help"):
             study.print_help()
-            return 2
+            return 0 if rest else 2
+        if rest[0] not in STUDIES:
+            study.error(f"unknown study {rest[0]!r}; expected one of {', '.join(sorted(STUDIES))}")
         module_name = STUDIES[rest[0]][0]
-        rest = rest[1:]
+        command, rest = f"study {rest[0]}", rest[1:]
     elif command in COMMANDS:
         module_name = COMMANDS[command][0]
     else:
         parser.error(f"unknown command {command!r}")
     module = importlib.import_module(module_name)
-    return int(module.main(rest))
+    try:
+        return int(module.main(rest))
+    except OSError as exc:  # an output folder or file the tool cannot write (--out /proc/x)
+        where = f" {exc.filename}" if exc.filename else ""
+        print(f"uav-sitl {command}:{where}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -21,6 +22,7 @@ from sitl.fleet.link import (
 from sitl.fleet.plan import POLICIES
 from sitl.fleet.processes import FleetError
 from sitl.fleet.run import run
+from sitl.fleet_config import mission_spec_path
 
 
 def parse_args(argv: Sequence[str]) -> argparse.Namespace:
@@ -111,12 +113,27 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     args = p.parse_args(list(argv))
     if not 1 <= args.drones <= 64:
         p.error("--drones must be in 1..64")
-    if args.duration < 0:
+    if not args.duration >= 0:  # nan too
         p.error("--duration must be >= 0")
     if not args.warm_up_timeout >= 0:
         p.error("--warm-up-timeout must be >= 0")
     if not 0.0 <= args.first_fix < 1e6:
         p.error("--first-fix must be a number of seconds >= 0")
+    # checked here, not by each child after the launcher announced the run
+    positive = {"--rate": args.rate, "--time-budget": args.time_budget,
+                "--window": args.window, "--speedup": args.speedup,
+                "--ready-timeout": args.ready_timeout}
+    for flag, value in positive.items():
+        if not 0 < value < math.inf:
+            p.error(f"{flag} must be a finite number > 0, got {value}")
+    if not 1 <= args.mcts_iterations <= 1_000_000:
+        p.error(f"--mcts-iterations must be in 1..1000000, got {args.mcts_iterations}")
+    if args.goodput is not None and not 0 <= args.goodput < math.inf:
+        p.error(f"--goodput must be a finite number of bytes/s >= 0, got {args.goodput}")
+    if not 0 <= args.start_delay < math.inf:
+        p.error(f"--start-delay must be a number of seconds >= 0, got {args.start_delay}")
+    if args.alpha is not None and not math.isfinite(args.alpha):
+        p.error(f"--alpha must be a finite number, got {args.alpha}")
     if not 0.0 <= args.drop_probability <= 1.0:
         p.error("--drop-probability must be in [0, 1]")
     if args.link_rate <= 0:
@@ -129,6 +146,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
         w, h = (int(x) for x in args.size.lower().split("x"))
     except ValueError:
         p.error(f"--size: expected WxH, got {args.size!r}")
+    if not (16 <= w <= 8192 and 16 <= h <= 8192):
+        p.error(f"--size: width and height must be in 16..8192, got {args.size!r}")
     args.width, args.height = w, h
     if args.relay_rate < 0 or args.relay_queue <= 0:
         p.error("--relay-rate must be >= 0 and --relay-queue > 0")
@@ -148,12 +167,27 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
                                      args.duration / 2 if args.duration else 60.0)
     if args.spec is None:  # --peers alone must share something: a spec with a peers type
         args.spec = "peer_sharing" if args.peers else "image_streaming"
+    _check_spec(p, args.spec)
+    if not 0 <= args.http_port <= 65535:
+        p.error(f"--http-port must be in 0..65535, got {args.http_port}")
     if args.constraint is None:
         shaped = args.netns or args.relay
         args.constraint = "adaptive" if shaped and args.goodput is None else "constant"
     if args.goodput is None:
         args.goodput = 40_000.0
     return args
+
+
+def _check_spec(p: argparse.ArgumentParser, spec: str) -> None:
+    """A wrong --spec fails here, before the fleet starts and prints a dashboard link (the
+    ground station used to find it, after the launcher had announced the run)."""
+    from utility_specs import UtilitySpecsError
+    from utility_specs.files import load_spec
+
+    try:
+        load_spec(mission_spec_path(spec))
+    except UtilitySpecsError as exc:
+        p.error(f"--spec {spec}: {exc}")
 
 
 def main(argv: list[str]) -> int:

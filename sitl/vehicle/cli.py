@@ -12,6 +12,7 @@ import argparse
 import asyncio
 import contextlib
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -41,9 +42,12 @@ def _home(text: str) -> GeoPoint:
 def _addr(text: str) -> tuple[str, int]:
     host, _, port = text.rpartition(":")
     try:
-        return (host or "127.0.0.1", int(port))
+        number = int(port)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}") from None
+    if not 1 <= number <= 65535:  # was accepted: every send then raised a traceback
+        raise argparse.ArgumentTypeError(f"port must be in 1..65535, got {text!r}")
+    return host or "127.0.0.1", number
 
 
 def _param(text: str) -> tuple[str, float]:
@@ -110,8 +114,16 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         p.error("--first-fix must be a number of seconds >= 0")
     if not 0 <= args.port <= 65535:
         p.error(f"--port must be in 0..65535, got {args.port}")
-    if not args.speedup > 0:
-        p.error(f"--speedup must be > 0, got {args.speedup}")
+    if not 0 < args.speedup < math.inf:  # inf spun the loop, deaf to SIGTERM
+        p.error(f"--speedup must be > 0 and finite, got {args.speedup}")
+    if args.count + args.sysid - 1 > 255 or args.sysid < 1:
+        p.error(f"--sysid must be in 1..{256 - args.count} for {args.count} vehicle(s), "
+                f"got {args.sysid}")
+    if args.wind is not None and not (math.isfinite(args.wind[0]) and args.wind[0] >= 0
+                                      and math.isfinite(args.wind[1])):
+        p.error("--wind: expected a speed >= 0 and a direction, both finite")
+    if args.duration is not None and not args.duration >= 0:
+        p.error(f"--duration must be a number of seconds >= 0, got {args.duration}")
     if args.serial and args.count != 1:
         p.error("--serial serves one vehicle (--count 1)")
     if args.baud < 50 or args.baud > 12_000_000:

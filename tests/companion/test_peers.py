@@ -137,7 +137,7 @@ async def test_http_serves_over_a_socket() -> None:
     host, port = await http.start()
     try:
         reader, writer = await asyncio.open_connection(host, port)
-        writer.write(b"GET /peers HTTP/1.1\r\nHost: x\r\n\r\n")
+        writer.write(b"GET /peers HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
         raw = await reader.read()
         writer.close()
         head, _, body = raw.partition(b"\r\n\r\n")

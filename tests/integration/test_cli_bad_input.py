@@ -39,6 +39,7 @@ def bad(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         "port": root / "port.toml",
         "no_db": root / "no_db",
         "keyed": root / "keyed.toml",
+        "keyed_companion": root / "keyed_companion.toml",
     }
     files["binary"].write_bytes(bytes(range(256)) * 4)
     files["deep_toml"].write_text("a = " + "[" * DEEP + "]" * DEEP + "\n")
@@ -51,6 +52,9 @@ def bad(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     write_test_keys(root / "keys")
     files["keyed"].write_text('[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
                               'command_key_file = "keys/command.key"\n')
+    files["keyed_companion"].write_text(
+        '[drone]\nid = "d1"\n[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
+        'command_public_key_file = "keys/command.pub"\n')
     return files
 
 
@@ -68,6 +72,10 @@ CASES = [
     ("uav-companion", "run --config {long_id}", 2,
      "drone.id: expected a printable sender id of 1..32 UTF-8 bytes"),
     ("uav-companion", "install-service --dry-run --config {binary}", 2, "not a text file"),
+    ("uav-companion", "install-service --dry-run --user a:b --config {binary}", 2,
+     "argument --user: expected a user name like pi, got 'a:b'"),
+    ("uav-companion", "install-service --no-enable --user nosuchuser0 --unit-dir {folder} "
+     "--config {keyed_companion}", 1, "no user 'nosuchuser0' on this machine"),
     ("uav-ground-station", "run --config {keyed} --data-dir {a_file} --udp-port 0 --http-port 0",
      2, "is a file, not a folder"),
     ("uav-ground-station",
@@ -85,6 +93,16 @@ CASES = [
     ("uav-sitl", "vehicle --scene {deep_toml} --duration 1", 2, "nested too deeply"),
     ("uav-sitl", "vehicle --port 99999", 2, "--port must be in 0..65535"),
     ("uav-sitl", "vehicle --speedup 0", 2, "--speedup must be > 0"),
+    # each was a traceback (sysid, --out port: one per send, exit 0) or, for --speedup inf,
+    # a vehicle spinning a core and deaf to SIGTERM
+    ("uav-sitl", "vehicle --speedup inf --duration 1", 2, "--speedup must be > 0 and finite"),
+    ("uav-sitl", "vehicle --sysid 300 --duration 1", 2, "--sysid must be in 1..255"),
+    ("uav-sitl", "vehicle --count 10 --sysid 250 --duration 1", 2,
+     "--sysid must be in 1..246 for 10 vehicle(s), got 250"),
+    ("uav-sitl", "vehicle --out 127.0.0.1:99999 --duration 1", 2,
+     "port must be in 1..65535, got '127.0.0.1:99999'"),
+    ("uav-sitl", "vehicle --wind nan 0 --duration 1", 2, "--wind: expected a speed >= 0"),
+    ("uav-sitl", "vehicle --duration nan", 2, "--duration must be a number of seconds >= 0"),
     ("uav-sitl", "vehicle --pattern waypoints {binary}", 2, "not a text file"),
     ("uav-sitl", "vehicle --port 0 --duration 1 --ready-file /proc/nope/r.json", 1,
      "cannot write --ready-file"),
@@ -94,6 +112,36 @@ CASES = [
     ("uav-sitl", "camera --pose 1,2,3 --out /proc/nope", 1, "cannot write to /proc/nope"),
     ("uav-sitl", "fleet --drones 1 --duration 1 --scene {binary} --out {folder}/run", 2,
      "not a text file"),
+    ("uav-sitl", "camera --pose 1,2,3 --hfov 200 --out {folder}/f", 2,
+     "hfov_deg must be in [1, 179), got 200.0"),
+    ("uav-sitl", "camera --pose 1,2,3 --hfov 0 --out {folder}/f", 2,
+     "hfov_deg must be in [1, 179), got 0.0"),
+    ("uav-sitl", "study drop-rate-vs-utility --quick --out /proc/nope", 1,
+     "uav-sitl study drop-rate-vs-utility: /proc/nope: No such file or directory"),
+    ("uav-sitl", "study bogus", 2, "unknown study 'bogus'; expected one of adaptive-vs-aimd"),
+    ("uav-sitl", "camera --pose 1,2,3 --size 100000x100000 --out {folder}/f", 2,
+     "width and height must be in 16..8192"),
+    ("uav-sitl", "camera --pose nan,1,30 --out {folder}/f", 2, "expected finite numbers"),
+    ("uav-sitl", "fleet --drones 1 --duration 1 --rate 0 --out {folder}/run", 2,
+     "--rate must be a finite number > 0, got 0.0"),
+    ("uav-sitl", "fleet --drones 1 --duration 1 --mcts-iterations 0 --out {folder}/run", 2,
+     "--mcts-iterations must be in 1..1000000, got 0"),
+    ("uav-sitl", "fleet --drones 1 --duration 1 --goodput -5 --out {folder}/run", 2,
+     "--goodput must be a finite number of bytes/s >= 0, got -5.0"),
+    ("uav-sitl", "fleet --drones 1 --duration 1 --speedup inf --out {folder}/run", 2,
+     "--speedup must be a finite number > 0, got inf"),
+    ("uav-sitl", "fleet --drones 1 --duration nan --out {folder}/run", 2,
+     "--duration must be >= 0"),
+    ("uav-sitl", "fleet --drones 1 --duration 1 --size 100000x100000 --out {folder}/run", 2,
+     "--size: width and height must be in 16..8192"),
+    # a wrong spec or port fails before the launcher starts anything (it failed later in the
+    # ground station, after the run had been announced with a dashboard link)
+    ("uav-sitl", "fleet --drones 1 --duration 1 --spec {binary} --out {folder}/run", 2,
+     "--spec "),
+    ("uav-sitl", "fleet --drones 1 --duration 1 --spec nosuch --out {folder}/run", 2,
+     "nosuch.toml: no such spec file"),
+    ("uav-sitl", "fleet --drones 1 --duration 1 --http-port 99999 --out {folder}/run", 2,
+     "--http-port must be in 0..65535, got 99999"),
     ("uav-utility", "evaluate --spec {deep_toml} {deep_jsonl}", 2, "nested too deeply"),
     ("uav-utility", "evaluate --spec telemetry {deep_jsonl}", 2,
      "deep.jsonl:1: JSON nested too deeply"),
