@@ -18,6 +18,7 @@ from sitl.vehicle.autopilot_events import (
     ACCEPTED,
     DENIED,
     FAILED,
+    TEMPORARILY_REJECTED,
     UNSUPPORTED,
     CommandResult,
     GuidedTarget,
@@ -122,10 +123,16 @@ class CommandHandlers:
                 interval: float | None = None
             elif interval_us == 0:
                 interval = {**DEFAULT_INTERVALS_S, **PX4_EXTRA_INTERVALS_S}.get(msg_id, 1.0)
+            elif self.flavour.name == "ardupilot":  # whole milliseconds; 0 ms stops it
+                interval = interval_us // 1000 / 1e3 or None
             else:
                 interval = interval_us / 1e6
-            ok = self.set_interval(msg_id, interval, now)
-            res = CommandResult(result=ACCEPTED if ok else UNSUPPORTED)
+            if interval is not None and interval < self.flavour.min_stream_interval_s \
+                    and self.flavour.name == "ardupilot":
+                res = CommandResult(result=TEMPORARILY_REJECTED)  # its cap_message_interval
+            else:
+                ok = self.set_interval(msg_id, interval, now)
+                res = CommandResult(result=ACCEPTED if ok else UNSUPPORTED)
         elif command == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
             msg_id = int_field(p[0], "message_id")
             if msg_id in self._builders:

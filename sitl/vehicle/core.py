@@ -308,15 +308,15 @@ class VehicleCore(CommandHandlers, MissionProtocol):
     # ---------------------------------------------------------------------------- streams
 
     def set_interval(self, msg_id: int, interval_s: float | None, now: float) -> bool:
-        """Stream ``msg_id`` every ``interval_s`` wall seconds (None stops it); False if we
-        lack it."""
+        """Stream ``msg_id`` every ``interval_s`` wall seconds, never faster than the
+        autopilot's loop (None stops it); False if we lack it."""
         if msg_id not in self._builders:
             return False
         if interval_s is None:
             self._intervals.pop(msg_id, None)
             self._next_due.pop(msg_id, None)
         else:
-            self._intervals[msg_id] = interval_s
+            self._intervals[msg_id] = max(interval_s, self.flavour.min_stream_interval_s)
             self._next_due[msg_id] = now
         return True
 

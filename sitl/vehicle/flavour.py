@@ -111,6 +111,11 @@ class Flavour:
     flight_sw_version: int
     settings: MappingProxyType[str, tuple[str | None, float]]
     """Setting -> (parameter, scale to SI) or (None, constant): how this flavour spells it."""
+    min_stream_interval_s: float = 0.003
+    """No stream goes out faster than the autopilot's main loop. ArduPilot caps every message
+    interval at 0.8 x SCHED_LOOP_RATE (``cap_message_interval``: 3 ms at ArduCopter's 400 Hz)
+    and answers a faster SET_MESSAGE_INTERVAL TEMPORARILY_REJECTED. PX4's floor (its mavlink
+    thread's loop) is taken as 1 ms here, an assumption, not a measurement."""
     accepted_commands: frozenset[int] = frozenset()
     """Peripheral/auxiliary MAV_CMDs this stack accepts (the rest get UNSUPPORTED)."""
     unknown_param_read_text: bool = False
@@ -223,6 +228,7 @@ _ARDUPILOT_PARAMS = _with_extras(_ARDUPILOT_PARAMS, ardupilot_extra_params)
 
 PX4 = Flavour(
     name="px4",
+    min_stream_interval_s=0.001,
     autopilot=12,
     streams_unrequested=True,
     param_bytewise=True,

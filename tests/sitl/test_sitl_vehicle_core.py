@@ -73,6 +73,34 @@ def test_set_message_interval_minus_one_stops_and_zero_restores_default(make_gcs
         M.MAV_RESULT_UNSUPPORTED)
 
 
+def test_streams_go_no_faster_than_the_autopilot_loop(make_gcs):
+    """ArduPilot's cap_message_interval (0.8 x 400 Hz: 3 ms): a faster SET_MESSAGE_INTERVAL
+    is TEMPORARILY_REJECTED, under 1 ms it is 0 ms, which stops the stream; REQUEST_DATA_STREAM
+    at its uint16 maximum is capped. PX4 is capped at 1 ms. (A 65535 Hz request used to make
+    the vehicle build 65535 messages per simulated second.)"""
+    gcs = make_gcs(flavour=ARDUPILOT)
+    assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 30, 2_000).result == (
+        M.MAV_RESULT_TEMPORARILY_REJECTED)
+    assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 30, 3_000).result == M.MAV_RESULT_ACCEPTED
+    gcs.clear()
+    gcs.run_until(1.0)
+    assert 300 <= len(gcs.of_type("ATTITUDE")) <= 335
+    assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 30, 500).result == M.MAV_RESULT_ACCEPTED
+    gcs.clear()
+    gcs.run_until(2.0)
+    assert not gcs.of_type("ATTITUDE")
+    gcs.send(M.MAVLink_request_data_stream_message(1, 1, 10, 65535, 1))
+    gcs.clear()
+    gcs.run_until(3.0)
+    assert 300 <= len(gcs.of_type("ATTITUDE")) <= 335
+
+    px4 = make_gcs(flavour=PX4)
+    assert px4.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 30, 1).result == M.MAV_RESULT_ACCEPTED
+    px4.clear()
+    px4.run_until(1.0)
+    assert 990 <= len(px4.of_type("ATTITUDE")) <= 1002
+
+
 def test_request_message_sends_autopilot_version_after_the_ack(make_gcs):
     gcs = make_gcs(flavour=PX4)
     gcs.clear()
