@@ -62,6 +62,12 @@ def main(argv: list[str]) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--texture", action="store_true", help="also write the ground texture")
     args = p.parse_args(argv)
+    if not 0 <= args.noise < math.inf:
+        p.error(f"--noise must be a finite std >= 0, got {args.noise}")
+    if args.mount_pitch is not None and not -180 <= args.mount_pitch <= 180:
+        p.error(f"--mount-pitch must be in -180..180 degrees, got {args.mount_pitch}")
+    if not math.isfinite(args.t):
+        p.error(f"--t must be a finite scene time, got {args.t}")
 
     import cv2
 

@@ -122,6 +122,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     if args.wind is not None and not (math.isfinite(args.wind[0]) and args.wind[0] >= 0
                                       and math.isfinite(args.wind[1])):
         p.error("--wind: expected a speed >= 0 and a direction, both finite")
+    for flag, value in (("--speed", args.speed), ("--radius", args.radius),
+                        ("--spacing", args.spacing)):
+        if value is not None and not 0 < value < math.inf:  # -1 flew nowhere, 0 divided
+            p.error(f"{flag} must be a finite number > 0, got {value}")
+    if args.alt is not None and not math.isfinite(args.alt):
+        p.error(f"--alt must be a finite number of metres, got {args.alt}")
     if args.duration is not None and not args.duration >= 0:
         p.error(f"--duration must be a number of seconds >= 0, got {args.duration}")
     if args.serial and args.count != 1:
