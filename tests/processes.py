@@ -1,7 +1,9 @@
-"""Ending a test's subprocess the way a supervisor does: SIGTERM, a grace period, then kill."""
+"""Ending a test's subprocess the way a supervisor or a user does: a signal (SIGTERM, Ctrl-C),
+a grace period, then kill."""
 
 from __future__ import annotations
 
+import signal
 import subprocess
 from typing import Any
 
@@ -14,3 +16,16 @@ def terminate(proc: subprocess.Popen[Any], *, timeout_s: float = 5.0) -> None:
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait()
+
+
+def interrupt(proc: subprocess.Popen[Any], *, timeout_s: float = 20.0,
+              sig: int = signal.SIGINT) -> int:
+    """Ctrl-C (or ``sig``) and wait up to ``timeout_s`` for the exit code. A process still
+    running then is killed and the TimeoutExpired propagates: the test fails, nothing leaks."""
+    proc.send_signal(sig)
+    try:
+        return proc.wait(timeout=timeout_s)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

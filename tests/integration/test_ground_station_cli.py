@@ -5,7 +5,6 @@ from __future__ import annotations
 import asyncio
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -15,6 +14,7 @@ import aiohttp
 
 from ground_station.fake_drone import FakeDrone, synthetic_jpeg
 from tests.keys import TEST_COMMAND_PUB, write_test_keys
+from tests.processes import interrupt
 
 KEY = "cli-integration-fleet-key-000"
 BIN = [sys.executable, "-m", "ground_station.cli"]
@@ -88,13 +88,8 @@ async def test_run_shell_token_export(tmp_path: Path) -> None:
         code, out, _ = await run_cli("token", "--config", str(config))
         assert (code, out.strip()) == (0, token)
     finally:
-        station.send_signal(signal.SIGINT)
-        try:
-            station.wait(timeout=15)
-        finally:
-            if station.poll() is None:
-                station.kill()
-    assert station.returncode == 0
+        code = interrupt(station, timeout_s=15)
+    assert code == 0
     code, out, err = await run_cli(
         "export", "cli", "--out", str(tmp_path / "out"), "--config", str(config)
     )
@@ -137,13 +132,7 @@ async def test_run_shell_token_export(tmp_path: Path) -> None:
         line = again.stdout.readline() if again.stdout else ""  # type: ignore[union-attr]
         assert token not in line and line.startswith("dashboard:")
     finally:
-        again.send_signal(signal.SIGINT)
-        try:
-            assert again.wait(timeout=15) == 0
-        finally:
-            if again.poll() is None:
-                again.kill()
-                again.wait()
+        assert interrupt(again, timeout_s=15) == 0
 
 
 async def test_config_error_exit_code(tmp_path: Path) -> None:

@@ -7,7 +7,6 @@ datagrams, no traceback, the 16 images stored, reported, and still there after s
 from __future__ import annotations
 
 import asyncio
-import signal
 import socket
 import subprocess
 import sys
@@ -21,6 +20,7 @@ from ground_station.storage import Storage
 from tests.integration.test_ground_station_cli import free_port, wait_http
 from tests.integration.test_ground_station_storage_guarantee import hostile_image, reported
 from tests.keys import write_test_keys
+from tests.processes import interrupt
 
 KEY = "hostile-cli-fleet-key-0000000"
 TOKEN = "hostile-cli-token-0123456789abcdef"
@@ -71,12 +71,7 @@ async def test_signed_out_of_range_numbers_cost_nothing_else(tmp_path: Path) -> 
         assert stats["storage"]["images_stored"] == 16 and stats["storage"]["not_stored"] == 0
         drone.close()
     finally:
-        station.send_signal(signal.SIGINT)
-        try:
-            station.wait(timeout=20)
-        finally:
-            if station.poll() is None:
-                station.kill()
+        interrupt(station, timeout_s=20)
     assert station.returncode == 0
     assert "Traceback" not in stderr_path.read_text()
     storage = Storage(data, readonly=True)

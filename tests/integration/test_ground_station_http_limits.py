@@ -8,7 +8,6 @@ from __future__ import annotations
 import asyncio
 import os
 import resource
-import signal
 import socket
 import sqlite3
 import subprocess
@@ -21,6 +20,7 @@ import pytest
 
 from ground_station.fake_drone import FakeDrone, synthetic_jpeg
 from tests.keys import TEST_COMMAND_PUB, TEST_FLEET_KEY, write_test_keys
+from tests.processes import interrupt
 
 SCRIPT = Path(sys.executable).parent / "uav-ground-station"
 STATION = [str(SCRIPT)] if SCRIPT.exists() else [sys.executable, "-m", "ground_station.cli"]
@@ -127,12 +127,7 @@ async def test_idle_connections_do_not_stop_storage_and_secrets_stay_out_of_logs
     finally:
         for s in idle:
             s.close()
-        station.send_signal(signal.SIGINT)
-        try:
-            station.wait(timeout=20)
-        finally:
-            if station.poll() is None:
-                station.kill()
+        interrupt(station, timeout_s=20)
     err = err_path.read_text()
     assert station.returncode == 0, err[-3000:]
     assert "Traceback" not in err

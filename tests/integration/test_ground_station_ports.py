@@ -9,7 +9,6 @@
 
 from __future__ import annotations
 
-import signal
 import socket
 import subprocess
 import sys
@@ -18,6 +17,7 @@ from pathlib import Path
 
 from tests.integration.test_ground_station_cli import free_port
 from tests.keys import write_test_keys
+from tests.processes import interrupt
 
 STATION = Path(sys.executable).parent / "uav-ground-station"
 
@@ -27,15 +27,6 @@ def _station(tmp_path: Path, name: str, *, udp_port: int, http_port: int) -> lis
     write_test_keys(data / "keys")
     return [str(STATION), "run", "--data-dir", str(data), "--udp-port", str(udp_port),
             "--http-port", str(http_port)]
-
-
-def _stop(proc: subprocess.Popen[str]) -> None:
-    proc.send_signal(signal.SIGINT)
-    try:
-        proc.wait(timeout=20)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
 
 
 def _dashboard_line(proc: subprocess.Popen[str]) -> str:
@@ -62,7 +53,7 @@ def test_a_second_station_on_the_same_udp_port_fails(tmp_path: Path) -> None:
         assert "dashboard:" not in second.stdout
         assert first.poll() is None
     finally:
-        _stop(first)
+        interrupt(first)
 
 
 def test_no_login_link_for_a_busy_http_port(tmp_path: Path) -> None:
@@ -87,4 +78,4 @@ def test_http_port_0_shows_the_port_it_got(tmp_path: Path) -> None:
         with urllib.request.urlopen(url, timeout=10) as resp:  # the one-time login works
             assert resp.status == 200
     finally:
-        _stop(station)
+        interrupt(station)

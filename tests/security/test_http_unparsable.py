@@ -6,7 +6,6 @@ with a traceback for each, quoting the raw bytes (the cookie's value among them)
 
 from __future__ import annotations
 
-import signal
 import socket
 import subprocess
 import sys
@@ -15,6 +14,7 @@ import urllib.request
 from pathlib import Path
 
 from tests.keys import write_test_keys
+from tests.processes import interrupt
 
 STATION = Path(sys.executable).parent / "uav-ground-station"
 SECRET = "cookie-secret-0123456789abcdef"
@@ -64,12 +64,7 @@ def test_unparsable_requests_are_one_warning_line_each(tmp_path: Path) -> None:
             assert resp.status == 200
         time.sleep(0.2)  # the last log lines reach the file
     finally:
-        station.send_signal(signal.SIGINT)
-        try:
-            station.wait(timeout=20)
-        finally:
-            if station.poll() is None:
-                station.kill()
+        interrupt(station, timeout_s=20)
     text = log.read_text()
     assert "Traceback" not in text and SECRET not in text, text[-3000:]
     refused = [x for x in text.splitlines() if "HTTP request refused (400 " in x]

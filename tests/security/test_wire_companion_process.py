@@ -32,6 +32,7 @@ from tests.integration.test_peers_e2e import (
     get_json,
     spec_with_peer_positions,
 )
+from tests.processes import interrupt
 from utility_specs.message import Message
 
 BIN = Path(sys.executable).parent
@@ -123,17 +124,7 @@ async def test_hostile_datagrams_leave_the_companion_running_and_its_peers_clean
         sender.close()
         gs.close()
         if companion is not None:
-            companion.send_signal(signal.SIGTERM)
-            try:
-                companion.wait(timeout=30)
-            finally:
-                if companion.poll() is None:
-                    companion.kill()
-        vehicle.send_signal(signal.SIGINT)
-        try:
-            vehicle.wait(timeout=10)
-        finally:
-            if vehicle.poll() is None:
-                vehicle.kill()
+            interrupt(companion, timeout_s=30, sig=signal.SIGTERM)
+        interrupt(vehicle, timeout_s=10)
     assert companion.returncode == 0, err.read_text()[-3000:]
     assert "Traceback" not in err.read_text()

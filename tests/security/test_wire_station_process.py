@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 import random
-import signal
 import socket
 import subprocess
 import sys
@@ -21,6 +20,7 @@ from ground_station.fake_drone import FakeDrone, synthetic_jpeg
 from ground_station.storage import Storage
 from tests.integration.test_ground_station_cli import free_port, wait_http
 from tests.keys import TEST_FLEET_KEY, write_test_keys
+from tests.processes import interrupt
 
 STATION = Path(sys.executable).parent / "uav-ground-station"
 REPLAYS = 5
@@ -86,12 +86,7 @@ async def test_hostile_datagrams_are_counted_and_nothing_is_stored(tmp_path: Pat
     finally:
         good.close()
         other.close()
-        station.send_signal(signal.SIGINT)
-        try:
-            station.wait(timeout=20)
-        finally:
-            if station.poll() is None:
-                station.kill()
+        interrupt(station, timeout_s=20)
     assert station.returncode == 0
     assert "Traceback" not in log.read_text()
     storage = Storage(data, readonly=True)
