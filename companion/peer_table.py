@@ -51,6 +51,10 @@ ADSB_ALTITUDE_TYPE_GEOMETRIC = 1
 """The altitude is from GNSS (AMSL), not a pressure altitude."""
 ADSB_EMITTER_TYPE_UAV = 14
 MAX_PEERS = 256
+MAX_FUTURE_S = 2.0
+"""A message's ``t_gen`` counts as at most this far ahead of our clock (GPS/NTP-synced fleet
+clocks differ by milliseconds): a forged far-future time no longer freezes a peer's position
+(every true one after it was ``older_position``) for longer than this."""
 """Peers kept; a new one beyond this evicts the least recently heard."""
 MAX_STATUS_PEERS = 32
 """Peers whose ages a status message carries at most (the most recently heard)."""
@@ -166,6 +170,9 @@ class PeerTable:
             log.info("peer %s heard", message.sender)
         peer = replace(peer, t_heard=max(peer.t_heard, now))
         t_obs = message.t_gen
+        if t_obs > now + MAX_FUTURE_S:
+            t_obs = now + MAX_FUTURE_S
+            self._count("future_t_gen")
         if message.type == "position" or first_number(data, "lat_deg") is not None:
             pose_age = max(0.0, first_number(data, "pose_age_s") or 0.0)
             peer = self._position(peer, data, t_obs - pose_age)

@@ -3,6 +3,8 @@ and a DNS-rebinding page reading ``GET /peers``.
 
 * ``adsb_reports`` rounded ``hypot(1e308, 1e308) * 100`` (inf) and raised OverflowError,
   outside the injector's per-send guard: the ADSB_VEHICLE loop of every peer stopped.
+* A position stamped far in the future froze that peer's position: every true one after it
+  was ``older_position`` until the peer was forgotten.
 * The unauthenticated ``/peers`` answered any ``Host``: a page on ``evil.example`` rebound to
   127.0.0.1 is same-origin with it and could read every peer's position.
 """
@@ -14,6 +16,7 @@ import asyncio
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.peer_table import MAX_FUTURE_S
 from companion.peers import AdsbInjector, PeerHttp, PeerTable
 from tests.companion.test_peers import LAT, LON, msg
 
@@ -72,3 +75,14 @@ async def test_a_rebound_name_gets_421_over_a_socket() -> None:
         assert str(LAT).encode() not in raw
     finally:
         http.close()
+
+
+def test_a_far_future_position_does_not_freeze_the_peer() -> None:
+    table = PeerTable("drone1")
+    table.on_message(msg("drone2", "position", 1e9, lat_deg=LAT, lon_deg=LON), now=10.0)
+    assert table.counters["future_t_gen"] == 1
+    # the true positions after it count once our clock passes the clamped time
+    table.on_message(msg("drone2", "position", 10.0 + MAX_FUTURE_S + 0.5,
+                         lat_deg=LAT + 0.001, lon_deg=LON), now=10.0 + MAX_FUTURE_S + 0.5)
+    assert table.peers["drone2"].lat_deg == pytest.approx(LAT + 0.001)
+    assert "older_position" not in table.counters
