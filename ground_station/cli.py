@@ -203,6 +203,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.command is None:
         parser.print_help()
+        print("uav-ground-station: choose a command (start with: uav-ground-station run)",
+              file=sys.stderr)
         return 2
     try:
         config = _config(args)

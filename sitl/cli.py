@@ -42,11 +42,15 @@ def main(argv: list[str] | None = None) -> int:
     study.add_argument("name", choices=sorted(STUDIES), help="which study")
     if not argv or argv[0] in ("-h", "--help"):
         parser.print_help()
+        if not argv:
+            print("uav-sitl: choose a command (the demo fleet: uav-sitl fleet)", file=sys.stderr)
         return 0 if argv else 2
     command, rest = argv[0], argv[1:]
     if command == "study":
         if not rest or rest[0] in ("-h", "--help"):
             study.print_help()
+            if not rest:
+                print("uav-sitl study: choose a study", file=sys.stderr)
             return 0 if rest else 2
         if rest[0] not in STUDIES:
             study.error(f"unknown study {rest[0]!r}; expected one of {', '.join(sorted(STUDIES))}")
