@@ -284,12 +284,13 @@ class Middleware:
                                        latency_s=self.knowledge.latency.mean_s,
                                        max_items=self.config.max_items)
         budget = self.constraint.budget_bytes(now=now)
-        budget = start_share(budget, fleet=self.config.fleet_size,  # round 7, fleetshare.py
-                             heard=len(self.knowledge.peers_of(self.config.agent)),
-                             elapsed_s=now - self._started, window_s=window_s,
-                             for_s=self.config.start_share_s,
-                             floor_bytes=min((v.size for v in message.versions),
-                                             default=message.size))
+        if self.config.fleet_size is not None and now - self._started <= self.config.start_share_s:
+            budget = start_share(budget, fleet=self.config.fleet_size,  # fleetshare.py
+                                 heard=len(self.knowledge.peers_of(self.config.agent)),
+                                 elapsed_s=now - self._started, window_s=window_s,
+                                 for_s=self.config.start_share_s,
+                                 floor_bytes=min((v.size for v in message.versions),
+                                                 default=message.size))
         if self.config.learn_margin:
             self.margin.observe(self.knowledge.known_sends(), now=now, settle_s=lag,
                                 window_s=window_s, budget_bytes=budget)
