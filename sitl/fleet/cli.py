@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from companion.middleware.constraints.registry import CONSTRAINTS
+from sitl.camera_cli import MAX_SIDE
 from sitl.fleet.link import (
     RELAY_BACKGROUND_SHARE,
     RELAY_QUEUE_BYTES,
@@ -146,8 +147,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
         w, h = (int(x) for x in args.size.lower().split("x"))
     except ValueError:
         p.error(f"--size: expected WxH, got {args.size!r}")
-    if not (16 <= w <= 8192 and 16 <= h <= 8192):
-        p.error(f"--size: width and height must be in 16..8192, got {args.size!r}")
+    if not (16 <= w <= MAX_SIDE and 16 <= h <= MAX_SIDE):
+        p.error(f"--size: width and height must be in 16..{MAX_SIDE}, got {args.size!r}")
     args.width, args.height = w, h
     if args.relay_rate < 0 or args.relay_queue <= 0:
         p.error("--relay-rate must be >= 0 and --relay-queue > 0")
