@@ -4,7 +4,8 @@
   Referer), added in ``on_response_prepare`` so static files and errors get them too;
 * a same-origin check for cookie-authenticated requests and the WebSocket;
 * an access log that never shows a token or login code (request line and Referer), and a
-  request aiohttp cannot parse logged as one line, not a traceback quoting its raw bytes;
+  request aiohttp cannot parse logged as one line, not a traceback quoting its raw bytes,
+  and answered with a fixed 400 body (aiohttp's page quotes the bytes it refused);
 * a listening site that caps concurrent connections, plus a short idle timeout, so HTTP
   clients can never use up the file descriptors the UDP receiver and storage need;
 * the soft open-file limit raised to the hard one at start.
@@ -29,6 +30,8 @@ from companion.stop_signals import STOP_SIGNALS, EarlyStop
 
 __all__ = [
     "SECURITY_HEADERS",
+    "MALFORMED_REQUEST_BODY",
+    "FixedErrorPages",
     "LimitedSite",
     "RedactingAccessLogger",
     "UnparsableRequestFilter",
@@ -108,6 +111,31 @@ class UnparsableRequestFilter(logging.Filter):
 
 _UNPARSABLE_FILTER = UnparsableRequestFilter()
 
+MALFORMED_REQUEST_BODY = "400 Bad Request: malformed HTTP request\n"
+
+
+class FixedErrorPages(RequestHandler):
+    """aiohttp's connection handler, whose error replies quote nothing of the request.
+
+    For a request its parser refuses, aiohttp's 400 page echoes the offending request line,
+    header line or chunk-size line (a cookie, or markup a browser might render: reflected
+    input). ``handle_error`` is where aiohttp builds that page for parser errors (no
+    middleware sees them); here it still logs as aiohttp does (one line, through
+    :class:`UnparsableRequestFilter`) but answers with a fixed body and the security headers.
+    """
+
+    __slots__ = ()
+
+    def handle_error(self, request: web.BaseRequest, status: int = 500,
+                     exc: BaseException | None = None,
+                     message: str | None = None) -> web.StreamResponse:
+        response = super().handle_error(request, status, exc, message)  # logs, closes
+        if isinstance(exc, HttpProcessingError) or status == 400:
+            response = web.Response(status=400, text=MALFORMED_REQUEST_BODY)
+            response.force_close()
+        response.headers.update(SECURITY_HEADERS)
+        return response
+
 
 class _Refused(asyncio.Protocol):
     """Closes a connection beyond the cap at once (its descriptor is freed immediately)."""
@@ -143,6 +171,7 @@ class LimitedSite(web.BaseSite):
                             len(server.connections), self._max_connections, self.refused)
             return _Refused()
         handler: RequestHandler = server()
+        handler.__class__ = FixedErrorPages  # same slots: only handle_error differs
         return handler
 
     async def start(self) -> None:

@@ -1,0 +1,54 @@
+"""A real ``uav-ground-station run`` for tests that attack it over sockets: default (INFO)
+logging to a file, ports picked by the OS, the test keys, an optional TOML config."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+from tests.keys import write_test_keys
+from tests.processes import interrupt
+
+STATION = Path(sys.executable).parent / "uav-ground-station"
+
+
+@dataclass(frozen=True)
+class Station:
+    proc: subprocess.Popen[str]
+    port: int
+    token: str
+    log: Path
+
+    def log_text(self) -> str:
+        time.sleep(0.2)  # the last lines reach the file
+        return self.log.read_text()
+
+
+@contextmanager
+def running_station(tmp_path: Path, config_toml: str = "") -> Iterator[Station]:
+    """The station on 127.0.0.1 (HTTP and UDP ports 0); stopped with Ctrl-C at the end."""
+    data = tmp_path / "data"
+    write_test_keys(data / "keys")
+    args = [str(STATION), "run", "--data-dir", str(data), "--udp-port", "0",
+            "--http-port", "0"]
+    if config_toml:
+        config = tmp_path / "station.toml"
+        config.write_text(config_toml)
+        args += ["--config", str(config)]
+    log = tmp_path / "station.log"
+    with open(log, "w") as stderr:
+        proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=stderr, text=True)
+    try:
+        assert proc.stdout is not None
+        line = next((x for x in proc.stdout if x.startswith("dashboard:")), None)
+        assert line is not None, log.read_text()
+        port = int(line.split("/")[2].split(":")[1])
+        token = (data / "token").read_text().strip()
+        yield Station(proc, port, token, log)
+    finally:
+        interrupt(proc, timeout_s=20)
