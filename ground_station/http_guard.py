@@ -29,8 +29,8 @@ from aiohttp.web_protocol import RequestHandler
 from companion.stop_signals import STOP_SIGNALS, EarlyStop
 
 __all__ = [
-    "SECURITY_HEADERS",
     "MALFORMED_REQUEST_BODY",
+    "SECURITY_HEADERS",
     "FixedErrorPages",
     "LimitedSite",
     "RedactingAccessLogger",
