@@ -14,11 +14,10 @@ import contextlib
 import json
 import logging
 import time
-import weakref
 from collections.abc import AsyncIterator, Callable
 from typing import Any
 
-from aiohttp import WSCloseCode, WSMsgType, web
+from aiohttp import WSMsgType, web
 
 from ground_station.auth import LOGIN_CODES, STATIC_DIR, api_login, index, token_middleware
 from ground_station.broadcast import Broadcaster
@@ -53,12 +52,20 @@ from ground_station.storage import ImageRow, Storage
 from ground_station.store_service import StorageService
 from ground_station.token import LoginCodes, ensure_token
 from ground_station.utility import image_utility_from_spec
+from ground_station.ws_guard import (
+    WebSocketGate,
+    close_all,
+    refusal,
+    release_unsent,
+    send_or_drop,
+)
 
 __all__ = ["STATIC_DIR", "create_app"]
 
 log = logging.getLogger(__name__)
 
 SCENE_MAP: web.AppKey[dict[str, Any] | None] = web.AppKey("scene_map")
+WS_GATE: web.AppKey[WebSocketGate] = web.AppKey("ws_gate")
 
 
 # -- read API ------------------------------------------------------------------------------
@@ -182,23 +189,41 @@ async def api_telemetry(request: web.Request) -> web.Response:
 async def websocket(request: web.Request) -> web.WebSocketResponse:
     """Live updates: a snapshot first, then drone/status/alert/tick/mission events."""
     app = request.app
+    config = app[CONFIG]
     if "Origin" in request.headers and not same_origin(request):
         # a page elsewhere must not read the live feed with this browser's cookie
         raise web.HTTPForbidden(text="cross-origin WebSocket refused")
-    ws = web.WebSocketResponse(heartbeat=20.0)
-    await ws.prepare(request)
-    app[WEBSOCKETS].add(ws)
+    gate, remote = app[WS_GATE], request.remote or "?"
+    refused = gate.admit(remote)
+    if refused is not None:  # idle sockets must not take every HTTP connection
+        if gate.should_log():
+            log.warning("%s (%d refused so far)", refused[1], gate.refused)
+        raise refusal(*refused)
+    try:
+        return await _live_feed(request, send_timeout_s=config.ws_send_timeout_s)
+    finally:
+        gate.release(remote)
+
+
+async def _live_feed(request: web.Request, *, send_timeout_s: float) -> web.WebSocketResponse:
+    app = request.app
+    ws = web.WebSocketResponse(heartbeat=app[CONFIG].ws_heartbeat_s)
+    try:
+        await ws.prepare(request)
+    except web.HTTPBadRequest:  # aiohttp's text quotes the request's headers
+        raise web.HTTPBadRequest(text="400 Bad Request: not a WebSocket handshake\n") from None
+    app[WEBSOCKETS][ws] = request
     client = app[BROADCASTER].register()
     now = app[CLOCK]()
     snapshot = app[FLEET].snapshot(now=now)
     snapshot["mission"] = app[MISSIONS].state(now=now)
     snapshot["config"] = _dashboard_config(app)
-    await ws.send_str(json.dumps({"kind": "snapshot", **snapshot}, default=str))
+    first = json.dumps({"kind": "snapshot", **snapshot}, default=str)
 
-    async def writer() -> None:
-        while True:
+    async def writer() -> None:  # a client that stops reading is dropped, not waited for
+        text = first
+        while await send_or_drop(request, ws, text, timeout_s=send_timeout_s):
             text = await client.queue.get()
-            await ws.send_str(text)
 
     task = asyncio.create_task(writer(), name="gs-ws-writer")
     try:
@@ -212,14 +237,13 @@ async def websocket(request: web.Request) -> web.WebSocketResponse:
         task.cancel()
         with contextlib.suppress(asyncio.CancelledError, ConnectionError):
             await task
-        app[WEBSOCKETS].discard(ws)
+        app[WEBSOCKETS].pop(ws, None)
+        release_unsent(request)
     return ws
 
 
 async def close_websockets(app: web.Application) -> None:
-    sockets = app[WEBSOCKETS]
-    for ws in list(sockets):
-        await ws.close(code=WSCloseCode.GOING_AWAY, message=b"server shutdown")
+    await close_all(app[WEBSOCKETS], timeout_s=1.0)
 
 
 # -- cleanup contexts ----------------------------------------------------------------------
@@ -318,7 +342,9 @@ def create_app(
     )
     app[BROADCASTER] = Broadcaster(queue_size=config.ws_queue_size)
     app[LATEST_JPEG] = {}
-    app[WEBSOCKETS] = weakref.WeakSet()
+    app[WEBSOCKETS] = {}
+    app[WS_GATE] = WebSocketGate.for_connections(config.http_max_connections,
+                                                 config.ws_max_per_client)
     app.cleanup_ctx.append(storage_ctx)
     app.cleanup_ctx.append(link_ctx)
     app.on_shutdown.append(close_websockets)

@@ -100,6 +100,13 @@ class GroundConfig:
     """Whether read-only views (dashboard, /api GETs, WebSocket) are open without the token."""
     ws_queue_size: int = 64
     """Per-browser queue of pending updates; the oldest is dropped when full."""
+    ws_max_per_client: int = 8
+    """Open WebSockets (dashboard tabs) one client address may hold; all of them together
+    hold at most half of ``http_max_connections``, so plain requests always get through."""
+    ws_send_timeout_s: float = 5.0
+    """A dashboard whose update cannot be sent this long (it stopped reading) is dropped."""
+    ws_heartbeat_s: float = 10.0
+    """WebSocket ping period; a client without a pong within half of it is closed."""
     clock_tolerance_s: float = 30.0
     """Datagrams whose t_gen is further than this from our clock are stale."""
     fsync: bool = True
@@ -139,6 +146,9 @@ class GroundConfig:
             ("high_utility_fraction", 0 < self.high_utility_fraction <= 1,
              "a number in (0, 1]"),
             ("ws_queue_size", self.ws_queue_size > 0, "an integer > 0"),
+            ("ws_max_per_client", self.ws_max_per_client >= 1, "an integer >= 1"),
+            ("ws_send_timeout_s", self.ws_send_timeout_s > 0, "a number > 0"),
+            ("ws_heartbeat_s", self.ws_heartbeat_s > 0, "a number > 0"),
             ("clock_tolerance_s", self.clock_tolerance_s > 0, "a number > 0"),
         ]
         for key, ok, expected in checks:
@@ -205,6 +215,9 @@ _TYPES: dict[str, tuple[type | tuple[type, ...], str]] = {
     "scene": (str, "a path string"),
     "public_read": (bool, "true or false"),
     "ws_queue_size": (int, "an integer"),
+    "ws_max_per_client": (int, "an integer"),
+    "ws_send_timeout_s": ((int, float), "a number of seconds"),
+    "ws_heartbeat_s": ((int, float), "a number of seconds"),
     "clock_tolerance_s": ((int, float), "a number of seconds"),
     "fsync": (bool, "true or false"),
     "token_file": (str, "a path string"),

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import weakref
 from collections.abc import Callable
 
 from aiohttp import web
@@ -41,4 +40,5 @@ STORAGE = web.AppKey("storage", StorageService)
 LINK = web.AppKey("link", GroundLink)
 LATEST_JPEG = web.AppKey("latest_jpeg", dict[str, bytes])
 """Newest image bytes per drone, served to tiles without touching the disk."""
-WEBSOCKETS = web.AppKey("websockets", weakref.WeakSet[web.WebSocketResponse])
+WEBSOCKETS = web.AppKey("websockets", dict[web.WebSocketResponse, web.Request])
+"""Open live feeds and their requests (a feed that does not read is aborted through it)."""
