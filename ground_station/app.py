@@ -243,7 +243,8 @@ async def _live_feed(request: web.Request, *, send_timeout_s: float) -> web.WebS
 
 
 async def close_websockets(app: web.Application) -> None:
-    await close_all(app[WEBSOCKETS], timeout_s=1.0)
+    feeds = app[WEBSOCKETS]
+    await close_all(feeds, timeout_s=1.0)
 
 
 # -- cleanup contexts ----------------------------------------------------------------------

@@ -69,3 +69,23 @@ def test_malformed_requests_get_a_fixed_400_and_one_warning(tmp_path: Path) -> N
     refused = [x for x in text.splitlines() if "HTTP request refused (400 " in x]
     assert len(refused) == len(BAD) + 1, text[-3000:]  # a fresh bad method: DEBUG only
     assert all(" WARNING " in x and x.endswith("from 127.0.0.1") for x in refused), refused
+
+
+def test_a_bad_websocket_handshake_quotes_nothing(tmp_path: Path) -> None:
+    """aiohttp's handshake errors quote the Upgrade/Connection header or the key."""
+    with running_station(tmp_path) as station:
+        auth = f"Authorization: Bearer {station.token}\r\n".encode()
+        base = b"GET /ws HTTP/1.1\r\n" + HOST + auth
+        for headers in (
+            b"Upgrade: websocket" + MARK + b"\r\nConnection: Upgrade\r\n",
+            b"Upgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: 13\r\n"
+            b"Sec-WebSocket-Key: " + MARK + b"\r\n",
+            b"Upgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: "
+            + MARK + b"\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n",
+        ):
+            with socket.create_connection(("127.0.0.1", station.port), timeout=10) as conn:
+                conn.sendall(base + headers + b"\r\n")
+                reply = conn.recv(65536)
+            head, _, body = reply.partition(b"\r\n\r\n")
+            assert head.startswith(b"HTTP/1.1 400 "), reply[:300]
+            assert body == b"400 Bad Request: not a WebSocket handshake\n", reply[:600]
