@@ -190,6 +190,7 @@ def _run(args: argparse.Namespace, config: GroundConfig) -> int:
     try:
         serve(app, host=config.http_host, port=config.http_port,
               max_connections=config.http_max_connections,
+              max_per_client=config.http_max_per_client,
               idle_timeout_s=config.http_idle_timeout_s, stop_signals=stop_signals,
               on_serving=announce)
     except OSError as exc:  # address in use, permission denied...

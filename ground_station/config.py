@@ -70,6 +70,9 @@ class GroundConfig:
     http_max_connections: int = 128
     """Concurrent HTTP connections served; more are closed at once, so browsers and scanners
     can never take the file descriptors the UDP receiver and the storage need."""
+    http_max_per_client: int = 32
+    """Of those, how many one client address may hold (a browser uses about six): one host
+    cannot take them all. Behind a reverse proxy every client has the proxy's address."""
     http_idle_timeout_s: float = 15.0
     """An HTTP connection idle this long (also one that never sends a request) is closed."""
     report_interval_s: float = 0.25
@@ -134,6 +137,7 @@ class GroundConfig:
             ("udp_port", 0 <= self.udp_port < 65536, "a port 0..65535"),
             ("http_port", 0 <= self.http_port < 65536, "a port 0..65535"),
             ("http_max_connections", self.http_max_connections >= 1, "an integer >= 1"),
+            ("http_max_per_client", self.http_max_per_client >= 1, "an integer >= 1"),
             ("http_idle_timeout_s", self.http_idle_timeout_s > 0, "a number > 0"),
             ("udp_rcvbuf_bytes", self.udp_rcvbuf_bytes >= 65536, "an integer >= 65536"),
             ("report_interval_s", self.report_interval_s > 0, "a number > 0"),
@@ -201,6 +205,7 @@ _TYPES: dict[str, tuple[type | tuple[type, ...], str]] = {
     "http_port": (int, "an integer port"),
     "allowed_hosts": (list, "a list of DNS names"),
     "http_max_connections": (int, "an integer"),
+    "http_max_per_client": (int, "an integer"),
     "http_idle_timeout_s": ((int, float), "a number of seconds"),
     "report_interval_s": ((int, float), "a number of seconds"),
     "command_retry_s": ((int, float), "a number of seconds"),

@@ -144,18 +144,39 @@ class _Refused(asyncio.Protocol):
         transport.abort()  # type: ignore[attr-defined]
 
 
-class LimitedSite(web.BaseSite):
-    """A TCP site that serves at most ``max_connections`` connections at a time."""
+def _peer_host(transport: asyncio.BaseTransport | None) -> str | None:
+    peer = transport.get_extra_info("peername") if transport is not None else None
+    return str(peer[0]) if isinstance(peer, tuple) and peer else None
 
-    __slots__ = ("_host", "_max_connections", "_port", "refused")
+
+class _Admission(asyncio.Protocol):
+    """A connection's first protocol: once the peer's address is known, it is either
+    closed (that address holds its share already) or handed to aiohttp's handler."""
+
+    def __init__(self, site: LimitedSite) -> None:
+        self._site = site
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self._site.admit(transport)
+
+
+class LimitedSite(web.BaseSite):
+    """A TCP site that serves at most ``max_connections`` connections at a time, at most
+    ``max_per_client`` of them from one address: a host on the network cannot hold them
+    all (idle, reopened every idle timeout) and lock the operator out without a token."""
+
+    __slots__ = ("_host", "_max_connections", "_max_per_client", "_port", "refused",
+                 "refused_client")
 
     def __init__(self, runner: web.BaseRunner, host: str, port: int, *,
-                 max_connections: int) -> None:
+                 max_connections: int, max_per_client: int | None = None) -> None:
         super().__init__(runner)
         self._host = host
         self._port = port
         self._max_connections = max_connections
+        self._max_per_client = max_connections if max_per_client is None else max_per_client
         self.refused = 0
+        self.refused_client = 0
 
     @property
     def name(self) -> str:
@@ -170,9 +191,26 @@ class LimitedSite(web.BaseSite):
                 log.warning("HTTP connection refused: %d open (cap %d); %d refused so far",
                             len(server.connections), self._max_connections, self.refused)
             return _Refused()
+        return _Admission(self)
+
+    def admit(self, transport: asyncio.BaseTransport) -> None:
+        """Serve a new connection, or close it when its address holds its share."""
+        server = self._runner.server
+        assert server is not None
+        client = _peer_host(transport)
+        held = sum(1 for h in server.connections if _peer_host(h.transport) == client)
+        if client is not None and held >= self._max_per_client:
+            self.refused_client += 1
+            if self.refused_client in (1, 10, 100) or self.refused_client % 1000 == 0:
+                log.warning("HTTP connection from %s refused: it holds %d "
+                            "(http_max_per_client); %d refused so far", client, held,
+                            self.refused_client)
+            transport.abort()  # type: ignore[attr-defined]
+            return
         handler: RequestHandler = server()
         handler.__class__ = FixedErrorPages  # same slots: only handle_error differs
-        return handler
+        transport.set_protocol(handler)
+        handler.connection_made(transport)
 
     async def start(self) -> None:
         await super().start()
@@ -217,7 +255,8 @@ def _loop_exception(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) ->
 
 
 def serve(app: web.Application, *, host: str, port: int, max_connections: int,
-          idle_timeout_s: float, stop_signals: EarlyStop | None = None,
+          idle_timeout_s: float, max_per_client: int | None = None,
+          stop_signals: EarlyStop | None = None,
           on_serving: Callable[[int], None] | None = None) -> None:
     """``web.run_app`` with the connection cap, idle timeout and redacting access log.
 
@@ -242,7 +281,8 @@ def serve(app: web.Application, *, host: str, port: int, max_connections: int,
         try:
             await runner.setup()
             if not stop.is_set():
-                site = LimitedSite(runner, host, port, max_connections=max_connections)
+                site = LimitedSite(runner, host, port, max_connections=max_connections,
+                                   max_per_client=max_per_client)
                 await site.start()
                 if on_serving is not None:
                     on_serving(int(runner.addresses[0][1]))
