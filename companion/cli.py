@@ -69,7 +69,7 @@ def _parser() -> argparse.ArgumentParser:
 
     check = sub.add_parser("check", help="validate the config, probe MAVLink and the camera")
     check.add_argument("--config", default=DEFAULT_CONFIG)
-    check.add_argument("--timeout", type=float, default=5.0,
+    check.add_argument("--timeout", type=_seconds, default=5.0,
                        help="seconds to wait for the autopilot (default 5)")
     check.add_argument("--skip-mavlink", action="store_true")
     check.add_argument("--skip-camera", action="store_true")
@@ -252,6 +252,19 @@ def _probe_camera(config: Any, snapshot: Any) -> tuple[list[str], bool]:
             f"sent as {cam.width}x{cam.height} at {cam.rate_hz:g} Hz"], True
 
 
+def _seconds(text: str) -> float:
+    """A finite number of seconds > 0 (``inf`` waited forever, ``nan`` not at all)."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, got {text!r}")
+    return value
+
+
 def _user_name(text: str) -> str:
     """A POSIX user name: anything else (a space, a newline and a second ``ExecStart=``)
     went into the unit as written, and systemd refused the unit or ran what it said."""
@@ -265,7 +278,13 @@ def _user_name(text: str) -> str:
 def _install(args: argparse.Namespace) -> int:
     from companion.service import DEFAULT_UNIT_DIR, install_service
 
-    if _load(args.config) is None:  # a unit that starts a broken config only restarts forever
+    config = _load(args.config)
+    if config is None:  # a unit that starts a broken config only restarts forever
+        return 2
+    from companion.config import missing_keys
+
+    if (problem := missing_keys(config)) is not None:  # run would refuse it: exit 2, restart
+        print(f"configuration error: {problem}", file=sys.stderr)
         return 2
     config_path = Path(args.config).resolve()
     unit_dir = Path(args.unit_dir) if args.unit_dir else DEFAULT_UNIT_DIR

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import math
 import os
 import sys
 from pathlib import Path
@@ -257,8 +258,17 @@ def main(argv: list[str] | None = None) -> int:
         print(f"uav-ground-station: no token ({exc}); pass --token", file=sys.stderr)
         return 2
     lines = [c for c in args.commands.split(";")] if args.commands else None
-    if not args.timeout > 0:
-        print("uav-ground-station: --timeout must be > 0", file=sys.stderr)
+    if not (math.isfinite(args.timeout) and args.timeout > 0):  # inf: a wait never ends
+        print("uav-ground-station: --timeout must be a number of seconds > 0",
+              file=sys.stderr)
+        return 2
+    if not (token.isascii() and token.isprintable() and " " not in token):  # a header value
+        print("uav-ground-station: the token must be printable ASCII without spaces "
+              "(as `uav-ground-station token` prints it)", file=sys.stderr)
+        return 2
+    if not url.startswith(("http://", "https://")):
+        print(f"uav-ground-station: --url must start with http:// or https://, got {url!r}",
+              file=sys.stderr)
         return 2
     return asyncio.run(run_shell(url, token, lines=lines, wait_timeout_s=args.timeout))
 

@@ -117,8 +117,10 @@ def test_bad_constraint_is_caught_by_check(tmp_path: Path) -> None:
 
 
 def test_install_service_dry_run_and_unit_dir(tmp_path: Path) -> None:
-    config = tmp_path / "companion.toml"
-    config.write_text('[drone]\nid = "d1"\n')
+    config = tmp_path / "companion.toml"  # a config run accepts (keys set): see the audit's
+    write_test_keys(tmp_path / "keys")    # tests/integration/test_cli_bad_input_audit.py
+    config.write_text('[drone]\nid = "d1"\n[ground_station]\nfleet_key_file = "keys/fleet.key"'
+                      '\ncommand_public_key_file = "keys/command.pub"\n')
     dry = _cli("install-service", "--config", str(config), "--dry-run")
     assert dry.returncode == 0
     assert "Restart=on-failure" in dry.stdout and f"run --config {config}" in dry.stdout
