@@ -207,7 +207,8 @@ async def websocket(request: web.Request) -> web.WebSocketResponse:
 
 async def _live_feed(request: web.Request, *, send_timeout_s: float) -> web.WebSocketResponse:
     app = request.app
-    ws = web.WebSocketResponse(heartbeat=app[CONFIG].ws_heartbeat_s)
+    ws = web.WebSocketResponse(heartbeat=app[CONFIG].ws_heartbeat_s,
+                               max_msg_size=4096)  # a client only ever sends "ping"
     try:
         await ws.prepare(request)
     except web.HTTPBadRequest:  # aiohttp's text quotes the request's headers

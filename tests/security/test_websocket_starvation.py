@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import socket
+import struct
 import time
 import urllib.request
 from pathlib import Path
@@ -54,10 +55,25 @@ def _open_ws(station: Station, source: str, *, rcvbuf: int | None = None) -> tup
 
 
 def _frame(text: bytes) -> bytes:
-    """A masked client text frame (short payload)."""
+    """A masked client text frame."""
     mask = os.urandom(4)
-    return bytes([0x81, 0x80 | len(text)]) + mask + bytes(
-        b ^ mask[i % 4] for i, b in enumerate(text))
+    size = (bytes([0x80 | len(text)]) if len(text) < 126
+            else bytes([0x80 | 127]) + struct.pack("!Q", len(text)))
+    return bytes([0x81]) + size + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(text))
+
+
+def _server_frames(data: bytes) -> list[tuple[int, bytes]]:
+    """(opcode, payload) of the unmasked server frames in ``data``."""
+    frames = []
+    while len(data) >= 2:
+        opcode, size, at = data[0] & 0x0F, data[1] & 0x7F, 2
+        if size == 126:
+            size, at = struct.unpack("!H", data[2:4])[0], 4
+        elif size == 127:
+            size, at = struct.unpack("!Q", data[2:10])[0], 10
+        frames.append((opcode, data[at:at + size]))
+        data = data[at + size:]
+    return frames
 
 
 def _stats(station: Station) -> int:
@@ -144,3 +160,18 @@ def test_ctrl_c_does_not_wait_for_a_websocket_that_does_not_read(tmp_path: Path)
             assert interrupt(station.proc, timeout_s=20) == 0
             stopped_after = time.monotonic() - t1
     assert stopped_after < 5, stopped_after
+
+
+def test_a_big_websocket_message_closes_the_feed(tmp_path: Path) -> None:
+    """The feed expects only "ping" from a client: a message over 4 KiB (aiohttp's default
+    allowed 4 MiB, decompressed, per message) closes it with 1009."""
+    with running_station(tmp_path) as station:
+        conn, status = _open_ws(station, "127.0.0.1")
+        assert b" 101 " in status, status
+        with conn:
+            conn.sendall(_frame(b"p" * 8192))  # read whole: no reset for unread bytes
+            data = b""
+            while chunk := conn.recv(65536):
+                data += chunk
+        closes = [p for op, p in _server_frames(data) if op == 0x8]
+        assert closes and struct.unpack("!H", closes[0][:2])[0] == 1009, closes
