@@ -96,7 +96,7 @@ class UnparsableRequestFilter(logging.Filter):
     """aiohttp logs a request it cannot parse (an unknown method, an 8 kB header, a NUL in
     the URL: a port scanner or an attacker) as an ERROR with a traceback that quotes the
     raw bytes, a cookie or token among them. Such a record becomes one WARNING line naming
-    the client and the error class; the 400 reply is aiohttp's."""
+    the client and the error class; the 400 reply is :class:`FixedErrorPages`'s fixed one."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         exc = record.exc_info[1] if record.exc_info else None
