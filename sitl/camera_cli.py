@@ -82,6 +82,10 @@ def main(argv: list[str]) -> int:
         except (OSError, UnicodeDecodeError, argparse.ArgumentTypeError) as exc:
             print(f"uav-sitl camera: {args.poses}: {exc}", file=sys.stderr)
             return 2
+        if not poses:  # a file that was meant to list them: not one frame at the default
+            print(f"uav-sitl camera: {args.poses}: no poses (one x,y,z per line)",
+                  file=sys.stderr)
+            return 2
     try:
         scene = load_scene(args.scene)
     except SceneError as exc:

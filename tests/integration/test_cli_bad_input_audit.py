@@ -1,6 +1,8 @@
 """More bad input to the console scripts, found by an audit: each was accepted (a unit
 written for a config ``run`` refuses, a wait that never ends or ends at once) or a
-traceback (a newline in ``--token``). Now: one line on stderr, exit 2."""
+traceback (a newline in ``--token``), or a default taken for what was asked
+(``uav-sitl camera --poses`` of an empty file rendered one frame at the default pose).
+Now: one line on stderr, exit 2."""
 
 from __future__ import annotations
 
@@ -27,6 +29,8 @@ CASES = [
     ([*SHELL, "--token", "t", "--timeout", "inf"], 2,
      "--timeout must be a number of seconds > 0"),
     ([*SHELL, "--token", "a\nb"], 2, "the token must be printable ASCII without spaces"),
+    (["uav-sitl", "camera", "--poses", "{empty}", "--out", "{units}/frames"], 2,
+     "empty.txt: no poses (one x,y,z per line)"),
     (["uav-ground-station", "shell", "--url", "ftp://x", "--token", "t", "-c", "status"], 2,
      "--url must start with http:// or https://, got 'ftp://x'"),
 ]
@@ -37,7 +41,8 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("audit")
     write_test_keys(root / "keys")
     out = {"no_keys": root / "no_keys.toml", "keyed": root / "keyed.toml",
-           "units": root / "units"}
+           "units": root / "units", "empty": root / "empty.txt"}
+    out["empty"].write_text("# no pose here\n")
     out["no_keys"].write_text('[drone]\nid = "d1"\n')
     out["keyed"].write_text('[drone]\nid = "d1"\n[ground_station]\nfleet_key_file = '
                             '"keys/fleet.key"\ncommand_public_key_file = "keys/command.pub"\n')
