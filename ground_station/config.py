@@ -70,7 +70,7 @@ class GroundConfig:
     http_max_connections: int = 128
     """Concurrent HTTP connections served; more are closed at once, so browsers and scanners
     can never take the file descriptors the UDP receiver and the storage need."""
-    http_max_per_client: int = 32
+    http_max_per_client: int = 64
     """Of those, how many one client address may hold (a browser uses about six): one host
     cannot take them all. Behind a reverse proxy every client has the proxy's address."""
     http_idle_timeout_s: float = 15.0

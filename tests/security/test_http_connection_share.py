@@ -3,7 +3,7 @@
 Any host that can reach the port, without a token, opened ``http_max_connections`` idle
 TCP connections (reopening them every ``http_idle_timeout_s``): every other client,
 the operator's dashboard among them, was closed on accept. Now one address holds at most
-``http_max_per_client`` (32 by default); beyond that its connections are closed at once.
+``http_max_per_client`` (64 by default, half the connections); beyond that its connections are closed at once.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ def _closed(conns: list[socket.socket]) -> list[bool]:
 
 
 def test_one_address_cannot_hold_every_connection(tmp_path: Path) -> None:
-    with running_station(tmp_path) as station:  # defaults: 128 connections, 32 a client
+    with running_station(tmp_path) as station:  # defaults: 128 connections, 64 a client
         held = []
         try:
             for _ in range(128):
@@ -44,6 +44,6 @@ def test_one_address_cannot_hold_every_connection(tmp_path: Path) -> None:
             for conn in held:
                 conn.close()
         text = station.log_text()
-    assert closed.count(False) == 32 and closed[:32] == [False] * 32, closed
+    assert closed.count(False) == 64 and closed[:64] == [False] * 64, closed
     refusals = [x for x in text.splitlines() if "HTTP connection from 127.0.0.2 refused" in x]
     assert 1 <= len(refusals) <= 3 and all(" WARNING " in x for x in refusals), refusals
