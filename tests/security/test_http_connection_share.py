@@ -3,7 +3,8 @@
 Any host that can reach the port, without a token, opened ``http_max_connections`` idle
 TCP connections (reopening them every ``http_idle_timeout_s``): every other client,
 the operator's dashboard among them, was closed on accept. Now one address holds at most
-``http_max_per_client`` (64 by default, half the connections); beyond that its connections are closed at once.
+``http_max_per_client`` (64 by default, half the connections); beyond that its
+connections are closed at once.
 """
 
 from __future__ import annotations

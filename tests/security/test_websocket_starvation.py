@@ -20,8 +20,6 @@ import time
 import urllib.request
 from pathlib import Path
 
-import pytest
-
 from tests.processes import interrupt
 from tests.station_process import Station, running_station
 
@@ -132,8 +130,8 @@ def test_a_websocket_that_stops_reading_is_dropped(tmp_path: Path) -> None:
     assert len(dropped) == 1 and " WARNING " in dropped[0], text[-2000:]
 
 
-@pytest.mark.parametrize("heartbeat", [1])
-def test_a_websocket_that_never_answers_pings_is_closed(tmp_path: Path, heartbeat: int) -> None:
+def test_a_websocket_that_never_answers_pings_is_closed(tmp_path: Path) -> None:
+    heartbeat = 1
     with running_station(tmp_path, f"ws_heartbeat_s = {heartbeat}\n") as station:
         conn, status = _open_ws(station, "127.0.0.1")
         assert b" 101 " in status, status
