@@ -5,7 +5,7 @@ is covered they do not change the answer at all."""
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from companion.middleware import ConstantConstraint, Middleware, MiddlewareConfig
@@ -56,14 +56,22 @@ def test_the_answers_model_utility_never_falls(seed: int, n: int, budget: int,
 @given(seed=st.integers(0, 10_000), n=st.integers(2, 12), budget=st.integers(0, 400))
 def test_a_covered_bounded_tree_answers_the_same_for_any_larger_budget(
         seed: int, n: int, budget: int) -> None:
-    """Depth 4 after the decided level (at most 2^5 leaves here): 300 iterations cover it,
-    and 3000 give the same answer and value."""
+    """Depth 4 after the decided level (at most 2^5 leaves here): once 300 iterations have
+    built every node 3000 build, 3000 give the same answer and value.
+
+    Not every 300-iteration search gets there: iterations that end on a leaf at the depth
+    bound build nothing, and UCT may spend most of them in one subtree (seed 1350, n 7,
+    budget 254: 23 of 31 nodes, a different answer). Those examples say nothing about a
+    covered tree and are discarded, not passed."""
     problem = _problem(seed, n, budget)
     answers = []
+    nodes = []
     for iterations in (300, 3000):
         search = MCTS(problem, max_nodes=iterations + 1, best_plan=True, depth=4)
         search.run(iterations)
         answers.append((search.result().option, float(search.best[0])))
+        nodes.append(search.result().nodes)
+    assume(nodes[0] == nodes[1])
     assert answers[0] == answers[1]
 
 
