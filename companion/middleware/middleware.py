@@ -144,8 +144,8 @@ class MiddlewareConfig:
     """Agents the mission declares. At the mission start (for ``start_share_s``) an agent
     leaves each peer it has not heard of its equal share of the budget and ramps its own
     plan up over the first window (:mod:`~companion.middleware.fleetshare`). None: off."""
-    start_share_s: float = 5.0
-    """How long the mission-start share lasts; 0: off (the fleet is declared only for
+    start_share_s: float | None = 5.0
+    """How long the mission-start share lasts; None: off (the fleet is declared only for
     ``plan_unheard_s``, which the start share costs in the fig. 5.7 fleets, round 8)."""
 
     def __post_init__(self) -> None:
@@ -160,8 +160,9 @@ class MiddlewareConfig:
             raise MiddlewareError("need horizon_s > 0, c >= 0, default_latency_s >= 0, tail_s >= 0")
         if self.search_depth is not None and self.search_depth < 0:
             raise MiddlewareError("search_depth must be >= 0 or None")
-        if (self.fleet_size is not None and self.fleet_size < 1) or not self.start_share_s >= 0:
-            raise MiddlewareError("fleet_size must be >= 1 or None, start_share_s >= 0")
+        if (self.fleet_size is not None and self.fleet_size < 1) \
+                or (self.start_share_s is not None and not self.start_share_s > 0):
+            raise MiddlewareError("fleet_size must be >= 1 or None, start_share_s > 0 or None")
         if self.veto is not None and not self.veto > 0:
             raise MiddlewareError("veto must be > 0 or None")
         if self.plan_unheard_s is not None and not self.plan_unheard_s > 0:
@@ -283,7 +284,7 @@ class Middleware:
         if unheard_s is not None and now - self._started <= unheard_s:
             view = self._with_unheard(view, now=now, window_s=window_s)  # unheard.py
         budget = self.constraint.budget_bytes(now=now)
-        if self.config.fleet_size is not None and self.config.start_share_s > 0 \
+        if self.config.fleet_size is not None and self.config.start_share_s is not None \
                 and now - self._started <= self.config.start_share_s:
             budget = start_share(budget, fleet=self.config.fleet_size,  # fleetshare.py
                                  heard=len(self.knowledge.peers_of(self.config.agent)),

@@ -2,8 +2,8 @@
 not heard of instead of an unheard stream announcing itself over the budget.
 
 Opt-in: ``announce_over_budget=False`` with ``plan_unheard_s`` and the declared fleet
-(``fleet_size``, ``start_share_s=0``); docs/middleware.md "Round 8, announcements" has the
-matrix and why it is not the default.
+(``fleet_size``, ``start_share_s=None``); docs/middleware.md "Round 8, announcements"
+has the matrix and why it is not the default.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ SPEC = builtin_spec("sim_mostly_low")  # agent i sends battery_i, weight 3^(i+1)
 DATA = {"level": 1.0, "depletion_rate": 0.2}
 WINDOW_S = 2.5
 ZERO = {"announce_over_budget": False, "plan_unheard_s": 5.0, "fleet_size": 10,
-        "start_share_s": 0.0}
+        "start_share_s": None}
 """The zero-planned-violations configuration of round 8, for the 10-agent fig. 5.7 fleet."""
 
 
@@ -95,10 +95,10 @@ def test_plausible_unheard_types() -> None:
     assert not streams.plausible(SPEC, unheard_agents=-1)
 
 
-def test_start_share_s_zero_turns_the_start_share_off() -> None:
+def test_start_share_s_none_turns_the_start_share_off() -> None:
     with pytest.raises(MiddlewareError):
         MiddlewareConfig(spec=SPEC, agent="a", start_share_s=-1.0)
-    off = _agent(0, fleet_size=10, start_share_s=0.0)
+    off = _agent(0, fleet_size=10, start_share_s=None)
     on = _agent(0, fleet_size=10)
     for mw in (off, on):  # a second message in the window: room for it only without the share
         mw.constraint = ConstantConstraint(limit_bytes_per_s=3 * 2048 / WINDOW_S,
