@@ -124,13 +124,17 @@ class MiddlewareConfig:
     """Announce even over the sends known to fill the window: at most one planned window
     violation per stream per ``announce_after_s`` (counter ``over_budget``). False: zero
     planned violations, a stream waits for room among the known sends; measured, that costs
-    up to 15 points at tight budgets, 6 with ``plan_unheard_s`` (docs/middleware.md, round 5)."""
+    up to 15 points at tight budgets, 6 with ``plan_unheard_s`` and the declared fleet
+    (``fleet_size``, ``start_share_s=None``), and 1.6 points of the offline optimum
+    (docs/middleware.md, rounds 5 and 8)."""
     plan_unheard_s: float | None = None
     """For this long after the agent's first decision, plan for the spec's types nobody has
     been heard sending (:mod:`~companion.middleware.unheard`): forecast at the fleet's
     median period with the data of a known message of the same utility function, so the
     fleet leaves room for a heavy stream it has not heard of yet. After it a type still
-    unheard is taken as absent. None: off."""
+    unheard is taken as absent. With ``fleet_size`` only while the unheard agents can fly
+    every unheard type (:meth:`~companion.middleware.unheard.UnheardStreams.plausible`).
+    None: off."""
 
     small_share: float | None = None
     """Opt-in (issue 18 round 6): a message of at most this share of the budget (a position,
@@ -391,7 +395,8 @@ class Middleware:
         be flown (:meth:`UnheardStreams.plausible`). Before any stream's period is known
         (the mission's first messages) each is assumed to send once per window T: without
         it the first speakers found no unheard stream in their plans and filled the window
-        (round 8: mostly-low 9.25 msgs/T 94.2 -> 96.8 %)."""
+        (round 8, room mode: mostly-low 9.25 / 5.5 / 2.5 msgs/T 94.2 / 89.4 / 70.3 ->
+        96.8 / 91.1 / 68.5 %)."""
         fleet = self.config.fleet_size
         peers = self.knowledge.peers_of(self.config.agent)
         missing = None if fleet is None else fleet - 1 - len(peers)

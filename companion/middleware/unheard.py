@@ -53,7 +53,7 @@ class UnheardStreams:
         fig. 5.7 fleets: agent i sends battery_i). A spec that names more types than the
         fleet flies (the offline-optimum missions: 4 agents, 10 types) would otherwise have
         the agents leave room for streams that never come (61.5 % of the optimum, round 5;
-        capped this way, 92.6 %, round 8)."""
+        capped this way, 92.5 %, round 8)."""
         return unheard_agents is None or len(self.unheard(spec)) <= max(0, unheard_agents)
 
     def items(self, spec: MissionSpec, *, now: float, horizon_end: float, period_s: float | None,
