@@ -37,7 +37,7 @@ from companion.middleware.errors import MiddlewareError, ParamError, UnknownPara
 from companion.middleware.fleetshare import start_share
 from companion.middleware.gate import creates_violation, price_per_byte, priced_option
 from companion.middleware.incremental import Problem, build_problem, option_message
-from companion.middleware.knowledge import FleetKnowledge, settle_inflight, usable
+from companion.middleware.knowledge import FleetKnowledge, PlanningView, settle_inflight, usable
 from companion.middleware.margin import OvershootMargin
 from companion.middleware.mcts import MCTS, greedy_option
 from companion.middleware.params import LIVE_KEYS, check_params, with_alpha
@@ -124,13 +124,17 @@ class MiddlewareConfig:
     """Announce even over the sends known to fill the window: at most one planned window
     violation per stream per ``announce_after_s`` (counter ``over_budget``). False: zero
     planned violations, a stream waits for room among the known sends; measured, that costs
-    up to 15 points at tight budgets, 6 with ``plan_unheard_s`` (docs/middleware.md, round 5)."""
+    up to 15 points at tight budgets, 6 with ``plan_unheard_s`` and the declared fleet
+    (``fleet_size``, ``start_share_s=None``), and 1.6 points of the offline optimum
+    (docs/middleware.md, rounds 5 and 8)."""
     plan_unheard_s: float | None = None
     """For this long after the agent's first decision, plan for the spec's types nobody has
     been heard sending (:mod:`~companion.middleware.unheard`): forecast at the fleet's
     median period with the data of a known message of the same utility function, so the
     fleet leaves room for a heavy stream it has not heard of yet. After it a type still
-    unheard is taken as absent. None: off."""
+    unheard is taken as absent. With ``fleet_size`` only while the unheard agents can fly
+    every unheard type (:meth:`~companion.middleware.unheard.UnheardStreams.plausible`).
+    None: off."""
 
     small_share: float | None = None
     """Opt-in (issue 18 round 6): a message of at most this share of the budget (a position,
@@ -144,7 +148,9 @@ class MiddlewareConfig:
     """Agents the mission declares. At the mission start (for ``start_share_s``) an agent
     leaves each peer it has not heard of its equal share of the budget and ramps its own
     plan up over the first window (:mod:`~companion.middleware.fleetshare`). None: off."""
-    start_share_s: float = 5.0
+    start_share_s: float | None = 5.0
+    """How long the mission-start share lasts; None: off (the fleet is declared only for
+    ``plan_unheard_s``, which the start share costs in the fig. 5.7 fleets, round 8)."""
 
     def __post_init__(self) -> None:
         if not self.agent:
@@ -158,8 +164,9 @@ class MiddlewareConfig:
             raise MiddlewareError("need horizon_s > 0, c >= 0, default_latency_s >= 0, tail_s >= 0")
         if self.search_depth is not None and self.search_depth < 0:
             raise MiddlewareError("search_depth must be >= 0 or None")
-        if (self.fleet_size is not None and self.fleet_size < 1) or not self.start_share_s > 0:
-            raise MiddlewareError("fleet_size must be >= 1 or None, start_share_s > 0")
+        if (self.fleet_size is not None and self.fleet_size < 1) \
+                or (self.start_share_s is not None and not self.start_share_s > 0):
+            raise MiddlewareError("fleet_size must be >= 1 or None, start_share_s > 0 or None")
         if self.veto is not None and not self.veto > 0:
             raise MiddlewareError("veto must be > 0 or None")
         if self.plan_unheard_s is not None and not self.plan_unheard_s > 0:
@@ -279,12 +286,10 @@ class Middleware:
                                settle_versions=True)  # issue 18 round 5
         unheard_s = self.config.plan_unheard_s
         if unheard_s is not None and now - self._started <= unheard_s:
-            view = self.unheard.add_to(view, self.spec, now=now,
-                                       period_s=self.knowledge.forecaster.prior_period,
-                                       latency_s=self.knowledge.latency.mean_s,
-                                       max_items=self.config.max_items)
+            view = self._with_unheard(view, now=now, window_s=window_s)  # unheard.py
         budget = self.constraint.budget_bytes(now=now)
-        if self.config.fleet_size is not None and now - self._started <= self.config.start_share_s:
+        if self.config.fleet_size is not None and self.config.start_share_s is not None \
+                and now - self._started <= self.config.start_share_s:
             budget = start_share(budget, fleet=self.config.fleet_size,  # fleetshare.py
                                  heard=len(self.knowledge.peers_of(self.config.agent)),
                                  elapsed_s=now - self._started, window_s=window_s,
@@ -384,6 +389,24 @@ class Middleware:
                              window_s=window_s, budget_bytes=budget):
             return 0
         return best
+
+    def _with_unheard(self, view: PlanningView, *, now: float, window_s: float) -> PlanningView:
+        """``view`` with the spec's unheard types forecast (``plan_unheard_s``), if they may
+        be flown (:meth:`UnheardStreams.plausible`). Before any stream's period is known
+        (the mission's first messages) each is assumed to send once per window T: without
+        it the first speakers found no unheard stream in their plans and filled the window
+        (round 8, room mode: mostly-low 9.25 / 5.5 / 2.5 msgs/T 94.2 / 89.4 / 70.3 ->
+        96.8 / 91.1 / 68.5 %)."""
+        fleet = self.config.fleet_size
+        peers = self.knowledge.peers_of(self.config.agent)
+        missing = None if fleet is None else fleet - 1 - len(peers)
+        if not self.unheard.plausible(self.spec, unheard_agents=missing):
+            return view
+        period = self.knowledge.forecaster.prior_period
+        return self.unheard.add_to(view, self.spec, now=now,
+                                   period_s=window_s if period is None else period,
+                                   latency_s=self.knowledge.latency.mean_s,
+                                   max_items=self.config.max_items)
 
     def _invisible(self, type_name: str, now: float) -> bool:
         """Has the fleet not heard of this agent's ``type_name`` stream for a long time?"""

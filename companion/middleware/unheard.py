@@ -47,6 +47,15 @@ class UnheardStreams:
     def unheard(self, spec: MissionSpec) -> list[str]:
         return [t for t in spec.types if t not in self.heard]
 
+    def plausible(self, spec: MissionSpec, *, unheard_agents: int | None) -> bool:
+        """May every unheard type be flown? Without a declared fleet (None) the spec is
+        all there is; with one, only if the unheard agents can fly them, one type each (the
+        fig. 5.7 fleets: agent i sends battery_i). A spec that names more types than the
+        fleet flies (the offline-optimum missions: 4 agents, 10 types) would otherwise have
+        the agents leave room for streams that never come (61.5 % of the optimum, round 5;
+        capped this way, 92.5 %, round 8)."""
+        return unheard_agents is None or len(self.unheard(spec)) <= max(0, unheard_agents)
+
     def items(self, spec: MissionSpec, *, now: float, horizon_end: float, period_s: float | None,
               latency_s: float) -> list[PlanItem]:
         """Forecast messages of every unheard type with a template, at ``period_s`` from half
