@@ -66,8 +66,13 @@ RULES: dict[str, dict[str, Any]] = {
     "default": {},
     "best-plan": {"best_plan": True, "search_depth": 10},
     "veto": {"best_plan": True, "search_depth": 10, "veto": 1.5},
+    "auto-density": {"auto_others": "density"},
+    "auto-knapsack": {"auto_others": "knapsack"},
+    "auto-fit": {"auto_others": "fit"},
+    "auto-density-best-plan": {"auto_others": "density", "best_plan": True},
 }
-"""``--rule``: MiddlewareConfig fields of each decision rule (docs/middleware.md, round 7)."""
+"""``--rule``: MiddlewareConfig fields of each decision rule (docs/middleware.md, round 7)
+or model of the other agents (``auto-*``, round 8)."""
 
 
 def use_rule(name: str) -> None:

@@ -18,6 +18,10 @@ from utility_specs.jit import JIT
 from utility_specs.jit import jit as _jit
 
 __all__ = [
+    "AUTO_DENSITY",
+    "AUTO_FIT",
+    "AUTO_OFF",
+    "AUTO_PLAN",
     "C_DEAD",
     "C_ITER",
     "C_MERGED",
@@ -41,6 +45,11 @@ REJ_DEAD = -4
 """The child was replaced by a better tantamount node, or has no live descendants."""
 
 C_NODES, C_ITER, C_PRUNED, C_MERGED, C_REPLACED, C_DEAD = 0, 1, 2, 3, 4, 5
+
+AUTO_OFF, AUTO_DENSITY, AUTO_PLAN, AUTO_FIT = 0, 1, 2, 3
+"""How another agent's level (``own[i]`` false) is planned: a decision of the tree (off), or
+one child, the option a fixed policy takes in the path state: the default policy's density
+rule, knapsack-greedy's plan, or the highest-gain option that fits (issue 18 round 8)."""
 
 _EPS = 1e-9
 
@@ -69,18 +78,83 @@ def _score(u: float, top: float) -> float:
 
 
 @_jit
+def _auto_option(i: int, slot: int, wbytes: int, mode: int, nopt: Any, size: Any, gain: Any,
+                 budget: float, lam: float, oplan: Any) -> int:
+    """The option another agent's fixed policy (``mode``) takes at level ``i`` when its
+    stream's state is ``slot`` and the window holds ``wbytes``: it does not bend to this
+    agent's plan."""
+    if mode == AUTO_PLAN:
+        o = oplan[i]
+        if o > 0 and wbytes + size[i, o] <= budget + _EPS:
+            return o
+        return 0
+    best_o = 0
+    best_g = 0.0
+    for o in range(1, nopt[i]):
+        sz = size[i, o]
+        g = gain[i, o, slot]
+        if g <= best_g or wbytes + sz > budget + _EPS:
+            continue
+        if mode == AUTO_DENSITY and g < lam * sz:
+            continue
+        best_o = o
+        best_g = g
+    return best_o
+
+
+@_jit
+def _advance(
+    d: int, last: Any, win_t: Any, win_b: Any, win_id: Any, head: int, tail: int, wbytes: int,
+    key: Any, stream: Any, nopt: Any, size: Any, send_t: Any, gain: Any, nslot: Any,
+    markov: Any, budget: float, window_s: float, lam: float, own: Any, auto: int, oplan: Any,
+) -> Any:
+    """Apply the other agents' fixed-policy options from level ``d`` up to the next own level
+    (or the end) to the path state; returns (that level, head, tail, window bytes, key, the
+    utility they add). Their levels are no nodes of the tree: a node's child sits at the
+    next own level and its delta includes what the others add in between."""
+    added = 0.0
+    n = stream.shape[0]
+    while d < n and auto != AUTO_OFF and not own[d]:
+        lim = send_t[d] - window_s - _EPS
+        while head < tail and win_t[head] < lim:
+            wbytes -= win_b[head]
+            head += 1
+        s = stream[d]
+        slot = last[s] if s >= 0 else 0
+        o = _auto_option(d, slot, wbytes, auto, nopt, size, gain, budget, lam, oplan)
+        if o != 0:
+            win_t[tail] = send_t[d]
+            win_b[tail] = size[d, o]
+            win_id[tail] = 16 * d + o
+            tail += 1
+            wbytes += size[d, o]
+            added += gain[d, o, slot]
+            if s >= 0:
+                new = nslot[d, o, slot]
+                last[s] = new
+                key = key ^ _mix(1, s * 1048576 + slot) ^ _mix(1, s * 1048576 + new)
+                if not markov[s]:
+                    key = key ^ _mix(2, d * 16 + o)
+            else:
+                key = key ^ _mix(2, d * 16 + o)
+        d += 1
+    return d, head, tail, wbytes, key, added
+
+
+@_jit
 def _rollout(
     d0: int, last: Any, r_last: Any, win_t: Any, win_b: Any, head: int, tail: int, wbytes: int,
     stream: Any, pos: Any, nopt: Any, size: Any, send_t: Any, gain: Any, nslot: Any,
     budget: float,
     window_s: float, maxv: int, lam: float, r_win_t: Any, r_win_b: Any,
-    plan: Any, dlevel: int, pick: Any,
+    plan: Any, dlevel: int, pick: Any, own: Any, auto: int, oplan: Any,
 ) -> float:
     """Default policy from level ``d0`` on (the simulation step of alg. 1): send the option
     with the highest gain whose utility per byte reaches ``lam`` and that fits the window.
 
     With ``plan[0] >= 0`` it follows the knapsack plan instead (level i's option ``plan[i]``
-    when it fits the window, else drop). ``pick[0]`` gets the option taken at ``dlevel``."""
+    when it fits the window, else drop). Another agent's level follows its fixed policy
+    (``auto``, :func:`_auto_option`). ``pick[0]`` gets the option taken at ``dlevel``."""
     n = stream.shape[0]
     for s in range(last.shape[0]):
         r_last[s] = last[s]
@@ -100,7 +174,11 @@ def _rollout(
         slot = r_last[s] if s >= 0 else 0
         best_o = 0
         best_g = 0.0
-        if plan[0] >= 0:
+        if auto != AUTO_OFF and not own[i]:
+            best_o = _auto_option(i, slot, wbytes, auto, nopt, size, gain, budget, lam, oplan)
+            if best_o != 0:
+                best_g = gain[i, best_o, slot]
+        elif plan[0] >= 0:
             o = plan[i]
             if o > 0 and wbytes + size[i, o] <= budget + _EPS:
                 best_o = o
@@ -232,8 +310,9 @@ def _option_at(t: int, first: int, n_opt: int) -> int:
 
 @_jit
 def _option_on_path(node: int, level: int, parent: Any, depth: Any, option: Any) -> int:
-    """Option taken at ``level`` on the path from the root to ``node`` (depth > level)."""
-    while depth[node] > level + 1:
+    """Option taken at ``level`` on the path from the root to ``node`` (depth > level); with
+    the others' levels skipped a child's depth may exceed its parent's by more than one."""
+    while parent[node] >= 0 and depth[parent[node]] > level:
         node = parent[node]
     return int(option[node])
 
@@ -247,6 +326,7 @@ def search(
     markov: Any,
     root_win_t: Any, root_win_b: Any, budget: float, window_s: float, maxv: int, top: float,
     lam: float, plan: Any, dlevel: int, best_u: Any, best_at: Any, depth_limit: int,
+    own: Any, auto: int, oplan: Any,
     # tree
     parent: Any, depth: Any, option: Any, visits: Any, value: Any, delta: Any,
     children: Any, tried: Any, live: Any, dead: Any, hkeys: Any, hvals: Any, counters: Any,
@@ -260,7 +340,12 @@ def search(
 
     Nodes at depth ``depth_limit`` (< n) are leaves: valued by the default policy from there
     on every visit, never expanded; a budget that covers the bounded tree then answers the
-    same for every larger budget."""
+    same for every larger budget.
+
+    With ``auto`` another agent's level (``own`` false) is no decision: it takes the option
+    its fixed policy takes in the path state (:func:`_auto_option`), and only own levels
+    have nodes (:func:`_advance`: the root sits at the first own level, a child at the next
+    own level after its parent's)."""
     n = stream.shape[0]
     n_streams = markov.shape[0]
     n_root = root_win_t.shape[0]
@@ -270,6 +355,7 @@ def search(
     win_b = np.zeros(cap, dtype=np.int64)
     win_id = np.zeros(cap, dtype=np.int64)
     r_last = np.zeros(max(n_streams, 1), dtype=np.int64)
+    c_last = np.zeros(max(n_streams, 1), dtype=np.int64)
     r_win_t = np.zeros(cap, dtype=np.float64)
     r_win_b = np.zeros(cap, dtype=np.int64)
     noplan = np.full(1, -1, dtype=np.int64)
@@ -293,8 +379,11 @@ def search(
             win_b[k] = root_win_b[k]
             win_id[k] = 16 * (n + k)
             wbytes += root_win_b[k]
-        key = np.uint64(0)
-        u = 0.0
+        d0, head, tail, wbytes, key, u = _advance(
+            0, last, win_t, win_b, win_id, head, tail, wbytes, np.uint64(0), stream, nopt, size,
+            send_t, gain, nslot, markov, budget, window_s, lam, own, auto, oplan)
+        depth[0] = d0
+        delta[0] = u
         node = 0
         while True:
             d = depth[node]
@@ -304,7 +393,8 @@ def search(
                     pick[0] = -1
                     total += _rollout(d, last, r_last, win_t, win_b, head, tail, wbytes, stream,
                                       pos, nopt, size, send_t, gain, nslot, budget, window_s,
-                                      maxv, lam, r_win_t, r_win_b, noplan, dlevel, pick)
+                                      maxv, lam, r_win_t, r_win_b, noplan, dlevel, pick,
+                                      own, auto, oplan)
                 if total > best_u[0]:
                     best_u[0] = total
                     best_at[0] = _option_on_path(node, dlevel, parent, depth, option)
@@ -318,6 +408,10 @@ def search(
             if tried[node] < nopt[d]:
                 created = -1
                 cu = u
+                c_d = d + 1
+                c_head = head
+                c_tail = tail
+                c_w = wbytes
                 while tried[node] < nopt[d]:
                     t = tried[node]
                     tried[node] += 1
@@ -329,25 +423,39 @@ def search(
                         continue
                     g = 0.0
                     ckey = key
+                    # the child's state, on copies: its option, then the others' levels
+                    for k in range(n_streams):
+                        c_last[k] = last[k]
+                    c_tail = tail
+                    c_w = wbytes
                     if o != 0:
                         if s >= 0:
                             old = last[s]
                             new = nslot[d, o, old]
                             g = gain[d, o, old]
+                            c_last[s] = new
                             ckey = ckey ^ _mix(1, s * 1048576 + old) ^ _mix(1, s * 1048576 + new)
                             if not markov[s]:
                                 ckey = ckey ^ _mix(2, d * 16 + o)
                         else:
                             g = gain[d, o, 0]
                             ckey = ckey ^ _mix(2, d * 16 + o)
-                    full = ckey ^ _mix(4, d + 1)
-                    if d + 1 < n:
-                        nlim = send_t[d + 1] - window_s - _EPS
-                        for k in range(head, tail):
+                        win_t[c_tail] = send_t[d]
+                        win_b[c_tail] = sz
+                        win_id[c_tail] = 16 * d + o
+                        c_tail += 1
+                        c_w += sz
+                    c_d, c_head, c_tail, c_w, ckey, added = _advance(
+                        d + 1, c_last, win_t, win_b, win_id, head, c_tail, c_w, ckey, stream,
+                        nopt, size, send_t, gain, nslot, markov, budget, window_s, lam, own,
+                        auto, oplan)
+                    g += added
+                    full = ckey ^ _mix(4, c_d)
+                    if c_d < n:
+                        nlim = send_t[c_d] - window_s - _EPS
+                        for k in range(c_head, c_tail):
                             if win_t[k] >= nlim:
                                 full = full ^ _mix(3, win_id[k])
-                        if o != 0 and send_t[d] >= nlim:
-                            full = full ^ _mix(3, 16 * d + o)
                     cu = u + g
                     h = _hash_find(full, hkeys, hvals)
                     rival = hvals[h] if h >= 0 else -1
@@ -362,7 +470,7 @@ def search(
                     cn = counters[C_NODES]
                     counters[C_NODES] += 1
                     parent[cn] = node
-                    depth[cn] = d + 1
+                    depth[cn] = c_d
                     option[cn] = o
                     delta[cn] = g
                     children[node, o] = cn
@@ -393,32 +501,21 @@ def search(
                     created = cn
                     break
                 if created >= 0:
-                    # the child's state: apply its decision to copies of the path state
-                    o = option[created]
-                    rt = tail
-                    rw = wbytes
-                    if o != 0:
-                        win_t[rt] = send_t[d]
-                        win_b[rt] = size[d, o]
-                        rt += 1
-                        rw += size[d, o]
-                    old = last[s] if s >= 0 else 0
-                    if o != 0 and s >= 0:
-                        last[s] = nslot[d, o, old]
+                    # valued from the child's state (c_*: the last candidate's, the created one)
                     pick[0] = -1
-                    rest = _rollout(d + 1, last, r_last, win_t, win_b, head, rt, rw, stream, pos,
-                                    nopt, size, send_t, gain, nslot, budget, window_s, maxv, lam,
-                                    r_win_t, r_win_b, noplan, dlevel, pick)
+                    rest = _rollout(c_d, c_last, r_last, win_t, win_b, c_head, c_tail, c_w,
+                                    stream, pos, nopt, size, send_t, gain, nslot, budget,
+                                    window_s, maxv, lam, r_win_t, r_win_b, noplan, dlevel, pick,
+                                    own, auto, oplan)
                     if seeded:
                         pick2[0] = -1
-                        rest2 = _rollout(d + 1, last, r_last, win_t, win_b, head, rt, rw, stream,
-                                         pos, nopt, size, send_t, gain, nslot, budget, window_s,
-                                         maxv, lam, r_win_t, r_win_b, plan, dlevel, pick2)
+                        rest2 = _rollout(c_d, c_last, r_last, win_t, win_b, c_head, c_tail, c_w,
+                                         stream, pos, nopt, size, send_t, gain, nslot, budget,
+                                         window_s, maxv, lam, r_win_t, r_win_b, plan, dlevel,
+                                         pick2, own, auto, oplan)
                         if rest2 > rest:
                             rest = rest2
                             pick[0] = pick2[0]
-                    if s >= 0:
-                        last[s] = old
                     if cu + rest > best_u[0]:
                         best_u[0] = cu + rest
                         if d >= dlevel:
@@ -465,6 +562,10 @@ def search(
                         key = key ^ _mix(2, d * 16 + o)
                 else:
                     key = key ^ _mix(2, d * 16 + o)
+            # the others' levels up to the child's (their utility is in its delta)
+            _, head, tail, wbytes, key, _ = _advance(
+                d + 1, last, win_t, win_b, win_id, head, tail, wbytes, key, stream, nopt, size,
+                send_t, gain, nslot, markov, budget, window_s, lam, own, auto, oplan)
             u += delta[best]
             node = best
     return done

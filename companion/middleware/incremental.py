@@ -131,6 +131,7 @@ class Problem:
         "n_streams",
         "nopt",
         "nslot",
+        "own",
         "pos",
         "root_win_bytes",
         "root_win_t",
@@ -162,6 +163,7 @@ class Problem:
         max_versions: int,
         decided_level: int,
         horizon_end: float,
+        own: npt.NDArray[np.bool_] | None = None,
     ) -> None:
         self.items = items
         self.stream = stream
@@ -182,6 +184,9 @@ class Problem:
         self.n_streams = len(stream_keys)
         self.decided_level = decided_level
         self.horizon_end = horizon_end
+        self.own = np.ones(len(items), dtype=np.bool_) if own is None else own
+        """Per level: the deciding agent's own message (its decision to plan), not another
+        agent's (which ``MCTS(auto=...)`` can model as following a fixed policy)."""
 
     @property
     def n(self) -> int:
@@ -493,6 +498,7 @@ def build_problem(
     window_s: float,
     root_window: Sequence[tuple[float, int]] = (),
     receivers: Mapping[tuple[str, str | None], Sequence[FixedItem | None]] | None = None,
+    agent: str | None = None,
 ) -> Problem:
     """Tables of one decision: items sorted by send time, gains per (item, option, slot).
 
@@ -501,6 +507,8 @@ def build_problem(
     windows reaching into the tree (eq. 5.7). ``receivers``: streams heard by several
     receivers (a type shared with peers, issue 15), each receiver's base; see
     :func:`_fan_out`. Without it every stream has the one receiver of ``fixed``.
+    ``agent``: the deciding agent; a level is ``own`` when its sender is that agent (every
+    level when None).
     """
     ordered = sorted(items, key=lambda it: (it.send_t, it.message.t_gen, it.message.sender))
     stream_index: dict[tuple[str, str | None], int] = {}
@@ -632,4 +640,6 @@ def build_problem(
         max_versions=max_versions,
         decided_level=decided[0] if decided else -1,
         horizon_end=horizon_end,
+        own=np.array([agent is None or it.message.sender == agent for it in ordered],
+                     dtype=np.bool_),
     )

@@ -38,6 +38,13 @@ the decided level of the second tree's most visited path, the drop child has mor
 ``veto`` times the visits of that send's child. A send then needs both the best plan found
 and the averaged statistics of a tree in which the others' choices vary.
 
+With ``auto`` (opt-in, issue 18 round 8) the other agents' levels (forecast and in-flight
+messages whose sender is not the deciding agent, ``Problem.own``) stop being decisions of
+this agent's tree: such a node has one child, the option a fixed policy
+(:data:`AUTO_POLICIES`) takes in that node's path state. The others are modelled as
+following a plausible policy that does not bend to this agent's plan; the tree branches
+only on this agent's own levels.
+
 With ``knapsack_seed`` the search starts from knapsack-greedy's plan (expanded first at
 every node, and a second default policy that follows it) and answers with the decided
 level's option of the best complete plan any iteration evaluated: never worse in the model
@@ -53,7 +60,14 @@ import numpy as np
 from companion.middleware import _kernel
 from companion.middleware.incremental import Problem
 
-__all__ = ["MCTS", "SearchResult", "Tree", "greedy_option"]
+__all__ = ["AUTO_POLICIES", "MCTS", "SearchResult", "Tree", "greedy_option"]
+
+AUTO_POLICIES = {"density": _kernel.AUTO_DENSITY, "knapsack": _kernel.AUTO_PLAN,
+                 "fit": _kernel.AUTO_FIT}
+"""``MCTS(auto=...)``: the fixed policy another agent's level follows (issue 18 round 8):
+``density`` the default policy's rule (the highest-gain option whose utility per byte
+reaches the rollout density and that fits the window), ``knapsack`` knapsack-greedy's plan
+where it fits, ``fit`` the highest-gain option that fits."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -66,7 +80,7 @@ class SearchResult:
     """Mean node score (eq. 5.2, normalised) of the chosen child; NaN without an answer."""
     visits: int
     path: tuple[int, ...]
-    """Options along the most visited path from the root."""
+    """Options along the most visited path from the root (with ``auto``: at own levels)."""
     iterations: int
     nodes: int
     pruned: int
@@ -127,14 +141,17 @@ class Tree:
 class MCTS:
     """One decision's search: build with a :class:`Problem`, :meth:`run`, read :meth:`result`."""
 
-    __slots__ = ("best", "best_at", "best_plan", "c", "depth_limit", "lam", "plan", "problem",
-                 "robust", "top", "tree", "veto")
+    __slots__ = ("auto", "best", "best_at", "best_plan", "c", "depth_limit", "lam", "oplan",
+                 "plan", "problem", "robust", "top", "tree", "veto")
 
     def __init__(self, problem: Problem, *, c: float = 0.35, max_nodes: int = 1501,
                  knapsack_seed: bool = False, best_plan: bool = False,
-                 depth: int | None = None, veto: float | None = None) -> None:
+                 depth: int | None = None, veto: float | None = None,
+                 auto: str | None = None) -> None:
         if not c >= 0:
             raise ValueError(f"discovery factor c must be >= 0, got {c}")
+        if auto is not None and auto not in AUTO_POLICIES:
+            raise ValueError(f"auto must be one of {sorted(AUTO_POLICIES)} or None, got {auto!r}")
         self.problem = problem
         self.c = float(c)
         self.top = float(problem.all_send_norm()[-1])
@@ -147,6 +164,15 @@ class MCTS:
                                   problem.root_win_t, problem.root_win_bytes,
                                   float(problem.budget_bytes), float(problem.window_s),
                                   self.plan)
+        self.auto = _kernel.AUTO_OFF if auto is None else AUTO_POLICIES[auto]
+        """How the other agents' levels are planned (:data:`AUTO_POLICIES`; off: searched)."""
+        self.oplan = np.full(max(1, problem.n), -1, dtype=np.int64)
+        """The knapsack-greedy plan the others follow with ``auto="knapsack"``."""
+        if self.auto == _kernel.AUTO_PLAN and problem.n:
+            _kernel.knapsack_plan(problem.nopt, problem.size, problem.send_t, problem.gain,
+                                  problem.root_win_t, problem.root_win_bytes,
+                                  float(problem.budget_bytes), float(problem.window_s),
+                                  self.oplan)
         self.best_plan = best_plan or knapsack_seed
         """Answer with the best complete plan evaluated (else the most visited path)."""
         self.depth_limit = problem.n if depth is None else \
@@ -160,7 +186,8 @@ class MCTS:
         if veto is not None and not veto > 0:
             raise ValueError(f"veto must be > 0 or None, got {veto}")
         self.veto = veto
-        self.robust = MCTS(problem, c=c, max_nodes=max_nodes) if veto is not None else None
+        self.robust = MCTS(problem, c=c, max_nodes=max_nodes, auto=auto) \
+            if veto is not None else None
         """The unbounded, most visited tree whose statistics may veto a send (``veto``)."""
 
     @property
@@ -186,7 +213,7 @@ class MCTS:
                     p.root_win_t, p.root_win_bytes, float(p.budget_bytes), float(p.window_s),
                     int(p.max_versions), self.top, self.lam,
                     self.plan, int(p.decided_level), self.best, self.best_at,
-                    int(self.depth_limit),
+                    int(self.depth_limit), p.own, int(self.auto), self.oplan,
                     t.parent, t.depth, t.option, t.visits, t.value, t.delta,
                     t.children, t.tried, t.live, t.dead, t.hkeys, t.hvals, t.counters,
                 )
@@ -212,18 +239,25 @@ class MCTS:
         drop child has more than ``veto`` times the visits of ``option``'s child."""
         robust = self.robust
         assert robust is not None and self.veto is not None
-        level = self.problem.decided_level
-        path = robust.most_visited_path()
-        if not 0 <= level < len(path):
+        at = robust.at_level(robust.most_visited_path(), self.problem.decided_level)
+        if at is None:
             return False
         t = robust.tree
-        node = int(t.parent[path[level]])
+        node = int(t.parent[at])
 
         def visits(o: int) -> int:
             ch = int(t.children[node, o])
             return int(t.visits[ch]) if ch >= 0 and not t.dead[ch] else 0
 
         return visits(0) > self.veto * visits(option)
+
+    def at_level(self, path: list[int], level: int) -> int | None:
+        """The node of ``path`` that holds the option taken at ``level`` (its parent sits at
+        that level; with ``auto`` the others' levels have no nodes), or None."""
+        for node in path:
+            if int(self.tree.depth[int(self.tree.parent[node])]) == level:
+                return node
+        return None
 
     def most_visited_path(self) -> list[int]:
         """Nodes from the root's child down, following the most visited child (alg. 2)."""
@@ -251,13 +285,14 @@ class MCTS:
         option: int | None = None
         score = float("nan")
         visits = 0
+        at = self.at_level(path, level)
         if self.best_plan and self.best_at[0] >= 0:
             option = int(self.best_at[0])
             score = float(self.best[0]) / self.top if self.top > 1e-9 else 1.0
-            if 0 <= level < len(path) and int(t.option[path[level]]) == option:
-                visits = int(t.visits[path[level]])
-        elif 0 <= level < len(path):
-            chosen = path[level]
+            if at is not None and int(t.option[at]) == option:
+                visits = int(t.visits[at])
+        elif at is not None:
+            chosen = at
             option = int(t.option[chosen])
             score = t.mean(chosen)
             visits = int(t.visits[chosen])

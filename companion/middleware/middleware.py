@@ -39,7 +39,7 @@ from companion.middleware.gate import creates_violation, price_per_byte, priced_
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge, settle_inflight, usable
 from companion.middleware.margin import OvershootMargin
-from companion.middleware.mcts import MCTS, greedy_option
+from companion.middleware.mcts import AUTO_POLICIES, MCTS, greedy_option
 from companion.middleware.params import LIVE_KEYS, check_params, with_alpha
 from companion.middleware.reports import ReceiverReport, ReportLearned, deliveries, feed_link
 from companion.middleware.unheard import UnheardStreams
@@ -145,6 +145,10 @@ class MiddlewareConfig:
     leaves each peer it has not heard of its equal share of the budget and ramps its own
     plan up over the first window (:mod:`~companion.middleware.fleetshare`). None: off."""
     start_share_s: float = 5.0
+    auto_others: str | None = None  # issue 18 round 8
+    """Opt-in: the other agents' messages are no decisions of this agent's tree but follow a
+    fixed policy (``density``, ``knapsack`` or ``fit``, :data:`~companion.middleware.mcts.
+    AUTO_POLICIES`) in each path's state. None: the tree decides them too."""
 
     def __post_init__(self) -> None:
         if not self.agent:
@@ -170,6 +174,8 @@ class MiddlewareConfig:
             raise MiddlewareError("time_budget_s must be > 0 or None")
         if self.small_share is not None and not 0 < self.small_share <= 1:
             raise MiddlewareError("small_share must be in (0, 1] or None")
+        if self.auto_others is not None and self.auto_others not in AUTO_POLICIES:
+            raise MiddlewareError(f"auto_others must be one of {sorted(AUTO_POLICIES)} or None")
 
 
 def _dense_enough(problem: Problem, level: int, lam: float) -> bool:
@@ -300,7 +306,7 @@ class Middleware:
                 self.spec, items=view.items, fixed=view.fixed,
                 horizon_end=view.horizon_end + self.config.tail_s,
                 budget_bytes=budget, window_s=window_s,
-                root_window=view.root_window, receivers=view.receivers,
+                root_window=view.root_window, receivers=view.receivers, agent=self.config.agent,
             )
         except UtilitySpecsError as exc:  # bad message data: counted, not a crash
             self.counters["bad_message"] += 1
@@ -308,7 +314,8 @@ class Middleware:
         self.last_problem = problem
         search = MCTS(problem, c=self.config.c, max_nodes=self.config.max_iterations + 1,
                       knapsack_seed=self.config.knapsack_seed, best_plan=self.config.best_plan,
-                      depth=self.config.search_depth, veto=self.config.veto)
+                      depth=self.config.search_depth, veto=self.config.veto,
+                      auto=self.config.auto_others)
         self._run(search, deadline)
         result = search.result()
         level = problem.decided_level
@@ -338,11 +345,12 @@ class Middleware:
                 horizon_end=view.horizon_end + self.config.tail_s,
                 budget_bytes=budget, window_s=window_s,
                 root_window=() if over else view.root_window, receivers=view.receivers,
+                agent=self.config.agent,
             )
             relaxed = MCTS(free, c=self.config.c, max_nodes=self.config.max_iterations + 1,
                            knapsack_seed=self.config.knapsack_seed,
                            best_plan=self.config.best_plan, depth=self.config.search_depth,
-                           veto=self.config.veto)
+                           veto=self.config.veto, auto=self.config.auto_others)
             self._run(relaxed, deadline)
             announce = relaxed.result()
             if announce.option:

@@ -201,8 +201,8 @@ def test_compiled_and_plain_python_kernels_agree(monkeypatch: pytest.MonkeyPatch
     compiled.run(300)
     if not _kernel.JIT:
         pytest.skip("numba not installed: only the Python kernel exists")
-    for name in ("_mix", "_score", "_rollout", "_backprop", "_kill", "_abs_utility",
-                 "_hash_find", "search"):
+    for name in ("_mix", "_score", "_auto_option", "_advance", "_rollout", "_backprop", "_kill",
+                 "_abs_utility", "_hash_find", "search"):
         monkeypatch.setattr(_kernel, name, getattr(_kernel, name).py_func)
     plain = MCTS(problem, max_nodes=300)
     plain.run(300)
