@@ -86,7 +86,7 @@ def _auto_option(i: int, slot: int, wbytes: int, mode: int, nopt: Any, size: Any
     if mode == AUTO_PLAN:
         o = oplan[i]
         if o > 0 and wbytes + size[i, o] <= budget + _EPS:
-            return o
+            return int(o)
         return 0
     best_o = 0
     best_g = 0.0
