@@ -70,6 +70,9 @@ RULES: dict[str, dict[str, Any]] = {
     "auto-knapsack": {"auto_others": "knapsack"},
     "auto-fit": {"auto_others": "fit"},
     "auto-density-best-plan": {"auto_others": "density", "best_plan": True},
+    "auto-after-0.5": {"auto_others": "density", "auto_after_s": 0.5, "best_plan": True},
+    "auto-after-0.5-depth-10": {"auto_others": "density", "auto_after_s": 0.5, "best_plan": True,
+                                "search_depth": 10},
 }
 """``--rule``: MiddlewareConfig fields of each decision rule (docs/middleware.md, round 7)
 or model of the other agents (``auto-*``, round 8)."""

@@ -141,13 +141,13 @@ class Tree:
 class MCTS:
     """One decision's search: build with a :class:`Problem`, :meth:`run`, read :meth:`result`."""
 
-    __slots__ = ("auto", "best", "best_at", "best_plan", "c", "depth_limit", "lam", "oplan",
-                 "plan", "problem", "robust", "top", "tree", "veto")
+    __slots__ = ("auto", "best", "best_at", "best_plan", "branch", "c", "depth_limit", "lam",
+                 "oplan", "plan", "problem", "robust", "top", "tree", "veto")
 
     def __init__(self, problem: Problem, *, c: float = 0.35, max_nodes: int = 1501,
                  knapsack_seed: bool = False, best_plan: bool = False,
                  depth: int | None = None, veto: float | None = None,
-                 auto: str | None = None) -> None:
+                 auto: str | None = None, auto_after_s: float = 0.0) -> None:
         if not c >= 0:
             raise ValueError(f"discovery factor c must be >= 0, got {c}")
         if auto is not None and auto not in AUTO_POLICIES:
@@ -166,6 +166,11 @@ class MCTS:
                                   self.plan)
         self.auto = _kernel.AUTO_OFF if auto is None else AUTO_POLICIES[auto]
         """How the other agents' levels are planned (:data:`AUTO_POLICIES`; off: searched)."""
+        self.branch = problem.own.copy()
+        """Levels that are decisions of the tree with ``auto``: own levels, and the others'
+        sent up to ``auto_after_s`` after the decided message (their in-flight ones too)."""
+        if problem.decided_level >= 0 and auto_after_s > 0:
+            self.branch |= problem.send_t <= problem.send_t[problem.decided_level] + auto_after_s
         self.oplan = np.full(max(1, problem.n), -1, dtype=np.int64)
         """The knapsack-greedy plan the others follow with ``auto="knapsack"``."""
         if self.auto == _kernel.AUTO_PLAN and problem.n:
@@ -186,7 +191,8 @@ class MCTS:
         if veto is not None and not veto > 0:
             raise ValueError(f"veto must be > 0 or None, got {veto}")
         self.veto = veto
-        self.robust = MCTS(problem, c=c, max_nodes=max_nodes, auto=auto) \
+        self.robust = MCTS(problem, c=c, max_nodes=max_nodes, auto=auto,
+                           auto_after_s=auto_after_s) \
             if veto is not None else None
         """The unbounded, most visited tree whose statistics may veto a send (``veto``)."""
 
@@ -213,7 +219,7 @@ class MCTS:
                     p.root_win_t, p.root_win_bytes, float(p.budget_bytes), float(p.window_s),
                     int(p.max_versions), self.top, self.lam,
                     self.plan, int(p.decided_level), self.best, self.best_at,
-                    int(self.depth_limit), p.own, int(self.auto), self.oplan,
+                    int(self.depth_limit), self.branch, int(self.auto), self.oplan,
                     t.parent, t.depth, t.option, t.visits, t.value, t.delta,
                     t.children, t.tried, t.live, t.dead, t.hkeys, t.hvals, t.counters,
                 )

@@ -149,6 +149,9 @@ class MiddlewareConfig:
     """Opt-in: the other agents' messages are no decisions of this agent's tree but follow a
     fixed policy (``density``, ``knapsack`` or ``fit``, :data:`~companion.middleware.mcts.
     AUTO_POLICIES`) in each path's state. None: the tree decides them too."""
+    auto_after_s: float = 0.0
+    """With ``auto_others``: the others' messages sent up to this long after the decided one
+    (and their in-flight ones) stay decisions of the tree; only later ones follow the policy."""
 
     def __post_init__(self) -> None:
         if not self.agent:
@@ -176,6 +179,8 @@ class MiddlewareConfig:
             raise MiddlewareError("small_share must be in (0, 1] or None")
         if self.auto_others is not None and self.auto_others not in AUTO_POLICIES:
             raise MiddlewareError(f"auto_others must be one of {sorted(AUTO_POLICIES)} or None")
+        if not self.auto_after_s >= 0:
+            raise MiddlewareError("auto_after_s must be >= 0")
 
 
 def _dense_enough(problem: Problem, level: int, lam: float) -> bool:
@@ -315,7 +320,7 @@ class Middleware:
         search = MCTS(problem, c=self.config.c, max_nodes=self.config.max_iterations + 1,
                       knapsack_seed=self.config.knapsack_seed, best_plan=self.config.best_plan,
                       depth=self.config.search_depth, veto=self.config.veto,
-                      auto=self.config.auto_others)
+                      auto=self.config.auto_others, auto_after_s=self.config.auto_after_s)
         self._run(search, deadline)
         result = search.result()
         level = problem.decided_level
@@ -350,7 +355,8 @@ class Middleware:
             relaxed = MCTS(free, c=self.config.c, max_nodes=self.config.max_iterations + 1,
                            knapsack_seed=self.config.knapsack_seed,
                            best_plan=self.config.best_plan, depth=self.config.search_depth,
-                           veto=self.config.veto, auto=self.config.auto_others)
+                           veto=self.config.veto, auto=self.config.auto_others,
+                           auto_after_s=self.config.auto_after_s)
             self._run(relaxed, deadline)
             announce = relaxed.result()
             if announce.option:

@@ -155,6 +155,25 @@ def test_the_decision_does_not_bend_the_others_to_this_agents_plan() -> None:
     assert float(searched.best[0]) >= float(auto.best[0]) - 1e-9
 
 
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(2, 12), budget=st.integers(0, 400))
+def test_the_others_near_the_decided_message_stay_searched(seed: int, n: int, budget: int
+                                                            ) -> None:
+    """``auto_after_s``: the others' levels up to that long after the decided message branch;
+    covering the whole horizon it is the searched tree itself, node for node."""
+    problem = _problem(seed, n, budget)
+    near = MCTS(problem, max_nodes=400, auto="density", auto_after_s=0.7)
+    t0 = float(problem.send_t[problem.decided_level])
+    assert near.branch.tolist() == [bool(o) or t <= t0 + 0.7
+                                    for o, t in zip(problem.own, problem.send_t, strict=True)]
+    everything = MCTS(problem, max_nodes=400, auto="density", auto_after_s=1e9)
+    searched = MCTS(problem, max_nodes=400)
+    everything.run(400)
+    searched.run(400)
+    assert everything.result() == searched.result()
+    assert np.array_equal(everything.tree.visits, searched.tree.visits)
+
+
 def test_compiled_and_plain_python_kernels_agree_with_auto(
         monkeypatch: pytest.MonkeyPatch) -> None:
     problem = _problem(7, 10, 250)
@@ -188,5 +207,7 @@ def test_the_middleware_marks_its_own_levels_and_decides_with_auto() -> None:
 def test_an_unknown_auto_policy_is_a_one_line_error() -> None:
     with pytest.raises(MiddlewareError, match="auto_others must be one of"):
         MiddlewareConfig(spec=SPEC, agent="a", auto_others="everyone")
+    with pytest.raises(MiddlewareError, match="auto_after_s must be >= 0"):
+        MiddlewareConfig(spec=SPEC, agent="a", auto_others="density", auto_after_s=-1.0)
     with pytest.raises(ValueError, match="auto must be one of"):
         MCTS(_problem(1, 3, 100), auto="everyone")
