@@ -66,8 +66,16 @@ RULES: dict[str, dict[str, Any]] = {
     "default": {},
     "best-plan": {"best_plan": True, "search_depth": 10},
     "veto": {"best_plan": True, "search_depth": 10, "veto": 1.5},
+    # round 8: the others' forecast messages out of the tree, their expected sends in the windows
+    "expect": {"expect_others": "spread"},
+    "expect-forecast": {"expect_others": "forecast"},
+    "expect-keep": {"expect_others": "spread", "expect_keep_unrated": True},
+    "expect-forecast-keep": {"expect_others": "forecast", "expect_keep_unrated": True},
+    "expect-price": {"expect_others": "spread", "expect_price": True},
+    "expect-forecast-price": {"expect_others": "forecast", "expect_price": True},
 }
-"""``--rule``: MiddlewareConfig fields of each decision rule (docs/middleware.md, round 7)."""
+"""``--rule``: MiddlewareConfig fields of each decision rule (docs/middleware.md, round 7) or
+model (round 8, ``expect*``)."""
 
 
 def use_rule(name: str) -> None:

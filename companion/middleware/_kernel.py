@@ -74,13 +74,15 @@ def _rollout(
     stream: Any, pos: Any, nopt: Any, size: Any, send_t: Any, gain: Any, nslot: Any,
     budget: float,
     window_s: float, maxv: int, lam: float, r_win_t: Any, r_win_b: Any,
-    plan: Any, dlevel: int, pick: Any,
+    plan: Any, dlevel: int, pick: Any, ahead_t: Any, ahead_b: Any, ak: int,
 ) -> float:
     """Default policy from level ``d0`` on (the simulation step of alg. 1): send the option
     with the highest gain whose utility per byte reaches ``lam`` and that fits the window.
 
     With ``plan[0] >= 0`` it follows the knapsack plan instead (level i's option ``plan[i]``
-    when it fits the window, else drop). ``pick[0]`` gets the option taken at ``dlevel``."""
+    when it fits the window, else drop). ``pick[0]`` gets the option taken at ``dlevel``.
+    Expected sends of other agents (``ahead_*`` from index ``ak``) join the window at their
+    send times."""
     n = stream.shape[0]
     for s in range(last.shape[0]):
         r_last[s] = last[s]
@@ -91,7 +93,14 @@ def _rollout(
         r_win_b[t_] = win_b[k]
         t_ += 1
     total = 0.0
+    n_ahead = ahead_t.shape[0]
     for i in range(d0, n):
+        while ak < n_ahead and ahead_t[ak] <= send_t[i]:
+            r_win_t[t_] = ahead_t[ak]
+            r_win_b[t_] = ahead_b[ak]
+            wbytes += ahead_b[ak]
+            t_ += 1
+            ak += 1
         lim = send_t[i] - window_s - _EPS
         while h < t_ and r_win_t[h] < lim:
             wbytes -= r_win_b[h]
@@ -247,6 +256,7 @@ def search(
     markov: Any,
     root_win_t: Any, root_win_b: Any, budget: float, window_s: float, maxv: int, top: float,
     lam: float, plan: Any, dlevel: int, best_u: Any, best_at: Any, depth_limit: int,
+    ahead_t: Any, ahead_b: Any,
     # tree
     parent: Any, depth: Any, option: Any, visits: Any, value: Any, delta: Any,
     children: Any, tried: Any, live: Any, dead: Any, hkeys: Any, hvals: Any, counters: Any,
@@ -260,11 +270,16 @@ def search(
 
     Nodes at depth ``depth_limit`` (< n) are leaves: valued by the default policy from there
     on every visit, never expanded; a budget that covers the bounded tree then answers the
-    same for every larger budget."""
+    same for every larger budget.
+
+    ``ahead_t``/``ahead_b`` (sorted by time) are sends expected of other agents after the
+    root: each joins the window only from its send time, when the descent (or the default
+    policy) reaches the first level at or after it; ``root_win_*`` count from the root."""
     n = stream.shape[0]
     n_streams = markov.shape[0]
     n_root = root_win_t.shape[0]
-    cap = n_root + n + 1
+    n_ahead = ahead_t.shape[0]
+    cap = n_root + n_ahead + n + 1
     last = np.zeros(max(n_streams, 1), dtype=np.int64)
     win_t = np.zeros(cap, dtype=np.float64)
     win_b = np.zeros(cap, dtype=np.int64)
@@ -296,15 +311,25 @@ def search(
         key = np.uint64(0)
         u = 0.0
         node = 0
+        ak = 0
         while True:
             d = depth[node]
+            if d < n:
+                while ak < n_ahead and ahead_t[ak] <= send_t[d]:
+                    win_t[tail] = ahead_t[ak]
+                    win_b[tail] = ahead_b[ak]
+                    win_id[tail] = 16 * (n + n_root + ak)
+                    wbytes += ahead_b[ak]
+                    tail += 1
+                    ak += 1
             if d == n or d >= depth_limit:
                 total = u
                 if d < n:
                     pick[0] = -1
                     total += _rollout(d, last, r_last, win_t, win_b, head, tail, wbytes, stream,
                                       pos, nopt, size, send_t, gain, nslot, budget, window_s,
-                                      maxv, lam, r_win_t, r_win_b, noplan, dlevel, pick)
+                                      maxv, lam, r_win_t, r_win_b, noplan, dlevel, pick,
+                                      ahead_t, ahead_b, ak)
                 if total > best_u[0]:
                     best_u[0] = total
                     best_at[0] = _option_on_path(node, dlevel, parent, depth, option)
@@ -408,12 +433,14 @@ def search(
                     pick[0] = -1
                     rest = _rollout(d + 1, last, r_last, win_t, win_b, head, rt, rw, stream, pos,
                                     nopt, size, send_t, gain, nslot, budget, window_s, maxv, lam,
-                                    r_win_t, r_win_b, noplan, dlevel, pick)
+                                    r_win_t, r_win_b, noplan, dlevel, pick, ahead_t,
+                                    ahead_b, ak)
                     if seeded:
                         pick2[0] = -1
                         rest2 = _rollout(d + 1, last, r_last, win_t, win_b, head, rt, rw, stream,
                                          pos, nopt, size, send_t, gain, nslot, budget, window_s,
-                                         maxv, lam, r_win_t, r_win_b, plan, dlevel, pick2)
+                                         maxv, lam, r_win_t, r_win_b, plan, dlevel, pick2,
+                                         ahead_t, ahead_b, ak)
                         if rest2 > rest:
                             rest = rest2
                             pick[0] = pick2[0]

@@ -323,8 +323,11 @@ def offline_optimum(problem: Problem, *, max_states: int = 500_000) -> OptimumRe
     layer: dict[_State, float] = {start: 0.0}
     back: list[dict[_State, tuple[_State, int]]] = []
     widest = 1
+    ahead = [(float(t), int(b)) for t, b in zip(problem.ahead_t, problem.ahead_bytes, strict=True)]
     for i in range(n):
         t_i = float(problem.send_t[i])
+        arriving = tuple(w for w in ahead if w[0] <= t_i)  # expected sends count from their time
+        ahead = ahead[len(arriving):]
         t_next = float(problem.send_t[i + 1]) if i + 1 < n else float("inf")
         lo_i = t_i - window_s - 1e-9
         lo_next = t_next - window_s - 1e-9
@@ -334,7 +337,7 @@ def offline_optimum(problem: Problem, *, max_states: int = 500_000) -> OptimumRe
         came: dict[_State, tuple[_State, int]] = {}
         for state, u in layer.items():
             last, win = state
-            inside = tuple(w for w in win if w[0] >= lo_i)
+            inside = tuple(w for w in (*win, *arriving) if w[0] >= lo_i)
             used = sum(b for _, b in inside)
             slot = last[s] if s >= 0 else 0
             for o in range(int(problem.nopt[i])):

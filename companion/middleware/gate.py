@@ -82,8 +82,7 @@ def price_per_byte(problem: Problem) -> float:
     best = per_byte.argmax(axis=1)
     density = np.maximum(per_byte[np.arange(n), best], 0.0)
     nbytes = sizes[np.arange(n), best].astype(np.float64)
-    span = float(problem.send_t[-1] - problem.send_t[0])
-    capacity = problem.budget_bytes * max(1.0, span / problem.window_s)
+    capacity = problem.capacity_bytes()
     order = np.lexsort((nbytes, density))[::-1]  # densest first; ties: larger first
     over = np.nonzero(np.cumsum(nbytes[order]) > capacity)[0]
     return float(density[order[over[0]]]) if len(over) else 0.0

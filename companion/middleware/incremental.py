@@ -121,6 +121,8 @@ class Problem:
     """
 
     __slots__ = (
+        "ahead_bytes",
+        "ahead_t",
         "budget_bytes",
         "decided_level",
         "gain",
@@ -162,6 +164,8 @@ class Problem:
         max_versions: int,
         decided_level: int,
         horizon_end: float,
+        ahead_t: npt.NDArray[np.float64] | None = None,
+        ahead_bytes: npt.NDArray[np.int64] | None = None,
     ) -> None:
         self.items = items
         self.stream = stream
@@ -182,10 +186,25 @@ class Problem:
         self.n_streams = len(stream_keys)
         self.decided_level = decided_level
         self.horizon_end = horizon_end
+        self.ahead_t = np.zeros(0) if ahead_t is None else ahead_t
+        """Send times (sorted) of other agents' expected sends after the root: unlike
+        ``root_win_t`` they count in a window only from their send time."""
+        self.ahead_bytes = np.zeros(0, dtype=np.int64) if ahead_bytes is None else ahead_bytes
 
     @property
     def n(self) -> int:
         return len(self.items)
+
+    def capacity_bytes(self) -> float:
+        """Bytes the budget lets the tree's items send over their span (at least one window
+        T), less what the other agents are expected to send in it."""
+        span = float(self.send_t[-1] - self.send_t[0]) if self.n else 0.0
+        capacity = self.budget_bytes * max(1.0, span / self.window_s)
+        if len(self.ahead_t):
+            t0 = float(self.send_t[0]) if self.n else 0.0
+            inside = (self.ahead_t >= t0) & (self.ahead_t <= t0 + max(span, self.window_s))
+            capacity = max(0.0, capacity - float(self.ahead_bytes[inside].sum()))
+        return capacity
 
     def next_slot(self, i: int, option: int, slot: int = 0) -> int:
         """The stream's state after sending item ``i`` with ``option`` from state ``slot``:
@@ -215,6 +234,7 @@ class Problem:
         sends += [
             (float(self.send_t[i]), int(self.size[i, o])) for i, o in enumerate(choices) if o != 0
         ]
+        sends += [(float(t), int(b)) for t, b in zip(self.ahead_t, self.ahead_bytes, strict=True)]
         return window_violations(sends, window_s=self.window_s, budget_bytes=self.budget_bytes) == 0
 
     def all_send_norm(self) -> npt.NDArray[np.float64]:
@@ -493,6 +513,7 @@ def build_problem(
     window_s: float,
     root_window: Sequence[tuple[float, int]] = (),
     receivers: Mapping[tuple[str, str | None], Sequence[FixedItem | None]] | None = None,
+    expected: Sequence[tuple[float, int]] = (),
 ) -> Problem:
     """Tables of one decision: items sorted by send time, gains per (item, option, slot).
 
@@ -501,6 +522,8 @@ def build_problem(
     windows reaching into the tree (eq. 5.7). ``receivers``: streams heard by several
     receivers (a type shared with peers, issue 15), each receiver's base; see
     :func:`_fan_out`. Without it every stream has the one receiver of ``fixed``.
+    ``expected`` lists (send time, bytes) the other agents are expected to send after the
+    root (issue 18 round 8): they count in a window only from their send time.
     """
     ordered = sorted(items, key=lambda it: (it.send_t, it.message.t_gen, it.message.sender))
     stream_index: dict[tuple[str, str | None], int] = {}
@@ -632,4 +655,6 @@ def build_problem(
         max_versions=max_versions,
         decided_level=decided[0] if decided else -1,
         horizon_end=horizon_end,
+        ahead_t=np.array([t for t, _ in sorted(expected)], dtype=np.float64),
+        ahead_bytes=np.array([b for _, b in sorted(expected)], dtype=np.int64),
     )

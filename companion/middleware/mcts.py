@@ -186,7 +186,7 @@ class MCTS:
                     p.root_win_t, p.root_win_bytes, float(p.budget_bytes), float(p.window_s),
                     int(p.max_versions), self.top, self.lam,
                     self.plan, int(p.decided_level), self.best, self.best_at,
-                    int(self.depth_limit),
+                    int(self.depth_limit), p.ahead_t, p.ahead_bytes,
                     t.parent, t.depth, t.option, t.visits, t.value, t.delta,
                     t.children, t.tried, t.live, t.dead, t.hkeys, t.hvals, t.counters,
                 )
@@ -300,8 +300,7 @@ def rollout_threshold(problem: Problem, *, chain: bool = False) -> float:
     per_byte[opts[None, :] >= problem.nopt[:, None]] = 0.0
     density = np.maximum(per_byte.max(axis=1), 0.0)
     first = np.maximum(1, problem.size[:, 1])
-    span = float(problem.send_t[-1] - problem.send_t[0])
-    capacity = problem.budget_bytes * max(1.0, span / problem.window_s)
+    capacity = problem.capacity_bytes()
     order = np.lexsort((first, density))[::-1]  # densest first; ties: larger first
     over = np.nonzero(np.cumsum(first[order], dtype=np.float64) > capacity)[0]
     return float(density[order[over[0]]]) if len(over) else 0.0
@@ -317,7 +316,8 @@ def greedy_option(problem: Problem, level: int) -> int:
     lo = float(problem.send_t[level]) - problem.window_s
     used = sum(
         int(b) for t, b in zip(problem.root_win_t, problem.root_win_bytes, strict=True) if t >= lo
-    )
+    ) + sum(int(b) for t, b in zip(problem.ahead_t, problem.ahead_bytes, strict=True)
+            if lo <= t <= problem.send_t[level])
     best_o, best_g = 0, 0.0
     for o in range(1, int(problem.nopt[level])):
         if used + int(problem.size[level, o]) > problem.budget_bytes + 1e-9:

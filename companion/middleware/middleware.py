@@ -34,12 +34,14 @@ from companion.middleware.decider import (
     ParamValue,
 )
 from companion.middleware.errors import MiddlewareError, ParamError, UnknownParamError
+from companion.middleware.expected import MODES as EXPECT_MODES
+from companion.middleware.expected import expect_others
 from companion.middleware.fleetshare import start_share
 from companion.middleware.gate import creates_violation, price_per_byte, priced_option
 from companion.middleware.incremental import Problem, build_problem, option_message
-from companion.middleware.knowledge import FleetKnowledge, settle_inflight, usable
+from companion.middleware.knowledge import FleetKnowledge, PlanningView, settle_inflight, usable
 from companion.middleware.margin import OvershootMargin
-from companion.middleware.mcts import MCTS, greedy_option
+from companion.middleware.mcts import MCTS, greedy_option, rollout_threshold
 from companion.middleware.params import LIVE_KEYS, check_params, with_alpha
 from companion.middleware.reports import ReceiverReport, ReportLearned, deliveries, feed_link
 from companion.middleware.unheard import UnheardStreams
@@ -145,6 +147,17 @@ class MiddlewareConfig:
     leaves each peer it has not heard of its equal share of the budget and ramps its own
     plan up over the first window (:mod:`~companion.middleware.fleetshare`). None: off."""
     start_share_s: float = 5.0
+    expect_others: str | None = None  # issue 18 round 8
+    """Opt-in: other agents' forecast messages leave the tree and their expected sends (at
+    each sender's last known rate) join the windows from their send times
+    (:mod:`~companion.middleware.expected`): "spread" evenly over the horizon, "forecast" at
+    their forecast send times. None: their forecasts are levels of the tree."""
+    expect_keep_unrated: bool = False
+    """With ``expect_others``: senders never yet heard sending keep their forecast levels."""
+    expect_price: bool = False
+    """With ``expect_others``: this agent's messages must earn the fleet's price per byte
+    (the density at which every forecast message of the fleet fills the budget, the others'
+    included), in the default policy and for the decided message."""
 
     def __post_init__(self) -> None:
         if not self.agent:
@@ -160,6 +173,8 @@ class MiddlewareConfig:
             raise MiddlewareError("search_depth must be >= 0 or None")
         if (self.fleet_size is not None and self.fleet_size < 1) or not self.start_share_s > 0:
             raise MiddlewareError("fleet_size must be >= 1 or None, start_share_s > 0")
+        if self.expect_others not in (None, *EXPECT_MODES):
+            raise MiddlewareError(f"expect_others must be one of {EXPECT_MODES} or None")
         if self.veto is not None and not self.veto > 0:
             raise MiddlewareError("veto must be > 0 or None")
         if self.plan_unheard_s is not None and not self.plan_unheard_s > 0:
@@ -213,6 +228,8 @@ class Middleware:
         self._started: float | None = None
         """Time of the first decision (``plan_unheard_s`` counts from it)."""
         self.always_send: frozenset[str] = frozenset()
+        self._rated: set[str] = set()
+        """Other agents whose send rate has been known (``expect_keep_unrated``)."""
         """Own types sent whatever the search says (the companion's status heartbeat)."""
 
     @classmethod
@@ -277,6 +294,8 @@ class Middleware:
                                rates=self.knowledge.sender_rates(now=now, lag_s=lag,
                                                                  window_s=window_s),
                                settle_versions=True)  # issue 18 round 5
+        full = view
+        view, expected = self._expect(view, now=now, lag=lag, window_s=window_s)  # round 8
         unheard_s = self.config.plan_unheard_s
         if unheard_s is not None and now - self._started <= unheard_s:
             view = self.unheard.add_to(view, self.spec, now=now,
@@ -300,7 +319,7 @@ class Middleware:
                 self.spec, items=view.items, fixed=view.fixed,
                 horizon_end=view.horizon_end + self.config.tail_s,
                 budget_bytes=budget, window_s=window_s,
-                root_window=view.root_window, receivers=view.receivers,
+                root_window=view.root_window, receivers=view.receivers, expected=expected,
             )
         except UtilitySpecsError as exc:  # bad message data: counted, not a crash
             self.counters["bad_message"] += 1
@@ -309,6 +328,9 @@ class Middleware:
         search = MCTS(problem, c=self.config.c, max_nodes=self.config.max_iterations + 1,
                       knapsack_seed=self.config.knapsack_seed, best_plan=self.config.best_plan,
                       depth=self.config.search_depth, veto=self.config.veto)
+        fleet_lam = self._fleet_price(full, budget=budget, window_s=window_s)  # round 8
+        if fleet_lam is not None:
+            search.lam = fleet_lam
         self._run(search, deadline)
         result = search.result()
         level = problem.decided_level
@@ -319,6 +341,8 @@ class Middleware:
             option, reason = result.option, "mcts-exact" if result.exhausted else "mcts"
             if self.config.price_bytes and message.versions:  # issue 18 rounds 5-6, gate.py
                 option = priced_option(problem, level, option, price_per_byte(problem))
+            if fleet_lam is not None:
+                option = priced_option(problem, level, option, fleet_lam)
             small = self.config.small_share
             if small is not None and option == 0 and message.size <= small * budget:
                 option = self._small_option(problem, level, search.lam, now=now,
@@ -338,6 +362,7 @@ class Middleware:
                 horizon_end=view.horizon_end + self.config.tail_s,
                 budget_bytes=budget, window_s=window_s,
                 root_window=() if over else view.root_window, receivers=view.receivers,
+                expected=() if over else expected,
             )
             relaxed = MCTS(free, c=self.config.c, max_nodes=self.config.max_iterations + 1,
                            knapsack_seed=self.config.knapsack_seed,
@@ -384,6 +409,35 @@ class Middleware:
                              window_s=window_s, budget_bytes=budget):
             return 0
         return best
+
+    def _expect(self, view: PlanningView, *, now: float, lag: float, window_s: float
+                ) -> tuple[PlanningView, list[tuple[float, int]]]:
+        """With ``expect_others`` (round 8): the view without the others' forecast levels
+        and the sends expected of them instead (:func:`expect_others`)."""
+        mode = self.config.expect_others
+        if mode is None:
+            return view, []
+        rates = self.knowledge.sender_rates(now=now, lag_s=lag, window_s=window_s)
+        self._rated |= rates.keys()
+        keep = {it.message.sender for it in view.items} - self._rated \
+            if self.config.expect_keep_unrated else set()
+        return expect_others(view, self.spec, agent=self.config.agent, now=now, rates=rates,
+                             mode=mode, keep=keep)
+
+    def _fleet_price(self, view: PlanningView, *, budget: float, window_s: float
+                     ) -> float | None:
+        """With ``expect_price`` (round 8): the default policy's density threshold on the
+        whole fleet's forecast (the others' messages included), else None."""
+        if self.config.expect_others is None or not self.config.expect_price:
+            return None
+        try:
+            full = build_problem(self.spec, items=view.items, fixed=view.fixed,
+                                 horizon_end=view.horizon_end + self.config.tail_s,
+                                 budget_bytes=budget, window_s=window_s,
+                                 root_window=view.root_window, receivers=view.receivers)
+        except UtilitySpecsError:
+            return None
+        return rollout_threshold(full)
 
     def _invisible(self, type_name: str, now: float) -> bool:
         """Has the fleet not heard of this agent's ``type_name`` stream for a long time?"""
