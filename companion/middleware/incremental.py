@@ -226,16 +226,27 @@ class Problem:
         return total
 
     def feasible(self, choices: Sequence[int]) -> bool:
-        """Eq. 5.5/5.7: every window [t, t + T] starting at a send time holds <= budget bytes."""
+        """Eq. 5.5/5.7: every window [t, t + T] starting at a send time holds <= budget bytes.
+
+        The others' expected sends (``ahead_t``) count as the search counts them: in the
+        window that ends at each of the plan's sends (a later sender sees the earlier send
+        and yields), not in windows that end at their own time."""
         sends = [
             (float(t), int(b))
             for t, b in zip(self.root_win_t, self.root_win_bytes, strict=True)
         ]
-        sends += [
+        own = [
             (float(self.send_t[i]), int(self.size[i, o])) for i, o in enumerate(choices) if o != 0
         ]
-        sends += [(float(t), int(b)) for t, b in zip(self.ahead_t, self.ahead_bytes, strict=True)]
-        return window_violations(sends, window_s=self.window_s, budget_bytes=self.budget_bytes) == 0
+        sends += own
+        if window_violations(sends, window_s=self.window_s, budget_bytes=self.budget_bytes):
+            return False
+        ahead = list(zip(self.ahead_t.tolist(), self.ahead_bytes.tolist(), strict=True))
+        return all(
+            sum(b for u, b in sends + ahead if t - self.window_s - 1e-9 <= u <= t)
+            <= self.budget_bytes + 1e-9
+            for t, _ in own
+        ) if ahead else True
 
     def all_send_norm(self) -> npt.NDArray[np.float64]:
         """norm[d]: utility of sending every item of levels < d in its best version."""
