@@ -73,6 +73,16 @@ RULES: dict[str, dict[str, Any]] = {
     "expect-forecast-keep": {"expect_others": "forecast", "expect_keep_unrated": True},
     "expect-price": {"expect_others": "spread", "expect_price": True},
     "expect-forecast-price": {"expect_others": "forecast", "expect_price": True},
+    "expect-ranked": {"expect_others": "spread", "expect_ranked": True},
+    "expect-forecast-ranked": {"expect_others": "forecast", "expect_ranked": True},
+    "expect-demand-ranked": {"expect_others": "demand", "expect_ranked": True},
+    "expect-demand-ranked-price": {"expect_others": "demand", "expect_ranked": True,
+                                   "expect_price": True},
+    "expect-demand-ranked-strict": {"expect_others": "demand", "expect_ranked": True,
+                                    "expect_strict": True},
+    "expect-forecast-strict": {"expect_others": "forecast", "expect_strict": True},
+    "expect-forecast-ranked-price": {"expect_others": "forecast", "expect_ranked": True,
+                                     "expect_price": True},
 }
 """``--rule``: MiddlewareConfig fields of each decision rule (docs/middleware.md, round 7) or
 model (round 8, ``expect*``)."""

@@ -69,12 +69,34 @@ def _score(u: float, top: float) -> float:
 
 
 @_jit
+def _leaves_room(t: float, sz: int, win_t: Any, win_b: Any, head: int, tail: int,
+                 ahead_t: Any, ahead_b: Any, ak: int, window_s: float, budget: float) -> bool:
+    """A send of ``sz`` bytes at ``t`` leaves room, in every window ending at an expected
+    send of the next T, for the sends expected up to it (``strict``, round 8)."""
+    n_ahead = ahead_t.shape[0]
+    e = ak
+    while e < n_ahead and ahead_t[e] <= t + window_s:
+        lo = ahead_t[e] - window_s - _EPS
+        used = sz
+        for k in range(head, tail):
+            if win_t[k] >= lo:
+                used += win_b[k]
+        for k in range(ak, e + 1):
+            if ahead_t[k] >= lo:
+                used += ahead_b[k]
+        if used > budget + _EPS:
+            return False
+        e += 1
+    return True
+
+
+@_jit
 def _rollout(
     d0: int, last: Any, r_last: Any, win_t: Any, win_b: Any, head: int, tail: int, wbytes: int,
     stream: Any, pos: Any, nopt: Any, size: Any, send_t: Any, gain: Any, nslot: Any,
     budget: float,
     window_s: float, maxv: int, lam: float, r_win_t: Any, r_win_b: Any,
-    plan: Any, dlevel: int, pick: Any, ahead_t: Any, ahead_b: Any, ak: int,
+    plan: Any, dlevel: int, pick: Any, ahead_t: Any, ahead_b: Any, ak: int, strict: bool,
 ) -> float:
     """Default policy from level ``d0`` on (the simulation step of alg. 1): send the option
     with the highest gain whose utility per byte reaches ``lam`` and that fits the window.
@@ -111,7 +133,9 @@ def _rollout(
         best_g = 0.0
         if plan[0] >= 0:
             o = plan[i]
-            if o > 0 and wbytes + size[i, o] <= budget + _EPS:
+            if o > 0 and wbytes + size[i, o] <= budget + _EPS and (
+                    not strict or _leaves_room(send_t[i], size[i, o], r_win_t, r_win_b, h, t_,
+                                               ahead_t, ahead_b, ak, window_s, budget)):
                 best_o = o
                 best_g = gain[i, o, slot]
         else:
@@ -119,6 +143,9 @@ def _rollout(
                 sz = size[i, o]
                 g = gain[i, o, slot]
                 if g <= best_g or g < lam * sz or wbytes + sz > budget + _EPS:
+                    continue
+                if strict and not _leaves_room(send_t[i], sz, r_win_t, r_win_b, h, t_, ahead_t,
+                                               ahead_b, ak, window_s, budget):
                     continue
                 best_o = o
                 best_g = g
@@ -256,7 +283,7 @@ def search(
     markov: Any,
     root_win_t: Any, root_win_b: Any, budget: float, window_s: float, maxv: int, top: float,
     lam: float, plan: Any, dlevel: int, best_u: Any, best_at: Any, depth_limit: int,
-    ahead_t: Any, ahead_b: Any,
+    ahead_t: Any, ahead_b: Any, strict: bool,
     # tree
     parent: Any, depth: Any, option: Any, visits: Any, value: Any, delta: Any,
     children: Any, tried: Any, live: Any, dead: Any, hkeys: Any, hvals: Any, counters: Any,
@@ -274,7 +301,8 @@ def search(
 
     ``ahead_t``/``ahead_b`` (sorted by time) are sends expected of other agents after the
     root: each joins the window only from its send time, when the descent (or the default
-    policy) reaches the first level at or after it; ``root_win_*`` count from the root."""
+    policy) reaches the first level at or after it; ``root_win_*`` count from the root. With
+    ``strict`` a send must also leave room for them in the windows ending at each of them."""
     n = stream.shape[0]
     n_streams = markov.shape[0]
     n_root = root_win_t.shape[0]
@@ -329,7 +357,7 @@ def search(
                     total += _rollout(d, last, r_last, win_t, win_b, head, tail, wbytes, stream,
                                       pos, nopt, size, send_t, gain, nslot, budget, window_s,
                                       maxv, lam, r_win_t, r_win_b, noplan, dlevel, pick,
-                                      ahead_t, ahead_b, ak)
+                                      ahead_t, ahead_b, ak, strict)
                 if total > best_u[0]:
                     best_u[0] = total
                     best_at[0] = _option_on_path(node, dlevel, parent, depth, option)
@@ -348,7 +376,9 @@ def search(
                     tried[node] += 1
                     o = _option_at(t, plan[d] if seeded else -1, nopt[d])
                     sz = size[d, o]
-                    if o != 0 and wbytes + sz > budget + _EPS:
+                    if o != 0 and (wbytes + sz > budget + _EPS or (strict and not _leaves_room(
+                            send_t[d], sz, win_t, win_b, head, tail, ahead_t, ahead_b, ak,
+                            window_s, budget))):
                         children[node, o] = REJ_PRUNED
                         counters[C_PRUNED] += 1
                         continue
@@ -434,13 +464,13 @@ def search(
                     rest = _rollout(d + 1, last, r_last, win_t, win_b, head, rt, rw, stream, pos,
                                     nopt, size, send_t, gain, nslot, budget, window_s, maxv, lam,
                                     r_win_t, r_win_b, noplan, dlevel, pick, ahead_t,
-                                    ahead_b, ak)
+                                    ahead_b, ak, strict)
                     if seeded:
                         pick2[0] = -1
                         rest2 = _rollout(d + 1, last, r_last, win_t, win_b, head, rt, rw, stream,
                                          pos, nopt, size, send_t, gain, nslot, budget, window_s,
                                          maxv, lam, r_win_t, r_win_b, plan, dlevel, pick2,
-                                         ahead_t, ahead_b, ak)
+                                         ahead_t, ahead_b, ak, strict)
                         if rest2 > rest:
                             rest = rest2
                             pick[0] = pick2[0]

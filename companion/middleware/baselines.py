@@ -345,7 +345,10 @@ def offline_optimum(problem: Problem, *, max_states: int = 500_000) -> OptimumRe
                     new_last, new_win, g = last, inside, 0.0
                 else:
                     size = int(problem.size[i, o])
-                    if used + size > budget + 1e-9:
+                    if used + size > budget + 1e-9 or (problem.ahead_strict and any(
+                            size + sum(b for u, b in (*inside, *ahead) if e - window_s - 1e-9
+                                       <= u <= e) > budget + 1e-9
+                            for e, _ in ahead if e <= t_i + window_s)):
                         continue
                     g = float(gain_i[o, slot])
                     new_win = (*inside, (t_i, size))

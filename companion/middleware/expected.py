@@ -15,6 +15,10 @@ Two placements (``mode``):
 * ``"spread"``: ``round(rate · H / size)`` messages evenly over the horizon ``(now, end]``;
 * ``"forecast"``: as many messages, placed at that sender's forecast send times (evenly
   chosen among them, at most one per forecast message): the sent share of its stream.
+* ``"demand"`` (not by rate): every forecast message of the senders in ``rates`` is
+  expected, in its best version; the middleware passes the senders whose messages are
+  denser than the decided one (``expect_ranked``): a sender that waits for room is then
+  not locked out by the rate of those that took the window first.
 
 Streams that couple senders keep the others' forecast levels in the tree: a ``max`` or
 ``last`` type with ``per_sender = false`` aggregates every sender's messages in one stream
@@ -38,7 +42,7 @@ from utility_specs.spec import MissionSpec
 
 __all__ = ["MODES", "expect_others"]
 
-MODES = ("spread", "forecast")
+MODES = ("spread", "forecast", "demand")
 
 
 def _couples_senders(spec: MissionSpec, item: PlanItem) -> bool:
@@ -65,6 +69,10 @@ def expect_others(view: PlanningView, spec: MissionSpec, *, agent: str, now: flo
     span = view.horizon_end - now
     expected: list[tuple[float, int]] = []
     for sender, (rate, size) in sorted(rates.items()):
+        if mode == "demand" and sender != agent:
+            expected += [(it.send_t, it.message.size) for it in out.get(sender, [])
+                         if it.send_t > now]
+            continue
         if sender == agent or size <= 0 or span <= 0:
             continue
         n = math.floor(rate * span / size + 0.5)  # whole messages (see settle_inflight)

@@ -122,6 +122,7 @@ class Problem:
 
     __slots__ = (
         "ahead_bytes",
+        "ahead_strict",
         "ahead_t",
         "budget_bytes",
         "decided_level",
@@ -166,6 +167,7 @@ class Problem:
         horizon_end: float,
         ahead_t: npt.NDArray[np.float64] | None = None,
         ahead_bytes: npt.NDArray[np.int64] | None = None,
+        ahead_strict: bool = False,
     ) -> None:
         self.items = items
         self.stream = stream
@@ -190,6 +192,8 @@ class Problem:
         """Send times (sorted) of other agents' expected sends after the root: unlike
         ``root_win_t`` they count in a window only from their send time."""
         self.ahead_bytes = np.zeros(0, dtype=np.int64) if ahead_bytes is None else ahead_bytes
+        self.ahead_strict = ahead_strict
+        """A send must also leave room for the expected sends in the windows ending at them."""
 
     @property
     def n(self) -> int:
@@ -242,10 +246,13 @@ class Problem:
         if window_violations(sends, window_s=self.window_s, budget_bytes=self.budget_bytes):
             return False
         ahead = list(zip(self.ahead_t.tolist(), self.ahead_bytes.tolist(), strict=True))
+        ends = [t for t, _ in own]
+        if self.ahead_strict:  # also the windows ending at an expected send after an own one
+            ends += [e for e, _ in ahead if any(t < e <= t + self.window_s for t in ends)]
         return all(
             sum(b for u, b in sends + ahead if t - self.window_s - 1e-9 <= u <= t)
             <= self.budget_bytes + 1e-9
-            for t, _ in own
+            for t in ends
         ) if ahead else True
 
     def all_send_norm(self) -> npt.NDArray[np.float64]:
@@ -525,6 +532,7 @@ def build_problem(
     root_window: Sequence[tuple[float, int]] = (),
     receivers: Mapping[tuple[str, str | None], Sequence[FixedItem | None]] | None = None,
     expected: Sequence[tuple[float, int]] = (),
+    expected_strict: bool = False,
 ) -> Problem:
     """Tables of one decision: items sorted by send time, gains per (item, option, slot).
 
@@ -534,7 +542,8 @@ def build_problem(
     receivers (a type shared with peers, issue 15), each receiver's base; see
     :func:`_fan_out`. Without it every stream has the one receiver of ``fixed``.
     ``expected`` lists (send time, bytes) the other agents are expected to send after the
-    root (issue 18 round 8): they count in a window only from their send time.
+    root (issue 18 round 8): they count in a window only from their send time; with
+    ``expected_strict`` a send must also leave them room in the windows ending at them.
     """
     ordered = sorted(items, key=lambda it: (it.send_t, it.message.t_gen, it.message.sender))
     stream_index: dict[tuple[str, str | None], int] = {}
@@ -668,4 +677,5 @@ def build_problem(
         horizon_end=horizon_end,
         ahead_t=np.array([t for t, _ in sorted(expected)], dtype=np.float64),
         ahead_bytes=np.array([b for _, b in sorted(expected)], dtype=np.int64),
+        ahead_strict=expected_strict,
     )

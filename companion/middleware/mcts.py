@@ -186,7 +186,7 @@ class MCTS:
                     p.root_win_t, p.root_win_bytes, float(p.budget_bytes), float(p.window_s),
                     int(p.max_versions), self.top, self.lam,
                     self.plan, int(p.decided_level), self.best, self.best_at,
-                    int(self.depth_limit), p.ahead_t, p.ahead_bytes,
+                    int(self.depth_limit), p.ahead_t, p.ahead_bytes, bool(p.ahead_strict),
                     t.parent, t.depth, t.option, t.visits, t.value, t.delta,
                     t.children, t.tried, t.live, t.dead, t.hkeys, t.hvals, t.counters,
                 )

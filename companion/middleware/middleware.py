@@ -154,6 +154,13 @@ class MiddlewareConfig:
     their forecast send times. None: their forecasts are levels of the tree."""
     expect_keep_unrated: bool = False
     """With ``expect_others``: senders never yet heard sending keep their forecast levels."""
+    expect_ranked: bool = False
+    """With ``expect_others``: count only the expected sends of senders whose forecast
+    messages are at least as dense (utility per byte) as the decided one; the less dense
+    ones, using the same rule, yield to it."""
+    expect_strict: bool = False
+    """With ``expect_others``: a send must also leave room for the expected sends in the
+    windows ending at them (eq. 5.7 on every window), not only in its own."""
     expect_price: bool = False
     """With ``expect_others``: this agent's messages must earn the fleet's price per byte
     (the density at which every forecast message of the fleet fills the budget, the others'
@@ -197,6 +204,29 @@ def _dense_enough(problem: Problem, level: int, lam: float) -> bool:
         float(problem.gain[level, o, 0]) >= lam * max(1, int(problem.size[level, o]))
         for o in range(1, int(problem.nopt[level]))
     )
+
+
+def _denser(problem: Problem, rates: dict[str, tuple[float, float]], *, agent: str
+            ) -> dict[str, tuple[float, float]]:
+    """``rates`` of the senders whose streams are at least as dense as this agent's (round 8,
+    ``expect_ranked``). A stream's density is what its messages add per byte when it is
+    sent in full (each forecast message after the previous one of its stream, best
+    version): the same measure for every sender, not a gain over what this agent happens to
+    know each receiver holds (a peer's base is older in its knowledge than its own)."""
+    later = np.nonzero((problem.stream >= 0) & (problem.pos > 0))[0]
+    if not len(later):
+        return rates
+    prev = 1 + (problem.pos[later] - 1) * problem.max_versions
+    density = problem.gain[later, 1, prev] / np.maximum(1, problem.size[later, 1])
+    by_sender: dict[str, list[float]] = {}
+    for i, d in zip(later.tolist(), density.tolist(), strict=True):
+        by_sender.setdefault(problem.items[i].message.sender, []).append(d)
+    mine = by_sender.get(agent)
+    if not mine:
+        return rates
+    floor = float(np.mean(mine))
+    return {s: r for s, r in rates.items()
+            if s not in by_sender or float(np.mean(by_sender[s])) >= floor}
 
 
 class Middleware:
@@ -294,8 +324,6 @@ class Middleware:
                                rates=self.knowledge.sender_rates(now=now, lag_s=lag,
                                                                  window_s=window_s),
                                settle_versions=True)  # issue 18 round 5
-        full = view
-        view, expected = self._expect(view, now=now, lag=lag, window_s=window_s)  # round 8
         unheard_s = self.config.plan_unheard_s
         if unheard_s is not None and now - self._started <= unheard_s:
             view = self.unheard.add_to(view, self.spec, now=now,
@@ -310,6 +338,8 @@ class Middleware:
                                  for_s=self.config.start_share_s,
                                  floor_bytes=min((v.size for v in message.versions),
                                                  default=message.size))
+        view, expected, fleet_lam = self._expect(view, now=now, lag=lag, window_s=window_s,
+                                                 budget=budget)  # issue 18 round 8
         if self.config.learn_margin:
             self.margin.observe(self.knowledge.known_sends(), now=now, settle_s=lag,
                                 window_s=window_s, budget_bytes=budget)
@@ -320,6 +350,7 @@ class Middleware:
                 horizon_end=view.horizon_end + self.config.tail_s,
                 budget_bytes=budget, window_s=window_s,
                 root_window=view.root_window, receivers=view.receivers, expected=expected,
+                expected_strict=self.config.expect_strict,
             )
         except UtilitySpecsError as exc:  # bad message data: counted, not a crash
             self.counters["bad_message"] += 1
@@ -328,7 +359,6 @@ class Middleware:
         search = MCTS(problem, c=self.config.c, max_nodes=self.config.max_iterations + 1,
                       knapsack_seed=self.config.knapsack_seed, best_plan=self.config.best_plan,
                       depth=self.config.search_depth, veto=self.config.veto)
-        fleet_lam = self._fleet_price(full, budget=budget, window_s=window_s)  # round 8
         if fleet_lam is not None:
             search.lam = fleet_lam
         self._run(search, deadline)
@@ -410,34 +440,37 @@ class Middleware:
             return 0
         return best
 
-    def _expect(self, view: PlanningView, *, now: float, lag: float, window_s: float
-                ) -> tuple[PlanningView, list[tuple[float, int]]]:
-        """With ``expect_others`` (round 8): the view without the others' forecast levels
-        and the sends expected of them instead (:func:`expect_others`)."""
-        mode = self.config.expect_others
-        if mode is None:
-            return view, []
+    def _expect(self, view: PlanningView, *, now: float, lag: float, window_s: float,
+                budget: float) -> tuple[PlanningView, list[tuple[float, int]], float | None]:
+        """With ``expect_others`` (round 8): the view without the others' forecast levels,
+        the sends expected of them instead (:func:`expect_others`) and, with
+        ``expect_price``, the fleet's price per byte (else None)."""
+        config = self.config
+        if config.expect_others is None:
+            return view, [], None
         rates = self.knowledge.sender_rates(now=now, lag_s=lag, window_s=window_s)
         self._rated |= rates.keys()
+        if config.expect_others == "demand":  # every forecast sender is a candidate
+            rates = {it.message.sender: rates.get(it.message.sender, (0.0, 0.0))
+                     for it in view.items if it.kind == "forecast"}
         keep = {it.message.sender for it in view.items} - self._rated \
-            if self.config.expect_keep_unrated else set()
-        return expect_others(view, self.spec, agent=self.config.agent, now=now, rates=rates,
-                             mode=mode, keep=keep)
-
-    def _fleet_price(self, view: PlanningView, *, budget: float, window_s: float
-                     ) -> float | None:
-        """With ``expect_price`` (round 8): the default policy's density threshold on the
-        whole fleet's forecast (the others' messages included), else None."""
-        if self.config.expect_others is None or not self.config.expect_price:
-            return None
-        try:
-            full = build_problem(self.spec, items=view.items, fixed=view.fixed,
-                                 horizon_end=view.horizon_end + self.config.tail_s,
-                                 budget_bytes=budget, window_s=window_s,
-                                 root_window=view.root_window, receivers=view.receivers)
-        except UtilitySpecsError:
-            return None
-        return rollout_threshold(full)
+            if config.expect_keep_unrated else set()
+        lam = None
+        if config.expect_price or config.expect_ranked:
+            try:
+                full = build_problem(self.spec, items=view.items, fixed=view.fixed,
+                                     horizon_end=view.horizon_end + config.tail_s,
+                                     budget_bytes=budget, window_s=window_s,
+                                     root_window=view.root_window, receivers=view.receivers)
+            except UtilitySpecsError:
+                full = None
+            if full is not None and config.expect_ranked:
+                rates = _denser(full, rates, agent=config.agent)
+            if full is not None and config.expect_price:
+                lam = rollout_threshold(full)
+        view, expected = expect_others(view, self.spec, agent=config.agent, now=now,
+                                       rates=rates, mode=config.expect_others, keep=keep)
+        return view, expected, lam
 
     def _invisible(self, type_name: str, now: float) -> bool:
         """Has the fleet not heard of this agent's ``type_name`` stream for a long time?"""

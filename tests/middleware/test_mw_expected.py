@@ -65,8 +65,10 @@ def test_an_expected_send_counts_in_the_windows_only_from_its_send_time() -> Non
     assert offline_optimum(problem).choices == (1, 0)
 
 
-@pytest.mark.parametrize("seed", range(12))
-def test_search_optimum_and_feasibility_agree_on_expected_sends(seed: int) -> None:
+@pytest.mark.parametrize("strict", [False, True])
+@pytest.mark.parametrize("seed", range(8))
+def test_search_optimum_and_feasibility_agree_on_expected_sends(seed: int, strict: bool
+                                                                ) -> None:
     """Small random problems (own messages, expected sends of others between them): the
     dynamic programme's optimum is the best feasible plan by enumeration, and no plan the
     search evaluates beats it (the kernel counts the expected sends as the two do)."""
@@ -76,7 +78,7 @@ def test_search_optimum_and_feasibility_agree_on_expected_sends(seed: int) -> No
                    size=int(rng.choice([500, 1000, 1500]))) for k, t in enumerate(times)]
     expected = [(float(t), int(rng.choice([500, 1000]))) for t in rng.uniform(0.0, 4.0, 4)]
     problem = build_problem(SPEC, items=items, fixed=[], horizon_end=5.0, budget_bytes=2000,
-                            window_s=1.0, expected=expected)
+                            window_s=1.0, expected=expected, expected_strict=strict)
     plans = [c for c in itertools.product((0, 1), repeat=problem.n) if problem.feasible(c)]
     best = max(problem.path_gain(c) for c in plans)
     exact = offline_optimum(problem)
