@@ -80,6 +80,8 @@ RULES: dict[str, dict[str, Any]] = {
                                    "expect_price": True},
     "expect-demand-ranked-strict": {"expect_others": "demand", "expect_ranked": True,
                                     "expect_strict": True},
+    "expect-demand-ranked-strict-price": {"expect_others": "demand", "expect_ranked": True,
+                                          "expect_strict": True, "expect_price": True},
     "expect-forecast-strict": {"expect_others": "forecast", "expect_strict": True},
     "expect-forecast-ranked-price": {"expect_others": "forecast", "expect_ranked": True,
                                      "expect_price": True},
