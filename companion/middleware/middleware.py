@@ -158,6 +158,9 @@ class MiddlewareConfig:
     """With ``expect_others``: count only the expected sends of senders whose forecast
     messages are at least as dense (utility per byte) as the decided one; the less dense
     ones, using the same rule, yield to it."""
+    expect_margin: float = 1.0
+    """With ``expect_ranked`` and "demand": a sender counts at its demand only when its
+    stream is this many times denser; one within the margin counts at its send rate."""
     expect_strict: bool = False
     """With ``expect_others``: a send must also leave room for the expected sends in the
     windows ending at them (eq. 5.7 on every window), not only in its own."""
@@ -206,8 +209,8 @@ def _dense_enough(problem: Problem, level: int, lam: float) -> bool:
     )
 
 
-def _denser(problem: Problem, rates: dict[str, tuple[float, float]], *, agent: str
-            ) -> dict[str, tuple[float, float]]:
+def _denser(problem: Problem, rates: dict[str, tuple[float, float]], *, agent: str,
+            factor: float = 1.0) -> dict[str, tuple[float, float]]:
     """``rates`` of the senders whose streams are at least as dense as this agent's (round 8,
     ``expect_ranked``). A stream's density is what its messages add per byte when it is
     sent in full (each forecast message after the previous one of its stream, best
@@ -224,7 +227,7 @@ def _denser(problem: Problem, rates: dict[str, tuple[float, float]], *, agent: s
     mine = by_sender.get(agent)
     if not mine:
         return rates
-    floor = float(np.mean(mine))
+    floor = factor * float(np.mean(mine))
     return {s: r for s, r in rates.items()
             if s not in by_sender or float(np.mean(by_sender[s])) >= floor}
 
@@ -450,6 +453,7 @@ class Middleware:
             return view, [], None
         rates = self.knowledge.sender_rates(now=now, lag_s=lag, window_s=window_s)
         self._rated |= rates.keys()
+        sent_rates = rates
         if config.expect_others == "demand":  # every forecast sender is a candidate
             rates = {it.message.sender: rates.get(it.message.sender, (0.0, 0.0))
                      for it in view.items if it.kind == "forecast"}
@@ -465,7 +469,20 @@ class Middleware:
             except UtilitySpecsError:
                 full = None
             if full is not None and config.expect_ranked:
-                rates = _denser(full, rates, agent=config.agent)
+                margin = config.expect_margin
+                rates = _denser(full, rates, agent=config.agent, factor=margin)
+                if margin > 1 and config.expect_others == "demand":
+                    # near-equals (within the margin) at the rate they were seen to send
+                    similar = {s: r for s, r in _denser(full, sent_rates, agent=config.agent,
+                                                        factor=1 / margin).items()
+                               if s not in rates}
+                    view, expected = expect_others(view, self.spec, agent=config.agent,
+                                                   now=now, rates=rates, mode="demand",
+                                                   keep=keep)
+                    _, more = expect_others(view, self.spec, agent=config.agent, now=now,
+                                            rates=similar, mode="spread")
+                    lam = rollout_threshold(full) if config.expect_price else None
+                    return view, sorted(expected + more), lam
             if full is not None and config.expect_price:
                 lam = rollout_threshold(full)
         view, expected = expect_others(view, self.spec, agent=config.agent, now=now,

@@ -16,7 +16,7 @@ from companion.middleware.expected import expect_others
 from companion.middleware.incremental import PlanItem, build_problem
 from companion.middleware.knowledge import PlanningView
 from companion.middleware.mcts import MCTS, greedy_option
-from companion.middleware.middleware import Middleware, MiddlewareConfig
+from companion.middleware.middleware import Middleware, MiddlewareConfig, _denser
 from utility_specs.message import Message
 from utility_specs.spec import parse_spec
 
@@ -146,3 +146,19 @@ def test_the_decided_option_does_not_depend_on_the_others_forecast_levels() -> N
 def test_an_unknown_mode_is_refused() -> None:
     with pytest.raises(MiddlewareError):
         MiddlewareConfig(spec=SPEC, agent="a", expect_others="everything")
+
+
+def test_ranking_keeps_the_expected_sends_of_denser_streams_only() -> None:
+    """Three senders, the same battery stream at 1 Hz, in 500 / 1000 / 4000-byte messages:
+    what a message adds after the previous one is the same, per byte b's is twice a's and
+    c's a quarter. Agent a counts b's expected sends, not c's (c, ranking the same way,
+    counts a's)."""
+    items = [_item(s, k, 10.0 + k + off, kind="decide" if (s, k) == ("a", 0) else "forecast",
+                   size=size)
+             for s, off, size in (("a", 0.0, 1000), ("b", 0.3, 500), ("c", 0.6, 4000))
+             for k in range(3)]
+    problem = build_problem(SPEC, items=items, fixed=[], horizon_end=13.0, budget_bytes=1e4,
+                            window_s=1.0)
+    rates = {"b": (500.0, 500.0), "c": (4000.0, 4000.0), "d": (10.0, 10.0)}
+    assert _denser(problem, rates, agent="a") == {"b": rates["b"], "d": rates["d"]}
+    assert _denser(problem, rates, agent="c") == rates  # everyone is denser than c
