@@ -16,9 +16,10 @@ Two placements (``mode``):
 * ``"forecast"``: as many messages, placed at that sender's forecast send times (evenly
   chosen among them, at most one per forecast message): the sent share of its stream.
 * ``"demand"`` (not by rate): every forecast message of the senders in ``rates`` is
-  expected, in its best version; the middleware passes the senders whose messages are
-  denser than the decided one (``expect_ranked``): a sender that waits for room is then
-  not locked out by the rate of those that took the window first.
+  expected, in the mean size the sender is seen to send (else its best version). The
+  middleware passes the senders whose streams are denser than its own
+  (``expect_ranked``): a sender that waits for room is then not locked out by the rate of
+  those that took the window first.
 
 Streams that couple senders keep the others' forecast levels in the tree: a ``max`` or
 ``last`` type with ``per_sender = false`` aggregates every sender's messages in one stream
@@ -70,8 +71,9 @@ def expect_others(view: PlanningView, spec: MissionSpec, *, agent: str, now: flo
     expected: list[tuple[float, int]] = []
     for sender, (rate, size) in sorted(rates.items()):
         if mode == "demand" and sender != agent:
-            expected += [(it.send_t, it.message.size) for it in out.get(sender, [])
-                         if it.send_t > now]
+            # in the size it is seen to send (a version), else the forecast's best version
+            expected += [(it.send_t, int(size) if size > 0 else it.message.size)
+                         for it in out.get(sender, []) if it.send_t > now]
             continue
         if sender == agent or size <= 0 or span <= 0:
             continue

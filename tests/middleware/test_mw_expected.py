@@ -162,3 +162,12 @@ def test_ranking_keeps_the_expected_sends_of_denser_streams_only() -> None:
     rates = {"b": (500.0, 500.0), "c": (4000.0, 4000.0), "d": (10.0, 10.0)}
     assert _denser(problem, rates, agent="a") == {"b": rates["b"], "d": rates["d"]}
     assert _denser(problem, rates, agent="c") == rates  # everyone is denser than c
+
+
+def test_demand_expects_every_forecast_message_in_the_size_the_sender_sends() -> None:
+    """b is seen to send 600-byte messages (a smaller version): each of its six forecasts is
+    expected in that size; c, never seen sending, in its forecasts' own size."""
+    _, expected = expect_others(_view(), SPEC, agent="a", now=10.0, mode="demand",
+                                rates={"b": (600.0, 600.0), "c": (0.0, 0.0)})
+    assert expected == sorted([(10.2 + 0.5 * k, 600) for k in range(6)]
+                              + [(10.4 + k, 1000) for k in range(3)])
