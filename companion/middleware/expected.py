@@ -37,11 +37,15 @@ import math
 from collections.abc import Collection
 from dataclasses import replace
 
-from companion.middleware.incremental import PlanItem
+import numpy as np
+
+from companion.middleware.incremental import PlanItem, Problem, build_problem
 from companion.middleware.knowledge import PlanningView
+from companion.middleware.mcts import rollout_threshold
+from utility_specs.errors import UtilitySpecsError
 from utility_specs.spec import MissionSpec
 
-__all__ = ["MODES", "expect_others"]
+__all__ = ["MODES", "denser", "expect_others", "plan_expected"]
 
 MODES = ("spread", "forecast", "demand")
 
@@ -85,3 +89,67 @@ def expect_others(view: PlanningView, spec: MissionSpec, *, agent: str, now: flo
         n = min(n, len(times))
         expected += [(times[int((i + 0.5) * len(times) / n)], int(size)) for i in range(n)]
     return replace(view, items=kept), sorted(expected)
+
+
+def denser(problem: Problem, rates: dict[str, tuple[float, float]], *, agent: str,
+           factor: float = 1.0) -> dict[str, tuple[float, float]]:
+    """``rates`` of the senders whose streams are at least ``factor`` times as dense as this
+    agent's (``expect_ranked``). A stream's density is what its messages add per byte when
+    it is sent in full (each forecast message after the previous one of its stream, best
+    version): the same measure for every sender, not a gain over what this agent happens to
+    know each receiver holds (a peer's base is older in its knowledge than its own)."""
+    later = np.nonzero((problem.stream >= 0) & (problem.pos > 0))[0]
+    if not len(later):
+        return rates
+    prev = 1 + (problem.pos[later] - 1) * problem.max_versions
+    density = problem.gain[later, 1, prev] / np.maximum(1, problem.size[later, 1])
+    by_sender: dict[str, list[float]] = {}
+    for i, d in zip(later.tolist(), density.tolist(), strict=True):
+        by_sender.setdefault(problem.items[i].message.sender, []).append(d)
+    mine = by_sender.get(agent)
+    if not mine:
+        return rates
+    floor = factor * float(np.mean(mine))
+    return {s: r for s, r in rates.items()
+            if s not in by_sender or float(np.mean(by_sender[s])) >= floor}
+
+
+def plan_expected(view: PlanningView, spec: MissionSpec, *, agent: str, now: float,
+                  rates: dict[str, tuple[float, float]], mode: str, keep: Collection[str],
+                  ranked: bool, margin: float, price: bool, budget: float, window_s: float,
+                  tail_s: float) -> tuple[PlanningView, list[tuple[float, int]], float | None]:
+    """The middleware's ``expect_*`` fields applied to one decision's view: the view without
+    the others' forecast levels, the sends expected of them and, with ``price``, the fleet's
+    price per byte (the default policy's threshold on the whole fleet's forecast; else None).
+
+    ``ranked`` counts only denser senders (:func:`denser`); in ``"demand"`` mode with
+    ``margin`` > 1, a sender within the margin counts at the rate it was seen to send
+    (``"spread"``), a denser one at its demand. Ranking and price build the fleet's tables
+    once more (the others' forecasts included).
+    """
+    sent_rates = rates
+    if mode == "demand":  # every forecast sender is a candidate
+        rates = {it.message.sender: rates.get(it.message.sender, (0.0, 0.0))
+                 for it in view.items if it.kind == "forecast"}
+    lam = None
+    more: list[tuple[float, int]] = []
+    if price or ranked:
+        try:
+            full: Problem | None = build_problem(
+                spec, items=view.items, fixed=view.fixed, horizon_end=view.horizon_end + tail_s,
+                budget_bytes=budget, window_s=window_s, root_window=view.root_window,
+                receivers=view.receivers)
+        except UtilitySpecsError:
+            full = None
+        if full is not None and ranked:
+            rates = denser(full, rates, agent=agent, factor=margin)
+            if margin > 1 and mode == "demand":  # near-equals at the rate they were seen to send
+                similar = {s: r for s, r in denser(full, sent_rates, agent=agent,
+                                                   factor=1 / margin).items() if s not in rates}
+                _, more = expect_others(view, spec, agent=agent, now=now, rates=similar,
+                                        mode="spread")
+        if full is not None and price:
+            lam = rollout_threshold(full)
+    view, expected = expect_others(view, spec, agent=agent, now=now, rates=rates, mode=mode,
+                                   keep=keep)
+    return view, sorted(expected + more), lam

@@ -35,13 +35,13 @@ from companion.middleware.decider import (
 )
 from companion.middleware.errors import MiddlewareError, ParamError, UnknownParamError
 from companion.middleware.expected import MODES as EXPECT_MODES
-from companion.middleware.expected import expect_others
+from companion.middleware.expected import plan_expected
 from companion.middleware.fleetshare import start_share
 from companion.middleware.gate import creates_violation, price_per_byte, priced_option
 from companion.middleware.incremental import Problem, build_problem, option_message
 from companion.middleware.knowledge import FleetKnowledge, PlanningView, settle_inflight, usable
 from companion.middleware.margin import OvershootMargin
-from companion.middleware.mcts import MCTS, greedy_option, rollout_threshold
+from companion.middleware.mcts import MCTS, greedy_option
 from companion.middleware.params import LIVE_KEYS, check_params, with_alpha
 from companion.middleware.reports import ReceiverReport, ReportLearned, deliveries, feed_link
 from companion.middleware.unheard import UnheardStreams
@@ -209,29 +209,6 @@ def _dense_enough(problem: Problem, level: int, lam: float) -> bool:
     )
 
 
-def _denser(problem: Problem, rates: dict[str, tuple[float, float]], *, agent: str,
-            factor: float = 1.0) -> dict[str, tuple[float, float]]:
-    """``rates`` of the senders whose streams are at least as dense as this agent's (round 8,
-    ``expect_ranked``). A stream's density is what its messages add per byte when it is
-    sent in full (each forecast message after the previous one of its stream, best
-    version): the same measure for every sender, not a gain over what this agent happens to
-    know each receiver holds (a peer's base is older in its knowledge than its own)."""
-    later = np.nonzero((problem.stream >= 0) & (problem.pos > 0))[0]
-    if not len(later):
-        return rates
-    prev = 1 + (problem.pos[later] - 1) * problem.max_versions
-    density = problem.gain[later, 1, prev] / np.maximum(1, problem.size[later, 1])
-    by_sender: dict[str, list[float]] = {}
-    for i, d in zip(later.tolist(), density.tolist(), strict=True):
-        by_sender.setdefault(problem.items[i].message.sender, []).append(d)
-    mine = by_sender.get(agent)
-    if not mine:
-        return rates
-    floor = factor * float(np.mean(mine))
-    return {s: r for s, r in rates.items()
-            if s not in by_sender or float(np.mean(by_sender[s])) >= floor}
-
-
 class Middleware:
     """Per-agent optimiser: forecast + in-flight + MCTS with pruning and merging (ch. 5)."""
 
@@ -261,9 +238,9 @@ class Middleware:
         self._started: float | None = None
         """Time of the first decision (``plan_unheard_s`` counts from it)."""
         self.always_send: frozenset[str] = frozenset()
-        self._rated: set[str] = set()
-        """Other agents whose send rate has been known (``expect_keep_unrated``)."""
         """Own types sent whatever the search says (the companion's status heartbeat)."""
+        self._rated: set[str] = set()
+        """Other agents whose send rate has been known (round 8, ``expect_keep_unrated``)."""
 
     @classmethod
     def from_setup(cls, setup: DeciderSetup, *, alpha: ParamValue = None,
@@ -445,49 +422,19 @@ class Middleware:
 
     def _expect(self, view: PlanningView, *, now: float, lag: float, window_s: float,
                 budget: float) -> tuple[PlanningView, list[tuple[float, int]], float | None]:
-        """With ``expect_others`` (round 8): the view without the others' forecast levels,
-        the sends expected of them instead (:func:`expect_others`) and, with
-        ``expect_price``, the fleet's price per byte (else None)."""
+        """With ``expect_others`` (round 8, :func:`plan_expected`): the view without the
+        others' forecast levels, the sends expected of them, the fleet's price or None."""
         config = self.config
         if config.expect_others is None:
             return view, [], None
         rates = self.knowledge.sender_rates(now=now, lag_s=lag, window_s=window_s)
         self._rated |= rates.keys()
-        sent_rates = rates
-        if config.expect_others == "demand":  # every forecast sender is a candidate
-            rates = {it.message.sender: rates.get(it.message.sender, (0.0, 0.0))
-                     for it in view.items if it.kind == "forecast"}
         keep = {it.message.sender for it in view.items} - self._rated \
             if config.expect_keep_unrated else set()
-        lam = None
-        if config.expect_price or config.expect_ranked:
-            try:
-                full = build_problem(self.spec, items=view.items, fixed=view.fixed,
-                                     horizon_end=view.horizon_end + config.tail_s,
-                                     budget_bytes=budget, window_s=window_s,
-                                     root_window=view.root_window, receivers=view.receivers)
-            except UtilitySpecsError:
-                full = None
-            if full is not None and config.expect_ranked:
-                margin = config.expect_margin
-                rates = _denser(full, rates, agent=config.agent, factor=margin)
-                if margin > 1 and config.expect_others == "demand":
-                    # near-equals (within the margin) at the rate they were seen to send
-                    similar = {s: r for s, r in _denser(full, sent_rates, agent=config.agent,
-                                                        factor=1 / margin).items()
-                               if s not in rates}
-                    view, expected = expect_others(view, self.spec, agent=config.agent,
-                                                   now=now, rates=rates, mode="demand",
-                                                   keep=keep)
-                    _, more = expect_others(view, self.spec, agent=config.agent, now=now,
-                                            rates=similar, mode="spread")
-                    lam = rollout_threshold(full) if config.expect_price else None
-                    return view, sorted(expected + more), lam
-            if full is not None and config.expect_price:
-                lam = rollout_threshold(full)
-        view, expected = expect_others(view, self.spec, agent=config.agent, now=now,
-                                       rates=rates, mode=config.expect_others, keep=keep)
-        return view, expected, lam
+        return plan_expected(view, self.spec, agent=config.agent, now=now, rates=rates,
+                             mode=config.expect_others, keep=keep, ranked=config.expect_ranked,
+                             margin=config.expect_margin, price=config.expect_price,
+                             budget=budget, window_s=window_s, tail_s=config.tail_s)
 
     def _invisible(self, type_name: str, now: float) -> bool:
         """Has the fleet not heard of this agent's ``type_name`` stream for a long time?"""

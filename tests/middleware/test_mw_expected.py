@@ -12,11 +12,11 @@ import pytest
 from companion.middleware.baselines import offline_optimum
 from companion.middleware.constraint import ConstantConstraint
 from companion.middleware.errors import MiddlewareError
-from companion.middleware.expected import expect_others
+from companion.middleware.expected import denser, expect_others
 from companion.middleware.incremental import PlanItem, build_problem
 from companion.middleware.knowledge import PlanningView
 from companion.middleware.mcts import MCTS, greedy_option
-from companion.middleware.middleware import Middleware, MiddlewareConfig, _denser
+from companion.middleware.middleware import Middleware, MiddlewareConfig
 from utility_specs.message import Message
 from utility_specs.spec import parse_spec
 
@@ -160,8 +160,8 @@ def test_ranking_keeps_the_expected_sends_of_denser_streams_only() -> None:
     problem = build_problem(SPEC, items=items, fixed=[], horizon_end=13.0, budget_bytes=1e4,
                             window_s=1.0)
     rates = {"b": (500.0, 500.0), "c": (4000.0, 4000.0), "d": (10.0, 10.0)}
-    assert _denser(problem, rates, agent="a") == {"b": rates["b"], "d": rates["d"]}
-    assert _denser(problem, rates, agent="c") == rates  # everyone is denser than c
+    assert denser(problem, rates, agent="a") == {"b": rates["b"], "d": rates["d"]}
+    assert denser(problem, rates, agent="c") == rates  # everyone is denser than c
 
 
 def test_demand_expects_every_forecast_message_in_the_size_the_sender_sends() -> None:
