@@ -29,3 +29,15 @@ def interrupt(proc: subprocess.Popen[Any], *, timeout_s: float = 20.0,
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def assert_one_line_error(result: subprocess.CompletedProcess[str], code: int,
+                          fragment: str) -> None:
+    """Bad input: exit ``code``, no traceback, one stderr line (besides argparse's usage)
+    that says ``fragment``."""
+    assert "Traceback" not in result.stderr, result.stderr[-3000:]
+    assert result.returncode == code, result.stderr
+    errors = [line for line in result.stderr.splitlines()
+              if line.strip() and not line.startswith(("usage:", " "))]
+    assert len(errors) == 1, result.stderr
+    assert fragment in errors[0], errors[0]

@@ -3,6 +3,7 @@ logging to a file, ports picked by the OS, the test keys, an optional TOML confi
 
 from __future__ import annotations
 
+import socket
 import subprocess
 import sys
 import time
@@ -15,6 +16,26 @@ from tests.keys import write_test_keys
 from tests.processes import interrupt
 
 STATION = Path(sys.executable).parent / "uav-ground-station"
+
+KEPT_ALIVE = b"GET /api/stats HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"
+"""A request the station answers (401 without a token) before the one under test."""
+
+
+def raw_reply(port: int, request: bytes, *, kept_alive: bool = True) -> bytes:
+    """Everything the station answers to ``request`` until it closes the connection.
+
+    ``kept_alive``: send it on a connection that has served :data:`KEPT_ALIVE` first, since
+    aiohttp logs a connection's first unparsable request at DEBUG only (TLS to a plain port).
+    """
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as conn:
+        if kept_alive:
+            conn.sendall(KEPT_ALIVE)
+            assert conn.recv(65536).startswith(b"HTTP/1.1 401 ")
+        conn.sendall(request)
+        reply = b""
+        while chunk := conn.recv(65536):
+            reply += chunk
+    return reply
 
 
 @dataclass(frozen=True)

@@ -12,11 +12,10 @@ from __future__ import annotations
 import socket
 from pathlib import Path
 
-from tests.station_process import running_station
+from tests.station_process import raw_reply, running_station
 
 MARK = b"<script>alert(7)</script>"
 FIXED_BODY = b"400 Bad Request: malformed HTTP request\n"
-KEPT_ALIVE = b"GET /api/stats HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"  # answered first
 HOST = b"Host: 127.0.0.1\r\n"
 BAD = {
     "header name": b"GET / HTTP/1.1\r\n" + HOST + b"Bad" + MARK + b": x\r\n\r\n",
@@ -34,18 +33,6 @@ BAD = {
 }
 
 
-def _reply(port: int, request: bytes, *, kept_alive: bool) -> bytes:
-    with socket.create_connection(("127.0.0.1", port), timeout=10) as conn:
-        if kept_alive:  # aiohttp logs a connection's first bad method at DEBUG only
-            conn.sendall(KEPT_ALIVE)
-            assert conn.recv(65536).startswith(b"HTTP/1.1 401 ")
-        conn.sendall(request)
-        reply = b""
-        while chunk := conn.recv(65536):
-            reply += chunk
-    return reply
-
-
 def _check(name: str, reply: bytes) -> None:
     head, _, body = reply.partition(b"\r\n\r\n")
     lines = head.split(b"\r\n")
@@ -61,9 +48,9 @@ def _check(name: str, reply: bytes) -> None:
 def test_malformed_requests_get_a_fixed_400_and_one_warning(tmp_path: Path) -> None:
     with running_station(tmp_path) as station:
         for name, request in BAD.items():
-            _check(name, _reply(station.port, request, kept_alive=True))
+            _check(name, raw_reply(station.port, request, kept_alive=True))
         for name in ("method", "header name"):  # a fresh connection too
-            _check(name, _reply(station.port, BAD[name], kept_alive=False))
+            _check(name, raw_reply(station.port, BAD[name], kept_alive=False))
         text = station.log_text()
     assert "Traceback" not in text and "alert(7)" not in text, text[-3000:]
     refused = [x for x in text.splitlines() if "HTTP request refused (400 " in x]

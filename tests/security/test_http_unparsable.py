@@ -6,7 +6,6 @@ with a traceback for each, quoting the raw bytes (the cookie's value among them)
 
 from __future__ import annotations
 
-import socket
 import subprocess
 import sys
 import time
@@ -15,10 +14,10 @@ from pathlib import Path
 
 from tests.keys import write_test_keys
 from tests.processes import interrupt
+from tests.station_process import raw_reply
 
 STATION = Path(sys.executable).parent / "uav-ground-station"
 SECRET = "cookie-secret-0123456789abcdef"
-KEPT_ALIVE = b"GET /api/stats HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"  # answered first
 BAD = [
     b"FOO /api/stats HTTP/1.1\r\n\r\n",
     b"GET /api/stats HTTP/1.1\r\nHost: 127.0.0.1\r\nCookie: gs_session=" + SECRET.encode()
@@ -28,19 +27,6 @@ BAD = [
     b"GET / HTTP/9.9\r\nHost: 127.0.0.1\r\n\r\n",
     b"\x16\x03\x01\x02\x00\x01\x00\x01\xfc\x03\x03" + bytes(32) + b"\r\n\r\n",
 ]
-
-
-def _exchange(port: int, request: bytes) -> bytes:
-    """The reply to ``request`` sent on a connection that has served one request already:
-    aiohttp logs a connection's first unparsable request at DEBUG (TLS to a plain port)."""
-    with socket.create_connection(("127.0.0.1", port), timeout=10) as conn:
-        conn.sendall(KEPT_ALIVE)
-        assert conn.recv(65536).startswith(b"HTTP/1.1 401 ")
-        conn.sendall(request)
-        reply = b""
-        while chunk := conn.recv(65536):
-            reply += chunk
-    return reply
 
 
 def test_unparsable_requests_are_one_warning_line_each(tmp_path: Path) -> None:
@@ -56,7 +42,7 @@ def test_unparsable_requests_are_one_warning_line_each(tmp_path: Path) -> None:
         line = next(x for x in station.stdout if x.startswith("dashboard:"))
         port = int(line.split("/")[2].split(":")[1])
         for request in BAD:
-            assert b" 400 " in _exchange(port, request).split(b"\r\n")[0], request[:40]
+            assert b" 400 " in raw_reply(port, request).split(b"\r\n")[0], request[:40]
         token = (data / "token").read_text().strip()
         req = urllib.request.Request(f"http://127.0.0.1:{port}/api/stats",
                                      headers={"Authorization": f"Bearer {token}"})
