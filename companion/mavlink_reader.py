@@ -82,6 +82,8 @@ class MavlinkReader:
         self.done: concurrent.futures.Future[None] = concurrent.futures.Future()
         self.last_error: str | None = None
         """Why the last attempt to open the link failed, in plain words (None: it opened)."""
+        self._silent = False
+        """Reopening a link that never brought a HEARTBEAT: said once, not per reopening."""
         self.counters: dict[str, int] = {
             "connects": 0, "connect_errors": 0, "heartbeat_losses": 0, "messages": 0,
             "samples": 0, "bad_messages": 0, "stream_requests": 0, "stream_fallbacks": 0,
@@ -160,7 +162,10 @@ class MavlinkReader:
         self.counters["connects"] += 1
         self._t_opened = self._clock()
         self._t_next_heartbeat = 0.0
-        log.info("mavlink connection opened: %s", self.settings.url)
+        if self._silent:  # said once at INFO when the waiting began (_lose)
+            log.debug("mavlink connection reopened: %s (no HEARTBEAT yet)", self.settings.url)
+        else:
+            log.info("mavlink connection opened: %s", self.settings.url)
         return conn
 
     def _step(self, conn: Any) -> Any:
@@ -204,6 +209,10 @@ class MavlinkReader:
             self._t_last_heartbeat = now
             if not self._connected:
                 self._connected = True
+                if self._silent:
+                    self._silent = False
+                    log.info("mavlink: HEARTBEAT from system %d on %s", sample.system_id,
+                             self.settings.url)
                 self._emit(LinkStateSample(t=now, connected=True,
                                            reason=f"heartbeat from system {sample.system_id}"))
                 self._request_streams(conn, now)
@@ -239,6 +248,11 @@ class MavlinkReader:
             self.counters["heartbeat_losses"] += 1
             self._emit(LinkStateSample(t=self._clock(), connected=False, reason=reason))
             log.warning("mavlink link lost: %s", reason)
+        elif not self._silent:  # never heard: close and reopen (serial re-enumeration, ...)
+            self._silent = True
+            log.info("mavlink: %s on %s: closing it and reopening every ~%g s until an "
+                     "autopilot HEARTBEAT arrives", reason, self.settings.url,
+                     self.settings.heartbeat_timeout_s + self.settings.reconnect_delay_s)
         self._fail_pending(f"link lost: {reason}")
         with contextlib.suppress(OSError):
             conn.close()

@@ -1,14 +1,13 @@
 """Peer services of a companion: the ``[peers]`` settings and the thin shells around
 :class:`~companion.peer_table.PeerTable` (ADSB_VEHICLE injection, the read-only ``/peers``
-endpoint) wired together by :class:`PeerServices` (docs/peers.md).
+endpoint of :mod:`companion.peer_http`) wired together by :class:`PeerServices`
+(docs/peers.md).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import ipaddress
-import json
 import logging
 import math
 from collections.abc import Callable, Mapping
@@ -18,6 +17,7 @@ from typing import Any
 from companion.middleware.constraints.adaptive import LinkStatsConstraint
 from companion.middleware.constraints.base import GoodputConstraint
 from companion.peer_airtime import CountingReports, ReportTraffic, report_wire_bytes
+from companion.peer_http import MAX_CONNECTIONS, MAX_PER_ADDRESS, SEND_TIMEOUT_S, PeerHttp
 from companion.peer_reports import REPORT_INTERVAL_S, PeerReporter
 from companion.peer_table import (
     AdsbReport,
@@ -61,13 +61,18 @@ class PeersSettings:
     http: str | None = None
     """``HOST:PORT`` of the read-only JSON endpoint (``GET /peers``); None = off."""
     forget_after_s: float = 60.0
+    http_max_connections: int = MAX_CONNECTIONS
+    http_max_per_address: int = MAX_PER_ADDRESS
+    http_send_timeout_s: float = SEND_TIMEOUT_S
+    """The endpoint's limits (companion/peer_http.py): no client holds it forever."""
 
 
 def parse_peers_settings(raw: Mapping[str, Any]) -> PeersSettings:
     """Validate the ``[peers]`` table; ValueError names the key and what was expected."""
     from companion.medium import parse_medium
 
-    known = {"medium", "adsb_rate_hz", "http", "forget_after_s"}
+    known = {"medium", "adsb_rate_hz", "http", "forget_after_s", "http_max_connections",
+             "http_max_per_address", "http_send_timeout_s"}
     unknown = sorted(set(raw) - known)
     if unknown:
         raise ValueError(f"peers.{unknown[0]}: unknown key (expected one of {sorted(known)})")
@@ -86,8 +91,17 @@ def parse_peers_settings(raw: Mapping[str, Any]) -> PeersSettings:
     forget = raw.get("forget_after_s", 60.0)
     if isinstance(forget, bool) or not isinstance(forget, int | float) or not forget > 0:
         raise ValueError(f"peers.forget_after_s: expected a number > 0, got {forget!r}")
+    limits = {key: raw.get(key, default) for key, default in (
+        ("http_max_connections", MAX_CONNECTIONS), ("http_max_per_address", MAX_PER_ADDRESS))}
+    for key, value in limits.items():
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 10000:
+            raise ValueError(f"peers.{key}: expected a whole number 1..10000, got {value!r}")
+    send = raw.get("http_send_timeout_s", SEND_TIMEOUT_S)
+    if isinstance(send, bool) or not isinstance(send, int | float) or not 0 < send <= 3600:
+        raise ValueError(f"peers.http_send_timeout_s: expected seconds in (0, 3600], "
+                         f"got {send!r}")
     return PeersSettings(medium=medium, adsb_rate_hz=float(rate), http=http,
-                         forget_after_s=float(forget))
+                         forget_after_s=float(forget), http_send_timeout_s=float(send), **limits)
 
 
 def _is_host_port(text: str) -> bool:
@@ -142,103 +156,6 @@ class AdsbInjector:
         self._stop.set()
 
 
-def _local_host(host: str) -> bool:
-    """A ``Host`` value naming an IP literal or localhost (with or without a port)."""
-    name = host.strip()
-    if name.startswith("["):  # [v6] or [v6]:port
-        name = name[1:name.find("]")] if "]" in name else name
-    elif name.count(":") == 1:  # name:port or v4:port
-        name = name.rsplit(":", 1)[0]
-    if name.lower().rstrip(".") == "localhost":
-        return True
-    try:
-        ipaddress.ip_address(name.split("%", 1)[0])
-    except ValueError:
-        return False
-    return True
-
-
-class PeerHttp:
-    """Read-only local JSON: ``GET /peers`` and ``GET /peers/<drone>``; nothing else.
-
-    A deliberately small HTTP/1.0 responder on asyncio streams (no framework on the drone's
-    hot path): one request per connection, bounded request size and read time, and only
-    GET. Bind it to 127.0.0.1 (the default in docs/peers.md): it has no authentication.
-    """
-
-    MAX_REQUEST_BYTES = 4096
-    READ_TIMEOUT_S = 5.0
-
-    def __init__(self, table: PeerTable, *, clock: Callable[[], float], host: str,
-                 port: int) -> None:
-        self.table = table
-        self.clock = clock
-        self.host = host
-        self.port = port
-        self.server: asyncio.Server | None = None
-
-    async def start(self) -> tuple[str, int]:
-        self.server = await asyncio.start_server(self._serve, self.host, self.port,
-                                                 limit=self.MAX_REQUEST_BYTES)
-        sock = self.server.sockets[0].getsockname()
-        log.info("peer state on http://%s:%d/peers", sock[0], sock[1])
-        return str(sock[0]), int(sock[1])
-
-    def close(self) -> None:
-        if self.server is not None:
-            self.server.close()
-            self.server = None
-
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        try:
-            async with asyncio.timeout(self.READ_TIMEOUT_S):
-                head = await reader.readuntil(b"\r\n\r\n")
-            line, *fields = head.decode("latin-1").split("\r\n")
-            hosts = [v for k, _, v in (f.partition(":") for f in fields)
-                     if k.strip().lower() == "host"]
-            status, body = self.respond(line.encode("latin-1"),
-                                        host=hosts[0].strip() if hosts else None)
-        except (asyncio.IncompleteReadError, asyncio.LimitOverrunError, TimeoutError,
-                ConnectionError):
-            status, body = 400, {"error": "bad request"}
-        payload = json.dumps(body).encode()
-        reason = {200: "OK", 400: "Bad Request", 404: "Not Found",
-                  405: "Method Not Allowed", 421: "Misdirected Request"}[status]
-        try:
-            writer.write(f"HTTP/1.0 {status} {reason}\r\nContent-Type: application/json\r\n"
-                         f"Content-Length: {len(payload)}\r\nCache-Control: no-store\r\n"
-                         "Connection: close\r\n\r\n".encode() + payload)
-            await writer.drain()
-        except ConnectionError:
-            pass
-        finally:
-            writer.close()
-
-    def respond(self, request_line: bytes, host: str | None = None
-                ) -> tuple[int, dict[str, Any]]:
-        """Status and JSON body for one request line and its ``Host`` header (sans-I/O,
-        tested directly). Only IP literals and ``localhost`` are served: a page on
-        ``evil.example`` rebound to 127.0.0.1 sends ``Host: evil.example`` and, the
-        endpoint having no token, could otherwise read every peer's position."""
-        parts = request_line.decode("latin-1").split(" ")
-        if len(parts) != 3 or not parts[2].startswith("HTTP/"):
-            return 400, {"error": "bad request"}
-        if host is not None and not _local_host(host):
-            return 421, {"error": "Host must be an IP address or localhost "
-                                  "(DNS rebinding protection)"}
-        method, path = parts[0], parts[1].split("?", 1)[0]
-        if method != "GET":
-            return 405, {"error": "read-only: GET only"}
-        now = self.clock()
-        if path in ("/peers", "/peers/"):
-            return 200, self.table.snapshot(now)
-        if path.startswith("/peers/"):
-            peer = self.table.peers.get(path[len("/peers/"):])
-            if peer is not None:
-                return 200, peer.to_json(now)
-        return 404, {"error": "not found"}
-
-
 class PeerServices:
     """What the companion runs for peer sharing: the table, the endpoint, the injector.
 
@@ -269,7 +186,10 @@ class PeerServices:
         self.http: PeerHttp | None = None
         if settings.http is not None:
             host, _, port = settings.http.rpartition(":")
-            self.http = PeerHttp(self.table, clock=clock, host=host, port=int(port))
+            self.http = PeerHttp(self.table, clock=clock, host=host, port=int(port),
+                                 max_connections=settings.http_max_connections,
+                                 max_per_address=settings.http_max_per_address,
+                                 send_timeout_s=settings.http_send_timeout_s)
         self.injector: AdsbInjector | None = None
         if settings.adsb_rate_hz > 0 and send_mavlink is not None:
             self.injector = AdsbInjector(self.table, rate_hz=settings.adsb_rate_hz, clock=clock,

@@ -6,23 +6,39 @@ version's quality, the gallery's U) of each drone's images per ``bin_s`` of rece
 plot, also written to ``DATA_DIR/missions/MISSION/utility.png`` when the station holds data
 of that mission (a read never creates files for made-up names); ``uav-sitl fleet`` writes
 the same PNG into its run folder at the end (:func:`write_png`).
+
+Drawing is matplotlib's object-oriented API on a figure of its own (no ``pyplot``: its global
+figure manager is not thread-safe), on at most :data:`RENDERS` threads of the report's own
+pool; at most :data:`WAITING` more requests wait for one, the rest get 503 + Retry-After, so
+no reader keeps the station's default thread pool (or its cores) drawing. The file is written
+through a temp name and ``os.replace``: two renders of one mission never leave a torn PNG.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import io
+import os
 import sqlite3
+import threading
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from aiohttp import web
 
 from ground_station.storage_records import safe_name
 
-__all__ = ["add_report_routes", "render_png", "utility_series", "write_png"]
+__all__ = ["RenderGate", "add_report_routes", "render_png", "utility_series", "write_png"]
 
 BIN_S = 5.0
+RENDERS = 2
+"""PNGs drawn at once (each takes a thread and most of a core for ~0.1-0.5 s)."""
+WAITING = 4
+"""Requests that may wait for a free renderer; beyond that, 503 with ``Retry-After``."""
+RETRY_AFTER_S = 2
 PALETTE = ["#4aa3ff", "#ffa657", "#3fb950", "#f778ba", "#e3b341", "#a371f7",
            "#56d4dd", "#ff7b72", "#b5e853", "#d2a8ff", "#2ec4a6", "#c9b18a"]
 """The dashboard's palette (app.js): a drone has one colour on the page and in the PNG."""
@@ -61,13 +77,14 @@ def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S
 
 
 def render_png(series: dict[str, Any], path: Path | None) -> bytes:
-    """Draw the series (matplotlib, no display); also written to ``path`` unless None."""
-    import matplotlib
+    """Draw the series (matplotlib's OO API on a figure of its own, no pyplot, no display:
+    safe on any thread); also written atomically to ``path`` unless None."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 3.6), dpi=100)
+    fig = Figure(figsize=(8, 3.6), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
     for drone, d in series["drones"].items():
         ax.plot(series["t"], d["utility"], color=d["color"], lw=1.8, marker="o", ms=3,
                 label=f"{drone} (total {d['total']:.0f})")
@@ -81,12 +98,26 @@ def render_png(series: dict[str, Any], path: Path | None) -> bytes:
     fig.tight_layout()
     out = io.BytesIO()
     fig.savefig(out, format="png")
-    plt.close(fig)
     body = out.getvalue()
     if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(body)
+        replace_file(path, body)
     return body
+
+
+def replace_file(path: Path, body: bytes) -> None:
+    """Write ``body`` under a temp name of this thread's own, then rename it over ``path``:
+    a reader (or a second writer) sees the old file or the new one, never a mix."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        with os.fdopen(fd, "wb") as f:
+            f.write(body)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
 
 
 def write_png(db_path: Path, mission: str, path: Path) -> Path | None:
@@ -100,6 +131,45 @@ def write_png(db_path: Path, mission: str, path: Path) -> Path | None:
         con.close()
     render_png(series, path)
     return path
+
+
+T = TypeVar("T")
+
+
+class RenderGate:
+    """At most ``renders`` drawings at once on a pool of their own, ``waiting`` more queued;
+    :meth:`run` refuses beyond that (503). A slot is freed when the drawing really ends, not
+    when its request goes away, so disconnecting clients cannot pile up work."""
+
+    def __init__(self, renders: int = RENDERS, waiting: int = WAITING) -> None:
+        self.pool = ThreadPoolExecutor(renders, thread_name_prefix="gs-report")
+        self.room = renders + waiting
+
+    def admit(self) -> None:
+        """Raise the 503 now if there is no room (before any work for the request)."""
+        if self.room <= 0:
+            raise web.HTTPServiceUnavailable(
+                text="busy drawing reports: try again shortly",
+                headers={"Retry-After": str(RETRY_AFTER_S), "Cache-Control": "no-store"})
+
+    async def run(self, fn: Callable[[], T]) -> T:
+        self.admit()
+        loop = asyncio.get_running_loop()
+        job = self.pool.submit(fn)
+        self.room -= 1
+
+        def free(_: Future[T]) -> None:
+            with contextlib.suppress(RuntimeError):  # the loop closed first: nothing to free
+                loop.call_soon_threadsafe(self._free)
+
+        job.add_done_callback(free)
+        return await asyncio.wrap_future(job)
+
+    def _free(self) -> None:
+        self.room += 1
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=False, cancel_futures=True)
 
 
 def add_report_routes(app: web.Application, *, static_dir: Path) -> None:
@@ -118,17 +188,24 @@ def add_report_routes(app: web.Application, *, static_dir: Path) -> None:
     async def api(request: web.Request) -> web.Response:
         return web.json_response(await series_of(request))
 
+    gate = RenderGate()
+
     async def png(request: web.Request) -> web.Response:
+        gate.admit()
         series = await series_of(request)
         config = request.app[CONFIG]
         # A GET writes nothing for a mission the station never heard of: any query string
         # would otherwise create a folder and a file (disk filling by reads, path tricks).
         path = (Path(config.data_dir) / "missions" / safe_name(series["mission"])
                 / "utility.png") if series["drones"] else None
-        body = await asyncio.get_running_loop().run_in_executor(
-            None, lambda: render_png(series, path))
+        body = await gate.run(lambda: render_png(series, path))
         return web.Response(body=body, content_type="image/png",
                             headers={"Cache-Control": "no-cache"})
+
+    async def close_gate(app: web.Application) -> None:
+        gate.close()
+
+    app.on_cleanup.append(close_gate)
 
     app.router.add_get("/report", page)
     app.router.add_get("/api/report", api)
