@@ -14,6 +14,9 @@ A spec is a TOML file (``utility_specs/missions/*.toml``)::
     params = { depletion_rate = 0.01 }
     receivers = ["ground"]       # who it is for: "ground", "peers" (every other drone), or both
 
+    [mission.roster]             # optional: which agent generates which types
+    uav0 = ["battery"]
+
 Reading the file is a thin edge (:func:`load_spec`); :func:`parse_spec` validates a mapping
 and every error names the file, the key and what was expected.
 """
@@ -91,6 +94,9 @@ class MissionSpec:
     source: str = "<memory>"
     extra: Mapping[str, Any] = field(default_factory=dict)
     """Other keys of the [mission] table, for the tools that read them."""
+    roster: Mapping[str, tuple[str, ...]] | None = None
+    """``[mission.roster]``: agent name -> the types it generates (the declared fleet; the
+    optimiser plans exactly for the streams it has not heard yet). None: not declared."""
 
     def __getitem__(self, type_name: str) -> InfoType:
         return self.types[type_name]
@@ -130,14 +136,36 @@ def parse_spec(raw: Mapping[str, Any], *, source: str = "<memory>") -> MissionSp
     types: dict[str, InfoType] = {}
     for type_name, table in cast(Mapping[str, Any], types_raw).items():
         types[type_name] = _parse_type(type_name, table, source)
-    extra = {k: v for k, v in mission.items() if k not in {"name", "t_end"}}
+    extra = {k: v for k, v in mission.items() if k not in {"name", "t_end", "roster"}}
+    roster = _parse_roster(mission.get("roster"), types, source)
     return MissionSpec(
         name=name,
         types=types,
         t_end=float(t_end) if t_end is not None else None,
         source=source,
         extra=extra,
+        roster=roster,
     )
+
+
+def _parse_roster(raw: Any, types: Mapping[str, InfoType], source: str
+                  ) -> dict[str, tuple[str, ...]] | None:
+    if raw is None:
+        return None
+    _expect(isinstance(raw, Mapping) and bool(raw), source, "mission.roster",
+            "a table of agent = [types]", raw)
+    roster: dict[str, tuple[str, ...]] = {}
+    for agent, listed in cast(Mapping[str, Any], raw).items():
+        key = f"mission.roster.{agent}"
+        _expect(isinstance(listed, list) and bool(listed)
+                and all(isinstance(t, str) for t in listed) and len(set(listed)) == len(listed),
+                source, key, "a non-empty list of distinct type names", listed)
+        unknown = [t for t in listed if t not in types]
+        _expect(not unknown, source, key, f"types of this spec {sorted(types)}", unknown)
+        _expect(not agent.startswith("?"), source, key, "an agent name not starting with '?'",
+                agent)
+        roster[agent] = tuple(listed)
+    return roster
 
 
 def _parse_type(type_name: str, table: Any, source: str) -> InfoType:

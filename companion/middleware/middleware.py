@@ -42,12 +42,15 @@ from companion.middleware.margin import OvershootMargin
 from companion.middleware.mcts import MCTS, greedy_option
 from companion.middleware.params import LIVE_KEYS, check_params, with_alpha
 from companion.middleware.reports import ReceiverReport, ReportLearned, deliveries, feed_link
-from companion.middleware.unheard import UnheardStreams
+from companion.middleware.unheard import Roster, UnheardStreams, check_roster
 from utility_specs.errors import UtilitySpecsError
 from utility_specs.message import Message, Version
 from utility_specs.spec import MissionSpec
 
 __all__ = ["MISSION_KEYS", "Decision", "Middleware", "MiddlewareConfig", "MiddlewareError"]
+
+ROSTER_UNHEARD_S = 5.0
+"""With a roster and no ``plan_unheard_s``: how long unheard roster streams are planned for."""
 
 MISSION_KEYS = ("fleet_size",)
 """``MiddlewareConfig`` fields the ``[middleware]`` table sets besides :data:`LIVE_KEYS`;
@@ -152,9 +155,26 @@ class MiddlewareConfig:
     """How long the mission-start share lasts; None: off (the fleet is declared only for
     ``plan_unheard_s``, which the start share costs in the fig. 5.7 fleets, round 8)."""
 
+    roster: Roster | None = None  # issue 18 round 9
+    """Which agent generates which types (the mission's declared fleet; None: the spec's
+    ``roster``, if any). With one, nothing is guessed: the streams of the roster nobody has
+    heard yet are planned for (:meth:`~companion.middleware.unheard.UnheardStreams.roster_items`,
+    for ``plan_unheard_s``, else 5 s) and an announcement never goes over the known window
+    (``announce_over_budget`` is ignored): zero planned violations (docs/middleware.md,
+    round 9)."""
+
+    @property
+    def declared_roster(self) -> Roster | None:
+        """The roster in force: this config's, else the mission spec's."""
+        return self.roster if self.roster is not None else self.spec.roster
+
     def __post_init__(self) -> None:
         if not self.agent:
             raise MiddlewareError("agent must not be empty")
+        if self.roster is not None:
+            why = check_roster(self.roster, self.spec, agent=self.agent)
+            if why is not None:
+                raise MiddlewareError(why)
         if self.max_iterations < 0 or self.chunk_iterations <= 0 or self.max_items <= 0 \
                 or self.search_inflight < 0:
             raise MiddlewareError("max_iterations >= 0, chunk_iterations > 0, max_items > 0, "
@@ -284,7 +304,10 @@ class Middleware:
                                rates=self.knowledge.sender_rates(now=now, lag_s=lag,
                                                                  window_s=window_s),
                                settle_versions=True)  # issue 18 round 5
+        roster = self.config.declared_roster
         unheard_s = self.config.plan_unheard_s
+        if roster is not None and unheard_s is None:
+            unheard_s = ROSTER_UNHEARD_S
         if unheard_s is not None and now - self._started <= unheard_s:
             view = self._with_unheard(view, now=now, window_s=window_s)  # unheard.py
         budget = self.constraint.budget_bytes(now=now)
@@ -336,7 +359,7 @@ class Middleware:
             # What the tree would do if the fleet, knowing of this stream, had left room:
             # without the others' planned messages, within the sends known to the window
             # (or, with announce_over_budget, over them: a planned violation).
-            over = self.config.announce_over_budget
+            over = self.config.announce_over_budget and roster is None
             own = [it for it in view.items if it.message.sender == self.config.agent]
             free = build_problem(
                 self.spec, items=view.items if over else own, fixed=view.fixed,
@@ -397,12 +420,30 @@ class Middleware:
         it the first speakers found no unheard stream in their plans and filled the window
         (round 8, room mode: mostly-low 9.25 / 5.5 / 2.5 msgs/T 94.2 / 89.4 / 70.3 ->
         96.8 / 91.1 / 68.5 %)."""
+        period = self.knowledge.forecaster.prior_period
+        roster = self.config.declared_roster
+        if roster is not None:  # round 9: exactly the roster's unheard streams
+            forecaster = self.knowledge.forecaster
+
+            def period_of(type_name: str) -> float:
+                known = [p for key in forecaster.streams() if key[1] == type_name
+                         if (p := forecaster.period(key)) is not None]
+                if known:
+                    return sorted(known)[len(known) // 2]
+                return window_s if period is None else period
+
+            extra = self.unheard.roster_items(
+                self.spec, roster, agent=self.config.agent, now=now,
+                horizon_end=view.horizon_end, period_of=period_of,
+                latency_s=self.knowledge.latency.mean_s)
+            return self.unheard.add_to(view, self.spec, now=now, period_s=None,
+                                       latency_s=self.knowledge.latency.mean_s,
+                                       max_items=self.config.max_items, extra=extra)
         fleet = self.config.fleet_size
         peers = self.knowledge.peers_of(self.config.agent)
         missing = None if fleet is None else fleet - 1 - len(peers)
         if not self.unheard.plausible(self.spec, unheard_agents=missing):
             return view
-        period = self.knowledge.forecaster.prior_period
         return self.unheard.add_to(view, self.spec, now=now,
                                    period_s=window_s if period is None else period,
                                    latency_s=self.knowledge.latency.mean_s,
@@ -448,7 +489,7 @@ class Middleware:
 
     def on_delivered(self, messages: Iterable[Message], now: float) -> None:
         """Messages (any agent's) known to have arrived, with ``t_rcv`` (and ``t_sent``)."""
-        if self.config.plan_unheard_s is not None:
+        if self.config.plan_unheard_s is not None or self.config.declared_roster is not None:
             messages = list(messages)
             for m in messages:
                 if m.t_rcv is not None and usable(self.spec, m):

@@ -9,10 +9,16 @@ size of the newest known message valued by the same utility function. The tree t
 room for it where it is worth it (a heavy type) and not where it is not (a light one), so the
 real stream's first message finds room within the budget. Once a message of the type is
 known, the ordinary forecast takes over.
+
+With a declared roster (which agent flies which types, round 9) nothing is guessed: each
+stream of the roster not yet heard from its agent is forecast under the agent's name
+(``?`` + agent), at the period of a known stream of the same type (every drone flies the
+same types in the product) or the fleet's median period.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 
 from companion.middleware.incremental import PlanItem
@@ -20,7 +26,10 @@ from companion.middleware.knowledge import PlanningView
 from utility_specs.message import Message
 from utility_specs.spec import MissionSpec
 
-__all__ = ["UNHEARD_PREFIX", "UnheardStreams"]
+__all__ = ["UNHEARD_PREFIX", "Roster", "UnheardStreams", "check_roster"]
+
+Roster = Mapping[str, tuple[str, ...]]
+"""Agent name -> the types it generates (a mission's declared fleet)."""
 
 UNHEARD_PREFIX = "?"
 """Sender name of a forecast unheard stream: ``?`` + its type (no real agent is named so)."""
@@ -31,6 +40,8 @@ class UnheardStreams:
     """Which types of the spec are known, and a template message per utility function."""
 
     heard: set[str] = field(default_factory=set)
+    heard_streams: set[tuple[str, str]] = field(default_factory=set)
+    """(sender, type) of every known message: what a roster's stream needs to be heard."""
     templates: dict[str, Message] = field(default_factory=dict)
     """Per utility function name: the newest known message valued by it."""
 
@@ -39,6 +50,7 @@ class UnheardStreams:
         if info is None:
             return
         self.heard.add(message.type)
+        self.heard_streams.add((message.sender, message.type))
         name = info.utility.name
         known = self.templates.get(name)
         if known is None or known.t_gen <= message.t_gen:
@@ -81,12 +93,43 @@ class UnheardStreams:
                 t = first.t_gen + k * period_s
         return out
 
+    def roster_items(self, spec: MissionSpec, roster: Roster, *, agent: str, now: float,
+                     horizon_end: float, period_of: Callable[[str], float | None],
+                     latency_s: float) -> list[PlanItem]:
+        """Forecast messages of every stream of ``roster`` (but ``agent``'s own) that no
+        known message came from, at ``period_of(type)`` from half a period after ``now``."""
+        out: list[PlanItem] = []
+        for peer, types in roster.items():
+            if peer == agent:
+                continue
+            for type_name in types:
+                info = spec.types.get(type_name)
+                if info is None or info.for_peers or (peer, type_name) in self.heard_streams:
+                    continue
+                template = self.templates.get(info.utility.name)
+                period = period_of(type_name)
+                if template is None or period is None or not period > 0:
+                    continue
+                first = Message(sender=UNHEARD_PREFIX + peer, seq=-1, type=type_name,
+                                t_gen=now + 0.5 * period, size=template.size,
+                                data=template.data, versions=template.versions,
+                                version=0 if template.versions else None)
+                k, t = 0, first.t_gen
+                while t <= horizon_end:
+                    m = first if k == 0 else replace(first, seq=-1 - k, t_gen=t)
+                    out.append(PlanItem(message=m, send_t=t, rcv_t=t + latency_s))
+                    k += 1
+                    t = first.t_gen + k * period
+        return out
+
     def add_to(self, view: PlanningView, spec: MissionSpec, *, now: float,
-               period_s: float | None, latency_s: float, max_items: int) -> PlanningView:
-        """``view`` with the unheard streams' forecast messages; at most ``max_items`` levels
-        (the latest forecast ones go first)."""
-        extra = self.items(spec, now=now, horizon_end=view.horizon_end, period_s=period_s,
-                           latency_s=latency_s)
+               period_s: float | None, latency_s: float, max_items: int,
+               extra: list[PlanItem] | None = None) -> PlanningView:
+        """``view`` with the unheard streams' forecast messages (``extra`` if given, else
+        :meth:`items`); at most ``max_items`` levels (the latest forecast ones go first)."""
+        if extra is None:
+            extra = self.items(spec, now=now, horizon_end=view.horizon_end,
+                               period_s=period_s, latency_s=latency_s)
         if not extra:
             return view
         items = sorted([*view.items, *extra], key=lambda it: it.send_t)
@@ -96,3 +139,24 @@ class UnheardStreams:
                 break
             del items[last]
         return replace(view, items=items)
+
+
+def check_roster(roster: object, spec: MissionSpec, *, agent: str | None = None) -> str | None:
+    """Why ``roster`` is not a roster of ``spec`` (one line), or None: a non-empty mapping of
+    agent names to non-empty lists of distinct types of the spec, naming ``agent`` if given."""
+    if not isinstance(roster, Mapping) or not roster:
+        return "roster must map agent names to lists of the types they generate"
+    for name, types in roster.items():
+        if not isinstance(name, str) or not name or name.startswith(UNHEARD_PREFIX):
+            return f"roster: agent name {name!r} must be a non-empty string not starting " \
+                   f"with {UNHEARD_PREFIX!r}"
+        if not isinstance(types, list | tuple) or not types \
+                or not all(isinstance(t, str) for t in types) or len(set(types)) != len(types):
+            return f"roster.{name}: expected a non-empty list of distinct types, got {types!r}"
+        unknown = [t for t in types if t not in spec.types]
+        if unknown:
+            return f"roster.{name}: {unknown[0]!r} is not a type of the mission spec " \
+                   f"{spec.name!r}"
+    if agent is not None and agent not in roster:
+        return f"roster does not name this agent ({agent})"
+    return None
