@@ -1,0 +1,176 @@
+"""A declared roster (issue 18, round 9): which agent generates which types.
+
+With it the fleet plans exactly for the streams it has not heard yet, under the agent that
+will send them, and announcements never go over the known window (zero planned
+violations). docs/middleware.md "Round 9, a declared roster" has the measurements.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from companion.middleware import ConstantConstraint, Middleware, MiddlewareConfig, MiddlewareError
+from companion.middleware.unheard import UNHEARD_PREFIX
+from utility_specs.errors import SpecError
+from utility_specs.files import builtin_spec
+from utility_specs.message import Message
+from utility_specs.spec import parse_spec
+
+SPEC = builtin_spec("sim_mostly_low")  # agent i sends battery_i, weight 3^(i+1)
+DATA = {"level": 1.0, "depletion_rate": 0.2}
+WINDOW_S = 2.5
+TEN = {f"agent{i}": (f"battery_{i}",) for i in range(10)}
+
+
+def _battery(i: int, seq: int, t: float, **kw: float) -> Message:
+    return Message(sender=f"agent{i}", seq=seq, type=f"battery_{i}", t_gen=t, size=2048,
+                   data=DATA, **kw)
+
+
+def _agent(i: int, spec: object = SPEC, **kw: object) -> Middleware:
+    """Two messages per window: a tight budget of the fig. 5.7 fleet."""
+    config = MiddlewareConfig(spec=spec, agent=f"agent{i}", max_iterations=300,  # type: ignore[arg-type]
+                              horizon_s=5.0, **kw)  # type: ignore[arg-type]
+    return Middleware(config, constraint=ConstantConstraint(
+        limit_bytes_per_s=2 * 2048 / WINDOW_S, window_s=WINDOW_S))
+
+
+def _unheard(mw: Middleware) -> set[tuple[str, str]]:
+    assert mw.last_problem is not None
+    return {(it.message.sender, it.message.type) for it in mw.last_problem.items
+            if it.message.sender.startswith(UNHEARD_PREFIX)}
+
+
+def test_a_roster_plans_exactly_its_unheard_streams() -> None:
+    """4 agents of a 10-type spec (the offline-optimum missions): round 8 could not tell
+    which 3 of the 9 unheard types are flown and planned for none; the roster names them."""
+    roster = {f"agent{i}": (f"battery_{i}",) for i in range(4)}
+    mw = _agent(0, roster=roster)
+    mw.decide(_battery(0, 0, 0.5), 0.5)
+    assert _unheard(mw) == {(f"?agent{i}", f"battery_{i}") for i in (1, 2, 3)}
+    mw.on_delivered([_battery(2, 0, 0.6, t_sent=0.6).delivered(receiver="ground", t_rcv=0.7)],
+                    0.7)
+    mw.decide(_battery(0, 1, 1.5), 1.5)
+    assert _unheard(mw) == {("?agent1", "battery_1"), ("?agent3", "battery_3")}
+
+
+def test_the_roster_in_the_mission_spec_is_used() -> None:
+    spec = dataclasses.replace(SPEC, roster={"agent0": ("battery_0",), "agent5": ("battery_5",)})
+    mw = _agent(0, spec=spec)
+    assert mw.config.declared_roster == spec.roster
+    mw.decide(_battery(0, 0, 0.5), 0.5)
+    assert _unheard(mw) == {("?agent5", "battery_5")}
+
+
+def test_the_unheard_planning_ends_after_plan_unheard_s() -> None:
+    mw = _agent(0, roster=TEN, plan_unheard_s=2.0)
+    mw.decide(_battery(0, 0, 0.5), 0.5)
+    assert len(_unheard(mw)) == 9
+    mw.decide(_battery(0, 1, 3.0), 3.0)
+    assert _unheard(mw) == set()
+
+
+def test_streams_of_the_same_type_are_heard_per_agent() -> None:
+    """Every drone of the product flies the same types: hearing uav1's frames says nothing
+    about uav2's, which stay planned for (at the period of the known image stream)."""
+    spec = builtin_spec("image_streaming")
+    roster = {f"uav{i}": ("image", "position", "battery") for i in range(3)}
+    mw = Middleware(MiddlewareConfig(spec=spec, agent="uav0", max_iterations=100, horizon_s=3.0,
+                                     roster=roster),
+                    constraint=ConstantConstraint(limit_bytes_per_s=50_000, window_s=2.5))
+    frame = {"red": 0.1, "object": False}
+    for k in range(3):
+        t = 0.2 * k
+        mw.on_delivered([Message(sender="uav1", seq=k, type="image", t_gen=t, size=10_000,
+                                 data=frame, t_sent=t).delivered(receiver="ground",
+                                                                 t_rcv=t + 0.1)], t + 0.1)
+        mw.decide(Message(sender="uav0", seq=k, type="image", t_gen=t + 0.05, size=10_000,
+                          data=frame), t + 0.15)
+    unheard = _unheard(mw)
+    assert ("?uav2", "image") in unheard and ("?uav1", "image") not in unheard
+    assert ("?uav1", "position") not in unheard  # no position known: no data to plan with
+    assert mw.last_problem is not None
+    times = sorted(it.send_t for it in mw.last_problem.items
+                   if (it.message.sender, it.message.type) == ("?uav2", "image"))
+    assert times[1] - times[0] == pytest.approx(0.2)
+
+
+def _mission_start(**kw: object) -> tuple[Middleware, Middleware, int, bool]:
+    """agent0 (weight 3) generates at 0.5 and 1.5 s, agent9 (weight 59049) first at 1.6 s;
+    agent9 hears agent0's sends 10 ms after them."""
+    light, heavy = _agent(0, **kw), _agent(9, **kw)
+    sent = 0
+    for k, t in enumerate((0.5, 1.5)):
+        if light.decide(_battery(0, k, t), t).send:
+            sent += 1
+            heavy.on_delivered([_battery(0, k, t, t_sent=t).delivered(
+                receiver="ground", t_rcv=t + 0.01)], t + 0.01)
+    return light, heavy, sent, heavy.decide(_battery(9, 0, 1.6), 1.6).send
+
+
+def test_with_a_roster_nothing_is_announced_over_the_budget() -> None:
+    """The default announces agent9's stream over the window agent0 filled (a planned
+    violation); with a roster (and the default ``announce_over_budget=True``) agent0 left
+    room for it and it goes out within the budget."""
+    _, heavy, _, heavy_sent = _mission_start()
+    assert heavy_sent and heavy.counters["over_budget"] == 1
+    light, heavy, light_sent, heavy_sent = _mission_start(roster=TEN)
+    assert heavy_sent and light_sent < 2
+    assert heavy.counters["over_budget"] == light.counters["over_budget"] == 0
+
+
+def test_a_full_known_window_is_not_announced_over_with_a_roster() -> None:
+    """agent9 knows of two sends filling the window and has never been heard: with a roster
+    it waits (no planned violation) instead of announcing over them."""
+    for roster, over in ((None, 1), (TEN, 0)):
+        heavy = _agent(9, roster=roster, plan_unheard_s=0.1)
+        heavy.on_delivered([_battery(i, 0, 0.5 + 0.1 * i, t_sent=0.5 + 0.1 * i).delivered(
+            receiver="ground", t_rcv=0.6 + 0.1 * i) for i in (0, 1)], 0.8)
+        heavy.decide(_battery(9, 0, 0.9), 0.9)
+        heavy.decide(_battery(9, 1, 1.0), 1.0)
+        assert heavy.counters["over_budget"] == over
+
+
+@pytest.mark.parametrize(("roster", "why"), [
+    ({}, "roster must map"),
+    ({"agent0": ()}, "roster.agent0: expected a non-empty list"),
+    ({"agent0": ("battery_0", "battery_0")}, "distinct"),
+    ({"agent0": ("image",)}, "'image' is not a type"),
+    ({"agent0": "battery_0"}, "expected a non-empty list"),
+    ({"?x": ("battery_0",), "agent0": ("battery_0",)}, "must be a non-empty string"),
+    ({"agent1": ("battery_1",)}, "does not name this agent (agent0)"),
+])
+def test_a_bad_roster_is_one_line(roster: object, why: str) -> None:
+    with pytest.raises(MiddlewareError) as exc:
+        MiddlewareConfig(spec=SPEC, agent="agent0", roster=roster)  # type: ignore[arg-type]
+    assert why in str(exc.value) and "\n" not in str(exc.value)
+
+
+def _raw(roster: object) -> dict[str, object]:
+    return {"mission": {"name": "m", "roster": roster},
+            "types": {"battery": {"utility": "battery", "aggregation": "max",
+                                   "params": {"depletion_rate": 0.01}}}}
+
+
+def test_the_spec_parses_a_roster() -> None:
+    spec = parse_spec(_raw({"uav0": ["battery"], "uav1": ["battery"]}), source="m.toml")
+    assert spec.roster == {"uav0": ("battery",), "uav1": ("battery",)}
+    assert "roster" not in spec.extra
+    assert parse_spec(_raw(None) | {"mission": {"name": "m"}}).roster is None
+
+
+@pytest.mark.parametrize(("roster", "key"), [
+    ([], "mission.roster"),
+    ({}, "mission.roster"),
+    ({"uav0": []}, "mission.roster.uav0"),
+    ({"uav0": ["image"]}, "mission.roster.uav0"),
+    ({"uav0": "battery"}, "mission.roster.uav0"),
+    ({"uav0": ["battery", "battery"]}, "mission.roster.uav0"),
+    ({"?uav0": ["battery"]}, "mission.roster.?uav0"),
+])
+def test_a_bad_spec_roster_is_one_line(roster: object, key: str) -> None:
+    with pytest.raises(SpecError) as exc:
+        parse_spec(_raw(roster), source="m.toml")
+    assert str(exc.value).startswith(f"m.toml: {key}: expected") and "\n" not in str(exc.value)
