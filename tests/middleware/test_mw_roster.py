@@ -174,3 +174,20 @@ def test_a_bad_spec_roster_is_one_line(roster: object, key: str) -> None:
     with pytest.raises(SpecError) as exc:
         parse_spec(_raw(roster), source="m.toml")
     assert str(exc.value).startswith(f"m.toml: {key}: expected") and "\n" not in str(exc.value)
+
+
+def test_no_announcement_takes_the_room_left_for_a_heavier_unheard_stream() -> None:
+    """Round 9: while the roster's unheard streams are planned for, the fleet leaves this
+    stream room, so it is not announced: agent6 (slow depletion, as in mostly-low 2.5 msgs/T
+    seed 2), never heard, drops its message and leaves the window's last slot to the
+    heavier unheard streams. Announcing it, as round 8's rule did, took the slot from
+    agent9 (that seed sent agent6 at 0.55 and 3.35 s and agent9 first at 3.33 s)."""
+    def battery(i: int, t: float, **kw: float) -> Message:
+        return Message(sender=f"agent{i}", seq=0, type=f"battery_{i}", t_gen=t, size=2048,
+                       data={"level": 1.0, "depletion_rate": 0.008}, **kw)
+
+    mw = _agent(6, roster=TEN)
+    mw.on_delivered([battery(8, 0.32, t_sent=0.32).delivered(receiver="ground", t_rcv=0.33)],
+                    0.33)
+    decision = mw.decide(battery(6, 0.55), 0.55)
+    assert not decision.send and mw.counters["announce"] == 0
