@@ -129,7 +129,7 @@ class MiddlewareConfig:
     planned violations, a stream waits for room among the known sends; measured, that costs
     up to 15 points at tight budgets, 6 with ``plan_unheard_s`` and the declared fleet
     (``fleet_size``, ``start_share_s=None``), and 1.6 points of the offline optimum
-    (docs/middleware.md, rounds 5 and 8)."""
+    (docs/middleware.md, rounds 5 and 8). Ignored (False) with a ``roster``."""
     plan_unheard_s: float | None = None
     """For this long after the agent's first decision, plan for the spec's types nobody has
     been heard sending (:mod:`~companion.middleware.unheard`): forecast at the fleet's

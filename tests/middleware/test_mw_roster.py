@@ -8,11 +8,15 @@ violations). docs/middleware.md "Round 9, a declared roster" has the measurement
 from __future__ import annotations
 
 import dataclasses
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
 from companion.middleware import ConstantConstraint, Middleware, MiddlewareConfig, MiddlewareError
 from companion.middleware.unheard import UNHEARD_PREFIX
+from tests.processes import assert_one_line_error
 from utility_specs.errors import SpecError
 from utility_specs.files import builtin_spec
 from utility_specs.message import Message
@@ -191,3 +195,17 @@ def test_no_announcement_takes_the_room_left_for_a_heavier_unheard_stream() -> N
                     0.33)
     decision = mw.decide(battery(6, 0.55), 0.55)
     assert not decision.send and mw.counters["announce"] == 0
+
+
+def test_a_bad_roster_in_a_spec_file_is_one_line_from_the_cli(tmp_path: Path) -> None:
+    """The real console script: a spec whose roster names a type it lacks."""
+    spec = tmp_path / "bad_roster.toml"
+    spec.write_text('[mission]\nname = "m"\n[mission.roster]\nuav0 = ["image"]\n'
+                    '[types.battery]\nutility = "battery"\naggregation = "max"\n'
+                    'params = { depletion_rate = 0.01 }\n')
+    log = tmp_path / "log.jsonl"
+    log.write_text("")
+    tool = Path(sys.executable).parent / "uav-utility"
+    result = subprocess.run([str(tool), "evaluate", "--spec", str(spec), str(log)],
+                            capture_output=True, text=True, timeout=60, check=False)
+    assert_one_line_error(result, 2, "mission.roster.uav0: expected types of this spec")
