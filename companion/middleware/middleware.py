@@ -171,10 +171,12 @@ class MiddlewareConfig:
     def __post_init__(self) -> None:
         if not self.agent:
             raise MiddlewareError("agent must not be empty")
-        if self.roster is not None:
-            why = check_roster(self.roster, self.spec, agent=self.agent)
+        roster = self.declared_roster
+        if roster is not None:  # the spec's too: a roster without this agent plans it no room
+            why = check_roster(roster, self.spec, agent=self.agent)
             if why is not None:
-                raise MiddlewareError(why)
+                raise MiddlewareError(why if self.roster is not None
+                                      else f"mission spec {self.spec.name!r}: {why}")
         if self.max_iterations < 0 or self.chunk_iterations <= 0 or self.max_items <= 0 \
                 or self.search_inflight < 0:
             raise MiddlewareError("max_iterations >= 0, chunk_iterations > 0, max_items > 0, "

@@ -137,6 +137,16 @@ def test_a_full_known_window_is_not_announced_over_with_a_roster() -> None:
         assert heavy.counters["over_budget"] == over
 
 
+def test_a_spec_roster_without_this_agent_is_refused() -> None:
+    """The roster would plan the fleet no room for this agent's streams: a one-line error
+    (the companion's setup error), not a silent misplan."""
+    spec = dataclasses.replace(SPEC, roster={"agent5": ("battery_5",)})
+    with pytest.raises(MiddlewareError) as exc:
+        MiddlewareConfig(spec=spec, agent="agent0")
+    assert str(exc.value) == ("mission spec 'sim_mostly_low': roster does not name this "
+                              "agent (agent0)")
+
+
 @pytest.mark.parametrize(("roster", "why"), [
     ({}, "roster must map"),
     ({"agent0": ()}, "roster.agent0: expected a non-empty list"),
