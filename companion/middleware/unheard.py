@@ -80,17 +80,9 @@ class UnheardStreams:
             template = self.templates.get(info.utility.name)
             if template is None or info.for_peers:
                 continue
-            first = Message(sender=UNHEARD_PREFIX + type_name, seq=-1, type=type_name,
-                            t_gen=now + 0.5 * period_s, size=template.size,
-                            data=template.data, versions=template.versions,
-                            version=0 if template.versions else None)
-            k = 0
-            t = first.t_gen
-            while t <= horizon_end:
-                m = first if k == 0 else replace(first, seq=-1 - k, t_gen=t)
-                out.append(PlanItem(message=m, send_t=t, rcv_t=t + latency_s))
-                k += 1
-                t = first.t_gen + k * period_s
+            out += _periodic(template, sender=UNHEARD_PREFIX + type_name, type_name=type_name,
+                             now=now, period_s=period_s, horizon_end=horizon_end,
+                             latency_s=latency_s)
         return out
 
     def roster_items(self, spec: MissionSpec, roster: Roster, *, agent: str, now: float,
@@ -110,16 +102,9 @@ class UnheardStreams:
                 period = period_of(type_name)
                 if template is None or period is None or not period > 0:
                     continue
-                first = Message(sender=UNHEARD_PREFIX + peer, seq=-1, type=type_name,
-                                t_gen=now + 0.5 * period, size=template.size,
-                                data=template.data, versions=template.versions,
-                                version=0 if template.versions else None)
-                k, t = 0, first.t_gen
-                while t <= horizon_end:
-                    m = first if k == 0 else replace(first, seq=-1 - k, t_gen=t)
-                    out.append(PlanItem(message=m, send_t=t, rcv_t=t + latency_s))
-                    k += 1
-                    t = first.t_gen + k * period
+                out += _periodic(template, sender=UNHEARD_PREFIX + peer, type_name=type_name,
+                                 now=now, period_s=period, horizon_end=horizon_end,
+                                 latency_s=latency_s)
         return out
 
     def add_to(self, view: PlanningView, spec: MissionSpec, *, now: float,
@@ -139,6 +124,23 @@ class UnheardStreams:
                 break
             del items[last]
         return replace(view, items=items)
+
+
+def _periodic(template: Message, *, sender: str, type_name: str, now: float, period_s: float,
+              horizon_end: float, latency_s: float) -> list[PlanItem]:
+    """A forecast stream with ``template``'s data: one message per ``period_s`` from half a
+    period after ``now`` (the phase is unknown: its expected place) to ``horizon_end``."""
+    first = Message(sender=sender, seq=-1, type=type_name, t_gen=now + 0.5 * period_s,
+                    size=template.size, data=template.data, versions=template.versions,
+                    version=0 if template.versions else None)
+    out: list[PlanItem] = []
+    k, t = 0, first.t_gen
+    while t <= horizon_end:
+        m = first if k == 0 else replace(first, seq=-1 - k, t_gen=t)
+        out.append(PlanItem(message=m, send_t=t, rcv_t=t + latency_s))
+        k += 1
+        t = first.t_gen + k * period_s
+    return out
 
 
 def check_roster(roster: object, spec: MissionSpec, *, agent: str | None = None) -> str | None:
