@@ -10,50 +10,19 @@ from __future__ import annotations
 
 import pytest
 
-from companion.middleware import ConstantConstraint, Middleware, MiddlewareConfig, MiddlewareError
+from companion.middleware import ConstantConstraint, MiddlewareConfig, MiddlewareError
 from companion.middleware.unheard import UNHEARD_PREFIX, UnheardStreams
-from utility_specs.files import builtin_spec
-from utility_specs.message import Message
+from tests.fig57_agents import SPEC, WINDOW_S, agent, battery, mission_start
 
-SPEC = builtin_spec("sim_mostly_low")  # agent i sends battery_i, weight 3^(i+1)
-DATA = {"level": 1.0, "depletion_rate": 0.2}
-WINDOW_S = 2.5
 ZERO = {"announce_over_budget": False, "plan_unheard_s": 5.0, "fleet_size": 10,
         "start_share_s": None}
 """The zero-planned-violations configuration of round 8, for the 10-agent fig. 5.7 fleet."""
 
 
-def _battery(i: int, seq: int, t: float, **kw: float) -> Message:
-    return Message(sender=f"agent{i}", seq=seq, type=f"battery_{i}", t_gen=t, size=2048,
-                   data=DATA, **kw)
-
-
-def _agent(i: int, **kw: object) -> Middleware:
-    """Two messages per window: a tight budget of the fig. 5.7 fleet."""
-    config = MiddlewareConfig(spec=SPEC, agent=f"agent{i}", max_iterations=300, horizon_s=5.0,
-                              **kw)  # type: ignore[arg-type]
-    return Middleware(config, constraint=ConstantConstraint(
-        limit_bytes_per_s=2 * 2048 / WINDOW_S, window_s=WINDOW_S))
-
-
-def _mission_start(**kw: object) -> tuple[Middleware, Middleware, int, bool]:
-    """agent0 (weight 3) generates at 0.5 and 1.5 s, agent9 (weight 59049) first at 1.6 s;
-    agent9 hears agent0's sends 10 ms after them. Returns both agents, how many of its two
-    messages agent0 sent and whether agent9's went out."""
-    light, heavy = _agent(0, **kw), _agent(9, **kw)
-    sent = 0
-    for k, t in enumerate((0.5, 1.5)):
-        if light.decide(_battery(0, k, t), t).send:
-            sent += 1
-            heavy.on_delivered([_battery(0, k, t, t_sent=t).delivered(
-                receiver="ground", t_rcv=t + 0.01)], t + 0.01)
-    return light, heavy, sent, heavy.decide(_battery(9, 0, 1.6), 1.6).send
-
-
 def test_the_default_announces_the_heavy_stream_over_the_budget() -> None:
     """The old behaviour, and still the default: the light agent fills the window, the
     heavy one's first message goes out over it (a planned violation)."""
-    _, heavy, light_sent, heavy_sent = _mission_start()
+    _, heavy, light_sent, heavy_sent = mission_start()
     assert light_sent == 2 and heavy_sent
     assert heavy.counters["announce"] == 1 and heavy.counters["over_budget"] == 1
 
@@ -63,7 +32,7 @@ def test_the_light_agent_leaves_room_for_unheard_heavier_types_at_the_start() ->
     so the first speaker already plans for them; it drops its light message and the heavy
     stream goes out within the budget (the old code forecast nothing without a period:
     agent0 filled the window and agent9 overran it, or waited)."""
-    light, heavy, light_sent, heavy_sent = _mission_start(**ZERO)
+    light, heavy, light_sent, heavy_sent = mission_start(**ZERO)
     senders = {it.message.sender for it in light.last_problem.items}  # type: ignore[union-attr]
     assert {UNHEARD_PREFIX + f"battery_{i}" for i in range(1, 10)} <= senders
     assert light_sent == 0 and heavy_sent
@@ -73,22 +42,22 @@ def test_the_light_agent_leaves_room_for_unheard_heavier_types_at_the_start() ->
 def test_without_the_declared_fleet_room_mode_loses_the_heavy_message() -> None:
     """``announce_over_budget=False`` alone: no violation, but agent9 waits (the cost that
     kept it opt-in)."""
-    _, heavy, light_sent, heavy_sent = _mission_start(announce_over_budget=False)
+    _, heavy, light_sent, heavy_sent = mission_start(announce_over_budget=False)
     assert light_sent == 2 and not heavy_sent and heavy.counters["over_budget"] == 0
 
 
 def test_a_declared_fleet_smaller_than_the_spec_plans_no_absent_types() -> None:
     """4 agents of a 10-type spec (the offline-optimum missions): six types are never flown,
     so an agent that cannot tell which would leave room for ghosts; it plans none."""
-    mw = _agent(0, **{**ZERO, "fleet_size": 4})
-    mw.decide(_battery(0, 0, 0.5), 0.5)
+    mw = agent(0, **{**ZERO, "fleet_size": 4})
+    mw.decide(battery(0, 0, 0.5), 0.5)
     assert not any(it.message.sender.startswith(UNHEARD_PREFIX)
                    for it in mw.last_problem.items)  # type: ignore[union-attr]
 
 
 def test_plausible_unheard_types() -> None:
     streams = UnheardStreams()
-    streams.observe(SPEC, _battery(0, 0, 0.0))
+    streams.observe(SPEC, battery(0, 0, 0.0))
     assert streams.plausible(SPEC, unheard_agents=None)  # no fleet: the spec is all there is
     assert streams.plausible(SPEC, unheard_agents=9)  # 9 unheard types, 9 unheard agents
     assert not streams.plausible(SPEC, unheard_agents=3)
@@ -98,11 +67,11 @@ def test_plausible_unheard_types() -> None:
 def test_start_share_s_none_turns_the_start_share_off() -> None:
     with pytest.raises(MiddlewareError):
         MiddlewareConfig(spec=SPEC, agent="a", start_share_s=-1.0)
-    off = _agent(0, fleet_size=10, start_share_s=None)
-    on = _agent(0, fleet_size=10)
+    off = agent(0, fleet_size=10, start_share_s=None)
+    on = agent(0, fleet_size=10)
     for mw in (off, on):  # a second message in the window: room for it only without the share
         mw.constraint = ConstantConstraint(limit_bytes_per_s=3 * 2048 / WINDOW_S,
                                            window_s=WINDOW_S)
-    assert off.decide(_battery(0, 0, 0.5), 0.5).send and on.decide(_battery(0, 0, 0.5), 0.5).send
-    assert off.decide(_battery(0, 1, 1.5), 1.5).send
-    assert not on.decide(_battery(0, 1, 1.5), 1.5).send
+    assert off.decide(battery(0, 0, 0.5), 0.5).send and on.decide(battery(0, 0, 0.5), 0.5).send
+    assert off.decide(battery(0, 1, 1.5), 1.5).send
+    assert not on.decide(battery(0, 1, 1.5), 1.5).send

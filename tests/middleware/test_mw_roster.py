@@ -16,29 +16,14 @@ import pytest
 
 from companion.middleware import ConstantConstraint, Middleware, MiddlewareConfig, MiddlewareError
 from companion.middleware.unheard import UNHEARD_PREFIX
+from tests.fig57_agents import SPEC, agent, battery, mission_start
 from tests.processes import assert_one_line_error
 from utility_specs.errors import SpecError
 from utility_specs.files import builtin_spec
 from utility_specs.message import Message
 from utility_specs.spec import parse_spec
 
-SPEC = builtin_spec("sim_mostly_low")  # agent i sends battery_i, weight 3^(i+1)
-DATA = {"level": 1.0, "depletion_rate": 0.2}
-WINDOW_S = 2.5
 TEN = {f"agent{i}": (f"battery_{i}",) for i in range(10)}
-
-
-def _battery(i: int, seq: int, t: float, **kw: float) -> Message:
-    return Message(sender=f"agent{i}", seq=seq, type=f"battery_{i}", t_gen=t, size=2048,
-                   data=DATA, **kw)
-
-
-def _agent(i: int, spec: object = SPEC, **kw: object) -> Middleware:
-    """Two messages per window: a tight budget of the fig. 5.7 fleet."""
-    config = MiddlewareConfig(spec=spec, agent=f"agent{i}", max_iterations=300,  # type: ignore[arg-type]
-                              horizon_s=5.0, **kw)  # type: ignore[arg-type]
-    return Middleware(config, constraint=ConstantConstraint(
-        limit_bytes_per_s=2 * 2048 / WINDOW_S, window_s=WINDOW_S))
 
 
 def _unheard(mw: Middleware) -> set[tuple[str, str]]:
@@ -51,28 +36,28 @@ def test_a_roster_plans_exactly_its_unheard_streams() -> None:
     """4 agents of a 10-type spec (the offline-optimum missions): round 8 could not tell
     which 3 of the 9 unheard types are flown and planned for none; the roster names them."""
     roster = {f"agent{i}": (f"battery_{i}",) for i in range(4)}
-    mw = _agent(0, roster=roster)
-    mw.decide(_battery(0, 0, 0.5), 0.5)
+    mw = agent(0, roster=roster)
+    mw.decide(battery(0, 0, 0.5), 0.5)
     assert _unheard(mw) == {(f"?agent{i}", f"battery_{i}") for i in (1, 2, 3)}
-    mw.on_delivered([_battery(2, 0, 0.6, t_sent=0.6).delivered(receiver="ground", t_rcv=0.7)],
+    mw.on_delivered([battery(2, 0, 0.6, t_sent=0.6).delivered(receiver="ground", t_rcv=0.7)],
                     0.7)
-    mw.decide(_battery(0, 1, 1.5), 1.5)
+    mw.decide(battery(0, 1, 1.5), 1.5)
     assert _unheard(mw) == {("?agent1", "battery_1"), ("?agent3", "battery_3")}
 
 
 def test_the_roster_in_the_mission_spec_is_used() -> None:
     spec = dataclasses.replace(SPEC, roster={"agent0": ("battery_0",), "agent5": ("battery_5",)})
-    mw = _agent(0, spec=spec)
+    mw = agent(0, spec=spec)
     assert mw.config.declared_roster == spec.roster
-    mw.decide(_battery(0, 0, 0.5), 0.5)
+    mw.decide(battery(0, 0, 0.5), 0.5)
     assert _unheard(mw) == {("?agent5", "battery_5")}
 
 
 def test_the_unheard_planning_ends_after_plan_unheard_s() -> None:
-    mw = _agent(0, roster=TEN, plan_unheard_s=2.0)
-    mw.decide(_battery(0, 0, 0.5), 0.5)
+    mw = agent(0, roster=TEN, plan_unheard_s=2.0)
+    mw.decide(battery(0, 0, 0.5), 0.5)
     assert len(_unheard(mw)) == 9
-    mw.decide(_battery(0, 1, 3.0), 3.0)
+    mw.decide(battery(0, 1, 3.0), 3.0)
     assert _unheard(mw) == set()
 
 
@@ -101,26 +86,14 @@ def test_streams_of_the_same_type_are_heard_per_agent() -> None:
     assert times[1] - times[0] == pytest.approx(0.2)
 
 
-def _mission_start(**kw: object) -> tuple[Middleware, Middleware, int, bool]:
-    """agent0 (weight 3) generates at 0.5 and 1.5 s, agent9 (weight 59049) first at 1.6 s;
-    agent9 hears agent0's sends 10 ms after them."""
-    light, heavy = _agent(0, **kw), _agent(9, **kw)
-    sent = 0
-    for k, t in enumerate((0.5, 1.5)):
-        if light.decide(_battery(0, k, t), t).send:
-            sent += 1
-            heavy.on_delivered([_battery(0, k, t, t_sent=t).delivered(
-                receiver="ground", t_rcv=t + 0.01)], t + 0.01)
-    return light, heavy, sent, heavy.decide(_battery(9, 0, 1.6), 1.6).send
-
 
 def test_with_a_roster_nothing_is_announced_over_the_budget() -> None:
     """The default announces agent9's stream over the window agent0 filled (a planned
     violation); with a roster (and the default ``announce_over_budget=True``) agent0 left
     room for it and it goes out within the budget."""
-    _, heavy, _, heavy_sent = _mission_start()
+    _, heavy, _, heavy_sent = mission_start()
     assert heavy_sent and heavy.counters["over_budget"] == 1
-    light, heavy, light_sent, heavy_sent = _mission_start(roster=TEN)
+    light, heavy, light_sent, heavy_sent = mission_start(roster=TEN)
     assert heavy_sent and light_sent < 2
     assert heavy.counters["over_budget"] == light.counters["over_budget"] == 0
 
@@ -129,11 +102,11 @@ def test_a_full_known_window_is_not_announced_over_with_a_roster() -> None:
     """agent9 knows of two sends filling the window and has never been heard: with a roster
     it waits (no planned violation) instead of announcing over them."""
     for roster, over in ((None, 1), (TEN, 0)):
-        heavy = _agent(9, roster=roster, plan_unheard_s=0.1)
-        heavy.on_delivered([_battery(i, 0, 0.5 + 0.1 * i, t_sent=0.5 + 0.1 * i).delivered(
+        heavy = agent(9, roster=roster, plan_unheard_s=0.1)
+        heavy.on_delivered([battery(i, 0, 0.5 + 0.1 * i, t_sent=0.5 + 0.1 * i).delivered(
             receiver="ground", t_rcv=0.6 + 0.1 * i) for i in (0, 1)], 0.8)
-        heavy.decide(_battery(9, 0, 0.9), 0.9)
-        heavy.decide(_battery(9, 1, 1.0), 1.0)
+        heavy.decide(battery(9, 0, 0.9), 0.9)
+        heavy.decide(battery(9, 1, 1.0), 1.0)
         assert heavy.counters["over_budget"] == over
 
 
@@ -200,7 +173,7 @@ def test_no_announcement_takes_the_room_left_for_a_heavier_unheard_stream() -> N
         return Message(sender=f"agent{i}", seq=0, type=f"battery_{i}", t_gen=t, size=2048,
                        data={"level": 1.0, "depletion_rate": 0.008}, **kw)
 
-    mw = _agent(6, roster=TEN)
+    mw = agent(6, roster=TEN)
     mw.on_delivered([battery(8, 0.32, t_sent=0.32).delivered(receiver="ground", t_rcv=0.33)],
                     0.33)
     decision = mw.decide(battery(6, 0.55), 0.55)
