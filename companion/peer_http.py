@@ -17,6 +17,7 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+from companion.admission import ConnectionGate
 from companion.peer_table import PeerTable
 
 __all__ = ["MAX_CONNECTIONS", "MAX_PER_ADDRESS", "SEND_TIMEOUT_S", "PeerHttp"]
@@ -72,12 +73,9 @@ class PeerHttp:
         self.clock = clock
         self.host = host
         self.port = port
-        self.max_connections = max_connections
-        self.max_per_address = max_per_address
         self.send_timeout_s = send_timeout_s
         self.server: asyncio.Server | None = None
-        self.open: dict[str, int] = {}
-        """Connections open now, per client address."""
+        self.gate = ConnectionGate(max_total=max_connections, max_per_client=max_per_address)
         self.counters: dict[str, int] = {"refused": 0, "dropped": 0}
         self._warned: dict[str, tuple[float, int]] = {}
 
@@ -97,23 +95,18 @@ class PeerHttp:
                       writer: asyncio.StreamWriter) -> None:
         peer = writer.get_extra_info("peername")
         address = str(peer[0]) if peer else "?"
-        held = self.open.get(address, 0)
-        if held >= self.max_per_address or sum(self.open.values()) >= self.max_connections:
+        refused = self.gate.admit(address)
+        if refused is not None:
             self.counters["refused"] += 1
             self._warn("refused", f"connection from {address} refused: at most "
-                       f"{self.max_per_address} per address and {self.max_connections} in "
-                       "all (peers.http_max_per_address, peers.http_max_connections)")
+                       f"{self.gate.max_per_client} per address and {self.gate.max_total} "
+                       "in all (peers.http_max_per_address, peers.http_max_connections)")
             writer.transport.abort()
             return
-        self.open[address] = held + 1
         try:
             await self._serve(reader, writer, address)
         finally:
-            left = self.open[address] - 1
-            if left:
-                self.open[address] = left
-            else:
-                del self.open[address]
+            self.gate.release(address)
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
                      address: str) -> None:

@@ -19,6 +19,7 @@ from typing import Any
 
 from aiohttp import WSMsgType, web
 
+from companion.admission import ConnectionGate
 from ground_station.auth import LOGIN_CODES, STATIC_DIR, api_login, index, token_middleware
 from ground_station.broadcast import Broadcaster
 from ground_station.config import GroundConfig
@@ -53,11 +54,12 @@ from ground_station.store_service import StorageService
 from ground_station.token import LoginCodes, ensure_token
 from ground_station.utility import image_utility_from_spec
 from ground_station.ws_guard import (
-    WebSocketGate,
     close_all,
     refusal,
+    refusal_text,
     release_unsent,
     send_or_drop,
+    websocket_gate,
 )
 
 __all__ = ["STATIC_DIR", "create_app"]
@@ -65,7 +67,7 @@ __all__ = ["STATIC_DIR", "create_app"]
 log = logging.getLogger(__name__)
 
 SCENE_MAP: web.AppKey[dict[str, Any] | None] = web.AppKey("scene_map")
-WS_GATE: web.AppKey[WebSocketGate] = web.AppKey("ws_gate")
+WS_GATE: web.AppKey[ConnectionGate] = web.AppKey("ws_gate")
 
 
 # -- read API ------------------------------------------------------------------------------
@@ -196,9 +198,9 @@ async def websocket(request: web.Request) -> web.WebSocketResponse:
     gate, remote = app[WS_GATE], request.remote or "?"
     refused = gate.admit(remote)
     if refused is not None:  # idle sockets must not take every HTTP connection
-        if gate.should_log():
-            log.warning("%s (%d refused so far)", refused[1], gate.refused)
-        raise refusal(*refused)
+        if refused.worth_logging:
+            log.warning("%s (%d refused so far)", refusal_text(refused), refused.refused)
+        raise refusal(refused)
     try:
         return await _live_feed(request, send_timeout_s=config.ws_send_timeout_s)
     finally:
@@ -345,8 +347,7 @@ def create_app(
     app[BROADCASTER] = Broadcaster(queue_size=config.ws_queue_size)
     app[LATEST_JPEG] = {}
     app[WEBSOCKETS] = {}
-    app[WS_GATE] = WebSocketGate.for_connections(config.http_max_connections,
-                                                 config.ws_max_per_client)
+    app[WS_GATE] = websocket_gate(config.http_max_connections, config.ws_max_per_client)
     app.cleanup_ctx.append(storage_ctx)
     app.cleanup_ctx.append(link_ctx)
     app.on_shutdown.append(close_websockets)

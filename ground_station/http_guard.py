@@ -26,6 +26,7 @@ from aiohttp.abc import AbstractAccessLogger
 from aiohttp.http_exceptions import HttpProcessingError
 from aiohttp.web_protocol import RequestHandler
 
+from companion.admission import worth_logging
 from companion.stop_signals import STOP_SIGNALS, EarlyStop
 
 __all__ = [
@@ -187,7 +188,7 @@ class LimitedSite(web.BaseSite):
         assert server is not None
         if len(server.connections) >= self._max_connections:
             self.refused += 1
-            if self.refused in (1, 10, 100) or self.refused % 1000 == 0:
+            if worth_logging(self.refused):
                 log.warning("HTTP connection refused: %d open (cap %d); %d refused so far",
                             len(server.connections), self._max_connections, self.refused)
             return _Refused()
@@ -201,7 +202,7 @@ class LimitedSite(web.BaseSite):
         held = sum(1 for h in server.connections if _peer_host(h.transport) == client)
         if client is not None and held >= self._max_per_client:
             self.refused_client += 1
-            if self.refused_client in (1, 10, 100) or self.refused_client % 1000 == 0:
+            if worth_logging(self.refused_client):
                 log.warning("HTTP connection from %s refused: it holds %d "
                             "(http_max_per_client); %d refused so far", client, held,
                             self.refused_client)

@@ -1,7 +1,7 @@
 """Bounds on the dashboard's WebSockets, so idle or non-reading clients cannot starve HTTP.
 
 A WebSocket holds one of the ``http_max_connections`` connections for as long as it is open
-(the idle timeout does not apply to it). :class:`WebSocketGate` admits at most
+(the idle timeout does not apply to it). :func:`websocket_gate` admits at most
 ``max_per_client`` per client address and ``max_total`` in all (half the HTTP connections),
 so plain requests always have connections left. :func:`send_or_drop` bounds how long one
 update may wait for the socket: a client that stops reading is dropped by aborting its
@@ -12,62 +12,37 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections import Counter
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 
 from aiohttp import WSCloseCode, web
 
-__all__ = ["WebSocketGate", "abort", "close_all", "refusal", "release_unsent", "send_or_drop"]
+from companion.admission import ConnectionGate, Refusal
+
+__all__ = ["abort", "close_all", "refusal", "refusal_text", "release_unsent", "send_or_drop",
+           "websocket_gate"]
 
 log = logging.getLogger(__name__)
 
 
-@dataclass
-class WebSocketGate:
-    """Counts open WebSockets per client address; sans-I/O."""
-
-    max_total: int
-    max_per_client: int
-    open_by_client: Counter[str] = field(default_factory=Counter)
-    refused: int = 0
-
-    @classmethod
-    def for_connections(cls, http_max_connections: int, max_per_client: int) -> WebSocketGate:
-        """WebSockets may take at most half the HTTP connections (at least one)."""
-        return cls(max_total=max(1, http_max_connections // 2), max_per_client=max_per_client)
-
-    @property
-    def open(self) -> int:
-        return sum(self.open_by_client.values())
-
-    def admit(self, client: str) -> tuple[int, str] | None:
-        """None (and the client counted) or why not: (HTTP status, one line)."""
-        if self.open_by_client[client] >= self.max_per_client:
-            self.refused += 1
-            return 429, (f"WebSocket refused: {client} has {self.max_per_client} open "
-                         f"(ws_max_per_client)")
-        if self.open >= self.max_total:
-            self.refused += 1
-            return 503, (f"WebSocket refused: {self.max_total} open (half of "
-                         f"http_max_connections); {client} must wait")
-        self.open_by_client[client] += 1
-        return None
-
-    def release(self, client: str) -> None:
-        self.open_by_client[client] -= 1
-        if self.open_by_client[client] <= 0:
-            del self.open_by_client[client]
-
-    def should_log(self) -> bool:
-        """Log the 1st, 10th, 100th... refusal, not every one (a loop must not flood)."""
-        return self.refused in (1, 10, 100) or self.refused % 1000 == 0
+def websocket_gate(http_max_connections: int, max_per_client: int) -> ConnectionGate:
+    """WebSockets may take at most half the HTTP connections (at least one)."""
+    return ConnectionGate(max_total=max(1, http_max_connections // 2),
+                          max_per_client=max_per_client)
 
 
-def refusal(status: int, text: str) -> web.HTTPException:
-    """The refusal reply; its connection closes (an idle kept-alive one holds a slot)."""
-    cls = web.HTTPTooManyRequests if status == 429 else web.HTTPServiceUnavailable
-    response = cls(text=text + "\n", headers={"Retry-After": "10"})
+def refusal_text(refused: Refusal) -> str:
+    if refused.reason == "client":
+        return (f"WebSocket refused: {refused.client} has {refused.cap} open "
+                "(ws_max_per_client)")
+    return (f"WebSocket refused: {refused.cap} open (half of http_max_connections); "
+            f"{refused.client} must wait")
+
+
+def refusal(refused: Refusal) -> web.HTTPException:
+    """The refusal reply (429: this client holds its share; 503: all are taken); its
+    connection closes (an idle kept-alive one holds a slot)."""
+    cls = web.HTTPTooManyRequests if refused.reason == "client" else web.HTTPServiceUnavailable
+    response = cls(text=refusal_text(refused) + "\n", headers={"Retry-After": "10"})
     response.force_close()
     return response
 

@@ -56,7 +56,7 @@ async def test_a_client_that_stops_reading_is_dropped() -> None:
         head, _, body = raw.partition(b"\r\n\r\n")
         length = int(head.split(b"Content-Length: ")[1].split(b"\r\n")[0])
         assert length > 10_000_000 and len(body) < length
-        assert http.open == {} and http.counters["dropped"] == 1
+        assert http.gate.open == 0 and http.counters["dropped"] == 1
     finally:
         client.close()
         http.close()
