@@ -66,6 +66,8 @@ RULES: dict[str, dict[str, Any]] = {
     "default": {},
     "best-plan": {"best_plan": True, "search_depth": 10},
     "veto": {"best_plan": True, "search_depth": 10, "veto": 1.5},
+    "agreed-fix": {"agreed_plans": "fix"},
+    "agreed-prior": {"agreed_plans": "prior"},
 }
 """``--rule``: MiddlewareConfig fields of each decision rule (docs/middleware.md, round 7)."""
 

@@ -179,6 +179,7 @@ def simulate(
     queues: list[deque[tuple[float, Message]]] = [deque() for _ in agents]
     busy = False
     lost = 0
+    plans: dict[tuple[str, int], Any] = {}
     wall: list[float] = []
     cpu: list[float] = []
     dec_t: list[float] = []
@@ -227,6 +228,8 @@ def simulate(
             dec_t.append(now)
             if decision.send:
                 m = replace(option_message(m, (decision.version or 0) + 1), t_sent=now)
+                if (plan := getattr(agent.policy, "announced", None)) is not None:
+                    plans[m.key] = plan  # agreed plans (issue 18 round 10) ride on the message
                 queues[a_index].append((now, m))
                 start_tx(now)
             generated[m.key] = m
@@ -243,8 +246,11 @@ def simulate(
             m = payload.delivered(receiver=channel.receiver, t_rcv=now)
             generated[m.key] = m
             if agents[index[m.sender]].overheard:
+                plan = plans.pop(m.key, None)
                 for agent in agents:
                     agent.policy.on_delivered([m], now)
+                    if plan is not None and hasattr(agent.policy, "on_plan"):
+                        agent.policy.on_plan(plan, now)
             if channel.report_interval_s is not None and m.sender in index:
                 unreported[index[m.sender]].append(m)
         else:

@@ -74,13 +74,15 @@ def _rollout(
     stream: Any, pos: Any, nopt: Any, size: Any, send_t: Any, gain: Any, nslot: Any,
     budget: float,
     window_s: float, maxv: int, lam: float, r_win_t: Any, r_win_b: Any,
-    plan: Any, dlevel: int, pick: Any,
+    plan: Any, dlevel: int, pick: Any, force: Any,
 ) -> float:
     """Default policy from level ``d0`` on (the simulation step of alg. 1): send the option
     with the highest gain whose utility per byte reaches ``lam`` and that fits the window.
 
     With ``plan[0] >= 0`` it follows the knapsack plan instead (level i's option ``plan[i]``
-    when it fits the window, else drop). ``pick[0]`` gets the option taken at ``dlevel``."""
+    when it fits the window, else drop). ``pick[0]`` gets the option taken at ``dlevel``.
+    A level with ``force[i] >= 0`` (another agent's announced plan, ``agreed.py``) takes that
+    option when it fits the window, else drop."""
     n = stream.shape[0]
     for s in range(last.shape[0]):
         r_last[s] = last[s]
@@ -100,7 +102,12 @@ def _rollout(
         slot = r_last[s] if s >= 0 else 0
         best_o = 0
         best_g = 0.0
-        if plan[0] >= 0:
+        if force[i] >= 0:
+            o = force[i]
+            if o > 0 and wbytes + size[i, o] <= budget + _EPS:
+                best_o = o
+                best_g = gain[i, o, slot]
+        elif plan[0] >= 0:
             o = plan[i]
             if o > 0 and wbytes + size[i, o] <= budget + _EPS:
                 best_o = o
@@ -247,6 +254,7 @@ def search(
     markov: Any,
     root_win_t: Any, root_win_b: Any, budget: float, window_s: float, maxv: int, top: float,
     lam: float, plan: Any, dlevel: int, best_u: Any, best_at: Any, depth_limit: int,
+    force: Any, force_tree: bool,
     # tree
     parent: Any, depth: Any, option: Any, visits: Any, value: Any, delta: Any,
     children: Any, tried: Any, live: Any, dead: Any, hkeys: Any, hvals: Any, counters: Any,
@@ -260,7 +268,12 @@ def search(
 
     Nodes at depth ``depth_limit`` (< n) are leaves: valued by the default policy from there
     on every visit, never expanded; a budget that covers the bounded tree then answers the
-    same for every larger budget."""
+    same for every larger budget.
+
+    ``force`` (one entry per level, -1: free) fixes levels to another agent's announced
+    option (``agreed.py``): in the default policy always, and with ``force_tree`` in the tree
+    too, where such a level gets the one child (drop only when the option does not fit) and
+    the descent goes on through it in the same iteration."""
     n = stream.shape[0]
     n_streams = markov.shape[0]
     n_root = root_win_t.shape[0]
@@ -298,16 +311,23 @@ def search(
         node = 0
         while True:
             d = depth[node]
-            if d == n or d >= depth_limit:
+            full_tree = d < n and tried[node] < nopt[d] and counters[C_NODES] >= max_nodes
+            if d == n or d >= depth_limit or full_tree:
                 total = u
                 if d < n:
+                    if full_tree:  # fixed levels descended: no room left to expand
+                        lim = send_t[d] - window_s - _EPS
+                        while head < tail and win_t[head] < lim:
+                            wbytes -= win_b[head]
+                            head += 1
                     pick[0] = -1
                     total += _rollout(d, last, r_last, win_t, win_b, head, tail, wbytes, stream,
                                       pos, nopt, size, send_t, gain, nslot, budget, window_s,
-                                      maxv, lam, r_win_t, r_win_b, noplan, dlevel, pick)
+                                      maxv, lam, r_win_t, r_win_b, noplan, dlevel, pick, force)
                 if total > best_u[0]:
                     best_u[0] = total
-                    best_at[0] = _option_on_path(node, dlevel, parent, depth, option)
+                    best_at[0] = _option_on_path(node, dlevel, parent, depth, option) \
+                        if d > dlevel else pick[0]
                 _backprop(node, _score(total, top), parent, visits, value)
                 break
             lim = send_t[d] - window_s - _EPS
@@ -315,6 +335,7 @@ def search(
                 wbytes -= win_b[head]
                 head += 1
             s = stream[d]
+            fixed = force_tree and force[d] >= 0
             if tried[node] < nopt[d]:
                 created = -1
                 cu = u
@@ -323,6 +344,11 @@ def search(
                     tried[node] += 1
                     o = _option_at(t, plan[d] if seeded else -1, nopt[d])
                     sz = size[d, o]
+                    if fixed:
+                        f = force[d]
+                        if o != f and (o != 0 or f == 0
+                                       or wbytes + size[d, f] <= budget + _EPS):
+                            continue
                     if o != 0 and wbytes + sz > budget + _EPS:
                         children[node, o] = REJ_PRUNED
                         counters[C_PRUNED] += 1
@@ -392,6 +418,8 @@ def search(
                         hvals[hk] = cn
                     created = cn
                     break
+                if created >= 0 and fixed:
+                    continue  # one child: descend through it (selection picks it)
                 if created >= 0:
                     # the child's state: apply its decision to copies of the path state
                     o = option[created]
@@ -408,12 +436,13 @@ def search(
                     pick[0] = -1
                     rest = _rollout(d + 1, last, r_last, win_t, win_b, head, rt, rw, stream, pos,
                                     nopt, size, send_t, gain, nslot, budget, window_s, maxv, lam,
-                                    r_win_t, r_win_b, noplan, dlevel, pick)
+                                    r_win_t, r_win_b, noplan, dlevel, pick, force)
                     if seeded:
                         pick2[0] = -1
                         rest2 = _rollout(d + 1, last, r_last, win_t, win_b, head, rt, rw, stream,
                                          pos, nopt, size, send_t, gain, nslot, budget, window_s,
-                                         maxv, lam, r_win_t, r_win_b, plan, dlevel, pick2)
+                                         maxv, lam, r_win_t, r_win_b, plan, dlevel, pick2,
+                                         force)
                         if rest2 > rest:
                             rest = rest2
                             pick[0] = pick2[0]
@@ -442,6 +471,9 @@ def search(
                 if ch < 0 or dead[ch]:
                     continue
                 nv = visits[ch]
+                if nv == 0:  # a fixed level's child, created this iteration
+                    best = ch
+                    break
                 v = value[ch] / nv + c * math.sqrt(lnp / nv)
                 if v > best_v:
                     best_v = v

@@ -123,6 +123,7 @@ class Problem:
     __slots__ = (
         "budget_bytes",
         "decided_level",
+        "force",
         "gain",
         "horizon_end",
         "items",
@@ -182,6 +183,8 @@ class Problem:
         self.n_streams = len(stream_keys)
         self.decided_level = decided_level
         self.horizon_end = horizon_end
+        self.force = np.full(len(items), -1, dtype=np.int64)
+        """Per level: the option another agent announced for it (``agreed.py``), -1: free."""
 
     @property
     def n(self) -> int:

@@ -127,19 +127,23 @@ class Tree:
 class MCTS:
     """One decision's search: build with a :class:`Problem`, :meth:`run`, read :meth:`result`."""
 
-    __slots__ = ("best", "best_at", "best_plan", "c", "depth_limit", "lam", "plan", "problem",
-                 "robust", "top", "tree", "veto")
+    __slots__ = ("best", "best_at", "best_plan", "c", "depth_limit", "force_tree", "lam", "plan",
+                 "problem", "robust", "top", "tree", "veto")
 
     def __init__(self, problem: Problem, *, c: float = 0.35, max_nodes: int = 1501,
                  knapsack_seed: bool = False, best_plan: bool = False,
-                 depth: int | None = None, veto: float | None = None) -> None:
+                 depth: int | None = None, veto: float | None = None,
+                 force_tree: bool = True) -> None:
         if not c >= 0:
             raise ValueError(f"discovery factor c must be >= 0, got {c}")
         self.problem = problem
         self.c = float(c)
         self.top = float(problem.all_send_norm()[-1])
         self.lam = rollout_threshold(problem)
-        self.tree = Tree(max_nodes=max(2, max_nodes + 1), max_opt=problem.max_opt)
+        fixed = int((problem.force >= 0).sum()) if force_tree else 0
+        self.tree = Tree(max_nodes=max(2, (max_nodes + 1) * (1 + min(fixed, 7))),
+                         max_opt=problem.max_opt)
+        """Levels fixed by announced plans add nodes without iterations (``_kernel.search``)."""
         self.plan = np.full(max(1, problem.n), -1, dtype=np.int64)
         """The knapsack-greedy plan (one option per level) with ``knapsack_seed``, else -1."""
         if knapsack_seed and problem.n:
@@ -160,7 +164,10 @@ class MCTS:
         if veto is not None and not veto > 0:
             raise ValueError(f"veto must be > 0 or None, got {veto}")
         self.veto = veto
-        self.robust = MCTS(problem, c=c, max_nodes=max_nodes) if veto is not None else None
+        self.force_tree = force_tree
+        """``problem.force`` fixes tree levels (else it guides only the default policy)."""
+        self.robust = MCTS(problem, c=c, max_nodes=max_nodes, force_tree=force_tree) \
+            if veto is not None else None
         """The unbounded, most visited tree whose statistics may veto a send (``veto``)."""
 
     @property
@@ -186,7 +193,7 @@ class MCTS:
                     p.root_win_t, p.root_win_bytes, float(p.budget_bytes), float(p.window_s),
                     int(p.max_versions), self.top, self.lam,
                     self.plan, int(p.decided_level), self.best, self.best_at,
-                    int(self.depth_limit),
+                    int(self.depth_limit), p.force, bool(self.force_tree),
                     t.parent, t.depth, t.option, t.visits, t.value, t.delta,
                     t.children, t.tried, t.live, t.dead, t.hkeys, t.hvals, t.counters,
                 )

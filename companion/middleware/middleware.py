@@ -25,6 +25,7 @@ from typing import Self
 
 import numpy as np
 
+from companion.middleware.agreed import AGREED_MODES, AgreedPlans, AnnouncedPlan, own_plan
 from companion.middleware.constraints.base import ConstantConstraint, GoodputConstraint
 from companion.middleware.decider import (
     COMPANION_ALWAYS_SEND,
@@ -163,6 +164,15 @@ class MiddlewareConfig:
     (``announce_over_budget`` is ignored): zero planned violations (docs/middleware.md,
     round 9)."""
 
+    agreed_plans: str | None = None  # issue 18 round 10, agreed.py
+    """Opt-in: plans agreed over the link. "fix": the other agents' forecast levels take the
+    option their newest announced plan gives them (the search covers this agent and the
+    un-announced rest); "prior": the announced options guide only the default policy.
+    None: off (measured, docs/middleware.md round 10)."""
+    agreed_commit_s: float = 0.0
+    """With ``agreed_plans``: this agent keeps its own published plan for its messages
+    generated up to this long after the plan was made (0: it re-decides every message)."""
+
     @property
     def declared_roster(self) -> Roster | None:
         """The roster in force: this config's, else the mission spec's."""
@@ -197,6 +207,8 @@ class MiddlewareConfig:
             raise MiddlewareError("announce_after_s must be > 0 or None")
         if self.time_budget_s is not None and not self.time_budget_s > 0:
             raise MiddlewareError("time_budget_s must be > 0 or None")
+        if self.agreed_plans is not None and self.agreed_plans not in AGREED_MODES:
+            raise MiddlewareError(f"agreed_plans must be one of {AGREED_MODES} or None")
         if self.small_share is not None and not 0 < self.small_share <= 1:
             raise MiddlewareError("small_share must be in (0, 1] or None")
 
@@ -242,6 +254,12 @@ class Middleware:
         self._started: float | None = None
         """Time of the first decision (``plan_unheard_s`` counts from it)."""
         self.always_send: frozenset[str] = frozenset()
+        self.agreed = AgreedPlans(config.agent)
+        self.announced: AnnouncedPlan | None = None
+        """With ``agreed_plans``: this agent's plan after its last decision, for the shell to
+        carry with the message it sends (``on_plan`` at the receivers)."""
+        self._published: AnnouncedPlan | None = None
+        """The plan that went out with this agent's last sent message."""
         """Own types sent whatever the search says (the companion's status heartbeat)."""
 
     @classmethod
@@ -337,11 +355,18 @@ class Middleware:
             self.counters["bad_message"] += 1
             return Decision(send=False, reason=f"bad-message: {exc}")
         self.last_problem = problem
+        if self.config.agreed_plans is not None:
+            problem.force[:] = self.agreed.force(problem, own=self._published,
+                                                 commit_s=self.config.agreed_commit_s)
         search = MCTS(problem, c=self.config.c, max_nodes=self.config.max_iterations + 1,
                       knapsack_seed=self.config.knapsack_seed, best_plan=self.config.best_plan,
-                      depth=self.config.search_depth, veto=self.config.veto)
+                      depth=self.config.search_depth, veto=self.config.veto,
+                      force_tree=self.config.agreed_plans == "fix")
         self._run(search, deadline)
         result = search.result()
+        if self.config.agreed_plans is not None:
+            self.announced = own_plan(problem, result.path, search.lam, agent=self.config.agent,
+                                      now=now)
         level = problem.decided_level
         if result.option is None:
             option, reason = greedy_option(problem, level), "fallback-greedy"
@@ -484,6 +509,7 @@ class Middleware:
         self.counters["sent" if decision.send else "dropped"] += 1
         if decision.send:
             self._last_sent[message.type] = now
+            self._published = self.announced
             sent = option_message(message, (decision.version or 0) + 1)
             known = self.knowledge.sent_in_window(now=now, window_s=self.constraint.window_s)
             if known + sent.size > self.constraint.budget_bytes(now=now) + 1e-9:
@@ -503,6 +529,10 @@ class Middleware:
                 if m.t_rcv is not None and usable(self.spec, m):
                     self.unheard.observe(self.spec, m)
         self.counters["delivered"] += self.knowledge.on_delivered(messages, now=now)
+
+    def on_plan(self, plan: AnnouncedPlan, now: float) -> None:
+        """Another agent's plan, carried by one of its messages that arrived."""
+        self.agreed.hear(plan)
 
     def on_report(self, report: ReceiverReport, now: float) -> ReportLearned:
         """A receiver report: every entry for the delivered-set knowledge, this agent's own
