@@ -116,6 +116,8 @@ class CompanionApp:
                                      send_message=self._send_message,
                                      mission_log=self.mission_log, mission=self.mission,
                                      counters=self.counters)
+        if hasattr(self.transport, "pace_rate"):  # no burst faster than ξ (transport.py)
+            self.transport.pace_rate = self.dispatcher.constraint_limit
         self.mavlink = MavlinkService(config.mavlink, self.telemetry, clock=clock,
                                       connect=mavlink_connect)
         self.publisher = TelemetryPublisher(config.telemetry, telemetry=self.telemetry,
