@@ -120,3 +120,11 @@ def test_never_faster_than_rate_plus_one_burst(sizes: list[int], gaps: list[floa
         for t1, cost in released[i:]:
             window += cost
             assert window <= burst + biggest + rate * (t1 - t0) + 1e-6
+
+
+def test_the_pacing_rate_follows_the_constraint() -> None:
+    from companion.transport import PACE_GAIN, PACE_MIN_BYTES_PER_S, pacing_rate
+
+    assert pacing_rate(None) is None and pacing_rate(0.0) is None  # no ξ: unpaced
+    assert pacing_rate(50_000.0) == PACE_GAIN * 50_000.0
+    assert pacing_rate(1.0) == PACE_MIN_BYTES_PER_S
