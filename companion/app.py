@@ -42,6 +42,7 @@ from companion.protocol import (
     LocalProtocolError,
     ReportReceived,
 )
+from companion.protocol.pacer import pacing_rate
 from companion.publisher import TelemetryPublisher
 from companion.scoring import Scorer, make_scorer
 from companion.telemetry import LinkStateSample, Sample, TelemetryState
@@ -116,8 +117,10 @@ class CompanionApp:
                                      send_message=self._send_message,
                                      mission_log=self.mission_log, mission=self.mission,
                                      counters=self.counters)
-        if hasattr(self.transport, "pace_rate"):  # no burst faster than ξ (transport.py)
-            self.transport.pace_rate = self.dispatcher.constraint_limit
+        if hasattr(self.transport, "pace_rate"):  # no burst faster than 4ξ or the link
+            link_rate = config.ground_station.link_rate_bytes_per_s
+            self.transport.pace_rate = lambda: pacing_rate(self.dispatcher.constraint_limit(),
+                                                           link_rate)
         self.mavlink = MavlinkService(config.mavlink, self.telemetry, clock=clock,
                                       connect=mavlink_connect)
         self.publisher = TelemetryPublisher(config.telemetry, telemetry=self.telemetry,

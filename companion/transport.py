@@ -6,7 +6,7 @@ the single ``loop.call_later`` for ``decoder.get_timer()``. Sending is the socke
 non-blocking ``sendto``: an error (ENOBUFS, unreachable...) or a full write buffer is counted
 and the message is lost, like any other loss on the air; nothing here retries or blocks.
 
-With ``pace_rate`` set (the app sets it from the constraint's ξ) the datagrams of a message
+With ``pace_rate`` set (the app's: 4ξ, at most the configured link rate) the datagrams of a message
 do not leave in one burst: they go through a :class:`~companion.protocol.pacer.Pacer`, driven
 by a second timer, at that rate; a message the pacer's backlog cannot take whole is dropped
 whole and counted (``send_dropped_pacer_full``).
@@ -66,25 +66,9 @@ SEND_COUNTERS = (
     "paced_units",
 )
 
-PACE_GAIN = 4.0
-"""Pacing rate = this times the constraint's ξ. ξ is the fleet's sustained budget, well
-below what the radio carries for a moment (the demo's relay: ξ 8-50 kB/s on a 50 kB/s link,
-``--netns``: 60-75 kB/s on 750 kB/s), so pacing at ξ itself held an 8 kB frame for a
-second and cost a quarter of the images; at 4ξ two or three drones bursting together still
-fit the queue, and a message leaves within a few of the link's own serialisation times."""
-PACE_MIN_BYTES_PER_S = 2_000.0
-"""Floor of the pacing rate: a collapsed ξ does not stretch one status over seconds."""
 PACE_MAX_DELAY_S = 1.0
 """A message is refused (dropped whole) when the pacer is still busy this long with the
 messages before it: what it carries would arrive too late, and the link is over-offered."""
-
-
-def pacing_rate(limit_bytes_per_s: float | None) -> float | None:
-    """The pacing rate for a constraint limit ξ (None: no limit known, no pacing)."""
-    if limit_bytes_per_s is None or not limit_bytes_per_s > 0:
-        return None
-    return max(PACE_MIN_BYTES_PER_S, PACE_GAIN * float(limit_bytes_per_s))
-
 
 
 
@@ -161,8 +145,9 @@ class UdpTransport:
         self._stopped = asyncio.Event()
         self._started = asyncio.Event()
         self.pace_rate: Callable[[], float | None] | None = None
-        """The pacing rate source (bytes/s, read at every send); None, or a None rate: each
-        message's datagrams go to the socket at once."""
+        """The pacing rate (bytes/s, read at every send; the app's is
+        :func:`~companion.protocol.pacer.pacing_rate`); None, or a None rate: each message's
+        datagrams go to the socket at once."""
         self.pacer: Pacer[Address] | None = None
         self._pace_timer: asyncio.TimerHandle | None = None
         self._pace_deadline: float | None = None
@@ -323,9 +308,9 @@ class UdpTransport:
     def _pacer_now(self) -> Pacer[Address] | None:
         """The pacer at the current rate, or None when sending unpaced (no rate and nothing
         paced still waiting: order is kept, a paced backlog drains first)."""
-        rate = pacing_rate(self.pace_rate()) if self.pace_rate is not None else None
+        rate = self.pace_rate() if self.pace_rate is not None else None
         pacer = self.pacer
-        if rate is None:
+        if rate is None or not rate > 0:
             return pacer if pacer is not None and len(pacer) else None
         now = self._clock()
         if pacer is None:

@@ -24,12 +24,35 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Generic, TypeVar
 
-__all__ = ["UDP_IP_OVERHEAD_BYTES", "Pacer"]
+__all__ = ["PACE_GAIN", "PACE_MIN_BYTES_PER_S", "UDP_IP_OVERHEAD_BYTES", "Pacer", "pacing_rate"]
 
 A = TypeVar("A")
 
 UDP_IP_OVERHEAD_BYTES = 28
 """IPv4 + UDP header bytes a datagram costs on the link besides its payload."""
+
+PACE_GAIN = 4.0
+"""Pacing rate = this times the constraint's ξ. ξ is the fleet's sustained budget, well
+below what the radio carries for a moment (the demo's relay: ξ 8-50 kB/s on a 50 kB/s link,
+``--netns``: 60-75 kB/s on 750 kB/s), so pacing at ξ itself held an 8 kB frame for a
+second and cost a quarter of the images; at 4ξ two drones bursting together fit the
+``--netns`` queue. Where the link's own rate is configured it caps the pacing rate: a frame
+larger than the bottleneck's queue then fits it too (the relay's 50 kB/s, 20 kB queue and a
+33 kB frame at the mission start, when 4ξ was 200 kB/s)."""
+PACE_MIN_BYTES_PER_S = 2_000.0
+"""Floor of the pacing rate: a collapsed ξ does not stretch one status over seconds."""
+
+
+def pacing_rate(limit_bytes_per_s: float | None, link_rate_bytes_per_s: float = 0.0
+                ) -> float | None:
+    """The pacing rate: ``PACE_GAIN`` × the constraint's ξ, at most the link's configured
+    rate (0: not known), at least ``PACE_MIN_BYTES_PER_S``; None (unpaced) when neither is
+    known."""
+    rates = [PACE_GAIN * float(limit_bytes_per_s)] if (
+        limit_bytes_per_s is not None and limit_bytes_per_s > 0) else []
+    if link_rate_bytes_per_s > 0:
+        rates.append(float(link_rate_bytes_per_s))
+    return max(PACE_MIN_BYTES_PER_S, min(rates)) if rates else None
 
 
 @dataclass(slots=True)
