@@ -6,7 +6,7 @@ the single ``loop.call_later`` for ``decoder.get_timer()``. Sending is the socke
 non-blocking ``sendto``: an error (ENOBUFS, unreachable...) or a full write buffer is counted
 and the message is lost, like any other loss on the air; nothing here retries or blocks.
 
-With ``pace_rate`` set (the app's: 4ξ, at most the configured link rate) the datagrams of a message
+With ``pace_rate`` set (the app's: the configured link rate) the datagrams of a message
 do not leave in one burst: they go through a :class:`~companion.protocol.pacer.Pacer`, driven
 by a second timer, at that rate; a message the pacer's backlog cannot take whole is dropped
 whole and counted (``send_dropped_pacer_full``).
@@ -146,7 +146,7 @@ class UdpTransport:
         self._started = asyncio.Event()
         self.pace_rate: Callable[[], float | None] | None = None
         """The pacing rate (bytes/s, read at every send; the app's is
-        :func:`~companion.protocol.pacer.pacing_rate`); None, or a None rate: each message's
+        ``[ground_station] link_rate_bytes_per_s``); None, or a None rate: each message's
         datagrams go to the socket at once."""
         self.pacer: Pacer[Address] | None = None
         self._pace_timer: asyncio.TimerHandle | None = None

@@ -180,8 +180,8 @@ class FleetPlan:
     peers_medium: str | None = None
     """the shared medium of ``--peers`` (sitl.fleet_peers); None: unicast."""
     link_rate_bytes_per_s: float = 0.0
-    """The shaped link's rate (relay or ``--netns``), written to every companion: no
-    message's datagrams are paced faster (0: none written)."""
+    """The ``--netns`` link's rate, written to every companion, which paces each message's
+    datagrams at it (0: none written, unpaced; the relay fleet, docs/protocol.md)."""
     peers_http_ports: Mapping[str, int] = field(default_factory=dict)
     """drone id -> its companion's ``GET /peers`` port."""
 

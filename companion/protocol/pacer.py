@@ -6,7 +6,12 @@ once, and a bottleneck queue of a few tens of kB drops the tail of both images (
 ``--netns`` tbf queue and the demo's relay did, 32 and 115-154 datagrams per run). The
 constraint (thesis ch. 6) bounds bytes per window, not the instantaneous burst; the pacer
 bounds the burst: a token bucket of ``rate_bytes_per_s`` and ``burst_bytes`` in front of a
-FIFO of whole units.
+FIFO of whole units. The rate is the radio's own (``[ground_station] link_rate_bytes_per_s``):
+a message then waits in the pacer no longer than it would have waited in the radio's queue
+had it been alone there, so the delay the adaptive constraint measures is the link's, not
+the pacer's. (Pacing at 4ξ, below the link's rate when ξ is small, was tried first: the
+pacer's own wait read as queueing delay, ξ fell, the pacing slowed, and the demo delivered
+a fifth fewer images.)
 
 A unit (all datagrams of one message) is queued whole or not at all: when the backlog cannot
 take all of it, the whole unit is dropped and counted, never half-queued (a message missing
@@ -24,35 +29,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Generic, TypeVar
 
-__all__ = ["PACE_GAIN", "PACE_MIN_BYTES_PER_S", "UDP_IP_OVERHEAD_BYTES", "Pacer", "pacing_rate"]
+__all__ = ["UDP_IP_OVERHEAD_BYTES", "Pacer"]
 
 A = TypeVar("A")
 
 UDP_IP_OVERHEAD_BYTES = 28
 """IPv4 + UDP header bytes a datagram costs on the link besides its payload."""
-
-PACE_GAIN = 4.0
-"""Pacing rate = this times the constraint's ξ. ξ is the fleet's sustained budget, well
-below what the radio carries for a moment (the demo's relay: ξ 8-50 kB/s on a 50 kB/s link,
-``--netns``: 60-75 kB/s on 750 kB/s), so pacing at ξ itself held an 8 kB frame for a
-second and cost a quarter of the images; at 4ξ two drones bursting together fit the
-``--netns`` queue. Where the link's own rate is configured it caps the pacing rate: a frame
-larger than the bottleneck's queue then fits it too (the relay's 50 kB/s, 20 kB queue and a
-33 kB frame at the mission start, when 4ξ was 200 kB/s)."""
-PACE_MIN_BYTES_PER_S = 2_000.0
-"""Floor of the pacing rate: a collapsed ξ does not stretch one status over seconds."""
-
-
-def pacing_rate(limit_bytes_per_s: float | None, link_rate_bytes_per_s: float = 0.0
-                ) -> float | None:
-    """The pacing rate: ``PACE_GAIN`` × the constraint's ξ, at most the link's configured
-    rate (0: not known), at least ``PACE_MIN_BYTES_PER_S``; None (unpaced) when neither is
-    known."""
-    rates = [PACE_GAIN * float(limit_bytes_per_s)] if (
-        limit_bytes_per_s is not None and limit_bytes_per_s > 0) else []
-    if link_rate_bytes_per_s > 0:
-        rates.append(float(link_rate_bytes_per_s))
-    return max(PACE_MIN_BYTES_PER_S, min(rates)) if rates else None
 
 
 @dataclass(slots=True)

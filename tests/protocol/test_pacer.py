@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.protocol.pacer import PACE_GAIN, PACE_MIN_BYTES_PER_S, Pacer, pacing_rate
+from companion.protocol.pacer import Pacer
 
 TO = ("10.0.0.1", 5000)
 
@@ -120,13 +120,3 @@ def test_never_faster_than_rate_plus_one_burst(sizes: list[int], gaps: list[floa
         for t1, cost in released[i:]:
             window += cost
             assert window <= burst + biggest + rate * (t1 - t0) + 1e-6
-
-
-def test_the_pacing_rate_follows_the_constraint() -> None:
-    assert PACE_GAIN == 4.0
-    assert pacing_rate(None) is None and pacing_rate(0.0) is None  # nothing known: unpaced
-    assert pacing_rate(10_000.0) == 40_000.0
-    assert pacing_rate(10_000.0, link_rate_bytes_per_s=50_000.0) == 40_000.0
-    assert pacing_rate(50_000.0, link_rate_bytes_per_s=50_000.0) == 50_000.0  # the link caps
-    assert pacing_rate(None, link_rate_bytes_per_s=50_000.0) == 50_000.0
-    assert pacing_rate(1.0) == PACE_MIN_BYTES_PER_S
