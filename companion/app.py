@@ -65,6 +65,9 @@ Clock = Callable[[], float]
 class Transport(Protocol):
     """The UDP link to the ground station (``companion.transport``)."""
 
+    pace_rate: Callable[[], float | None] | None
+    """Bytes/s a message's datagrams may leave at (None: all at once)."""
+
     async def run(self) -> None: ...
 
     def stop(self) -> None: ...
@@ -116,6 +119,9 @@ class CompanionApp:
                                      send_message=self._send_message,
                                      mission_log=self.mission_log, mission=self.mission,
                                      counters=self.counters)
+        link_rate = config.ground_station.link_rate_bytes_per_s
+        if link_rate > 0:  # no message's datagrams leave faster than the radio carries them
+            self.transport.pace_rate = lambda: link_rate
         self.mavlink = MavlinkService(config.mavlink, self.telemetry, clock=clock,
                                       connect=mavlink_connect)
         self.publisher = TelemetryPublisher(config.telemetry, telemetry=self.telemetry,

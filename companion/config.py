@@ -87,6 +87,9 @@ class GroundStationConfig:
     listen_host: str = "0.0.0.0"
     listen_port: int = 0
     """Local UDP port for reports and commands (0 = any)."""
+    link_rate_bytes_per_s: float = 0.0
+    """The radio link's rate toward the station, when known (0: unknown). The transport
+    never paces a message's datagrams faster than this (docs/protocol.md, pacing)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -294,6 +297,7 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
         fleet_id=gs.integer("fleet_id", 1, low=0, high=0xFFFF_FFFF),
         listen_host=gs.string("listen_host", "0.0.0.0"),
         listen_port=gs.integer("listen_port", 0, low=0, high=65535),
+        link_rate_bytes_per_s=gs.number("link_rate_bytes_per_s", 0.0, strict=False),
     )
     gs.done()
 

@@ -201,11 +201,16 @@ class Dispatcher:
         t_sent = self.clock()
         chosen = dataclasses.replace(chosen, t_sent=t_sent)
         try:
-            self._send_message(chosen, chosen.payload, t_sent)
+            datagrams = self._send_message(chosen, chosen.payload, t_sent)
         except (OSError, ValueError) as exc:
             self.counters["send_errors"] += 1
             log.warning("send %s/%d failed: %s", chosen.type, chosen.seq, exc)
             self._log.write_message(chosen, sent=False, decision={**info, "error": str(exc)})
+            return False
+        if datagrams == 0:  # refused whole: the pacer's backlog (the link is busy), a full
+            self.counters["send_errors"] += 1  # write buffer, or no socket yet
+            self._log.write_message(chosen, sent=False, decision={
+                **info, "error": "the transport refused it (link queue full)"})
             return False
         self.counters["sent"] += 1
         self.health.on_sent(chosen.seq, t_sent)

@@ -5,6 +5,11 @@ does the aioquic three steps: call the core with ``now=clock()``, hand its event
 the single ``loop.call_later`` for ``decoder.get_timer()``. Sending is the socket's
 non-blocking ``sendto``: an error (ENOBUFS, unreachable...) or a full write buffer is counted
 and the message is lost, like any other loss on the air; nothing here retries or blocks.
+
+With ``pace_rate`` set (the app's: the configured link rate) the datagrams of a message
+do not leave in one burst: they go through a :class:`~companion.protocol.pacer.Pacer`, driven
+by a second timer, at that rate; a message the pacer's backlog cannot take whole is dropped
+whole and counted (``send_dropped_pacer_full``).
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ from companion.protocol import (
     Report,
     Status,
 )
+from companion.protocol.pacer import Pacer
 from companion.protocol.records import EPOCH_STATUS
 from utility_specs.message import Message
 
@@ -56,7 +62,13 @@ SEND_COUNTERS = (
     "medium_received",
     "medium_own_echo",
     "medium_reports_sent",
+    "send_dropped_pacer_full",
+    "paced_units",
 )
+
+PACE_MAX_DELAY_S = 1.0
+"""A message is refused (dropped whole) when the pacer is still busy this long with the
+messages before it: what it carries would arrive too late, and the link is over-offered."""
 
 
 
@@ -132,6 +144,13 @@ class UdpTransport:
         self._timer_deadline: float | None = None
         self._stopped = asyncio.Event()
         self._started = asyncio.Event()
+        self.pace_rate: Callable[[], float | None] | None = None
+        """The pacing rate (bytes/s, read at every send; the app's is
+        ``[ground_station] link_rate_bytes_per_s``); None, or a None rate: each message's
+        datagrams go to the socket at once."""
+        self.pacer: Pacer[Address] | None = None
+        self._pace_timer: asyncio.TimerHandle | None = None
+        self._pace_deadline: float | None = None
 
     # -- lifecycle -----------------------------------------------------------------------
 
@@ -192,6 +211,9 @@ class UdpTransport:
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
+        if self._pace_timer is not None:
+            self._pace_timer.cancel()
+            self._pace_timer = None
         if self._transport is not None:
             self._transport.close()
             self._transport = None
@@ -251,7 +273,8 @@ class UdpTransport:
         return self.send_datagrams(self.encoder.encode_report(report, now), addr)
 
     def send_datagrams(self, datagrams: Sequence[bytes], addr: Address | None = None) -> int:
-        """Send all datagrams of one unit (a message is lost whole, never half-queued)."""
+        """Send all datagrams of one unit (a message is lost whole, never half-queued):
+        at once, or through the pacer when a pacing rate is set."""
         target = addr if addr is not None else self.remote_addr
         if target is None:
             raise LocalProtocolError("no remote address to send to")
@@ -263,11 +286,68 @@ class UdpTransport:
         if _write_buffer_size(transport) + total > self.max_write_buffer_bytes:
             self.counters["send_dropped_buffer_full"] += 1
             return 0
-        for data in datagrams:
-            transport.sendto(data, target)
+        pacer = self._pacer_now()
+        if pacer is None:
+            for data in datagrams:
+                transport.sendto(data, target)
+        else:
+            now = self._clock()
+            if len(pacer) and pacer.idle_at(now) - now > PACE_MAX_DELAY_S:
+                pacer.counters["units_dropped"] += 1
+                self.counters["send_dropped_pacer_full"] += 1
+                return 0
+            if not pacer.offer(datagrams, target, now):
+                self.counters["send_dropped_pacer_full"] += 1
+                return 0
+            self.counters["paced_units"] += 1
+            self._release_paced(now)
         self.counters["datagrams_sent"] += len(datagrams)
         self.counters["bytes_sent"] += total
         return len(datagrams)
+
+    def _pacer_now(self) -> Pacer[Address] | None:
+        """The pacer at the current rate, or None when sending unpaced (no rate and nothing
+        paced still waiting: order is kept, a paced backlog drains first)."""
+        rate = self.pace_rate() if self.pace_rate is not None else None
+        pacer = self.pacer
+        if rate is None or not rate > 0:
+            return pacer if pacer is not None and len(pacer) else None
+        now = self._clock()
+        if pacer is None:
+            pacer = self.pacer = Pacer(rate_bytes_per_s=rate,
+                                       max_backlog_bytes=self.max_write_buffer_bytes)
+        elif rate != pacer.rate_bytes_per_s:
+            self._release_paced(now)
+            pacer.set_rate(rate, now)
+        return pacer
+
+    def _release_paced(self, now: float) -> None:
+        """Hand the pacer's due datagrams to the socket; re-arm its one timer."""
+        pacer = self.pacer
+        transport = self._transport
+        if pacer is None:
+            return
+        for data, target in pacer.pop_due(now):
+            if transport is not None:
+                transport.sendto(data, target)
+        deadline = pacer.next_due()
+        if deadline == self._pace_deadline and self._pace_timer is not None:
+            return
+        if self._pace_timer is not None:
+            self._pace_timer.cancel()
+            self._pace_timer = None
+        self._pace_deadline = deadline
+        if deadline is not None and self._loop is not None and transport is not None:
+            self._pace_timer = self._loop.call_later(max(0.0, deadline - self._clock()),
+                                                     self._on_pace_timer)
+
+    def _on_pace_timer(self) -> None:
+        self._pace_timer = None
+        deadline = self._pace_deadline
+        self._pace_deadline = None
+        now = self._clock()
+        # as _on_timer: the loop's clock and the fleet clock differ slightly; never early
+        self._release_paced(max(now, deadline) if deadline is not None else now)
 
     def _on_send_error(self, exc: Exception) -> None:
         self.counters["send_errors"] += 1
@@ -322,7 +402,13 @@ class UdpTransport:
 
     def stats(self) -> dict[str, Any]:
         """Send counters and the decoder's receive counters, for logs and status reports."""
-        return {"send": dict(self.counters), "receive": dict(self.decoder.counters)}
+        stats: dict[str, Any] = {"send": dict(self.counters),
+                                 "receive": dict(self.decoder.counters)}
+        if self.pacer is not None:
+            pacer = self.pacer
+            stats["pacer"] = {**pacer.counters, "rate_bytes_per_s": pacer.rate_bytes_per_s,
+                              "max_backlog_bytes": pacer.max_backlog_seen_bytes}
+        return stats
 
 
 def _write_buffer_size(transport: asyncio.DatagramTransport) -> int:

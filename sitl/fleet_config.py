@@ -179,6 +179,9 @@ class FleetPlan:
     full frames no longer overflow the relay's queue (docs/middleware.md, round 7)."""
     peers_medium: str | None = None
     """the shared medium of ``--peers`` (sitl.fleet_peers); None: unicast."""
+    link_rate_bytes_per_s: float = 0.0
+    """The ``--netns`` link's rate, written to every companion, which paces each message's
+    datagrams at it (0: none written, unpaced; the relay fleet, docs/protocol.md)."""
     peers_http_ports: Mapping[str, int] = field(default_factory=dict)
     """drone id -> its companion's ``GET /peers`` port."""
 
@@ -247,7 +250,8 @@ def companion_toml(plan: FleetPlan, drone: DroneSlot) -> str:
             "command_public_key_file": str(plan.command_pub_path),
             "listen_host": plan.drone_listen_host,
             "listen_port": 0,
-        },
+        } | ({"link_rate_bytes_per_s": plan.link_rate_bytes_per_s}
+             if plan.link_rate_bytes_per_s > 0 else {}),
         # the heartbeat: a status every second whatever the optimiser drops (the station
         # flags a drone lost after ``link_lost_s`` of silence)
         "telemetry": {"status_period_s": STATUS_PERIOD_S},
