@@ -19,12 +19,11 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Generic, TypeVar
 
+from companion.protocol.bucket import UDP_IP_OVERHEAD_BYTES, TokenBucket
+
 __all__ = ["UDP_IP_OVERHEAD_BYTES", "BackgroundLoad", "ShapedQueue"]
 
 T = TypeVar("T")
-
-UDP_IP_OVERHEAD_BYTES = 28
-"""IPv4 + UDP header bytes a datagram costs on the link besides its payload."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,8 +72,7 @@ class ShapedQueue(Generic[T]):
     max_backlog_bytes: int = 0
     _queue: deque[tuple[int, T | None]] = field(default_factory=deque)
     _backlog: int = 0
-    _tokens: float = -1.0
-    _t: float | None = None
+    _bucket: TokenBucket = field(init=False)
     _background_offered: int = 0
     _out: list[T] = field(default_factory=list)
 
@@ -82,7 +80,7 @@ class ShapedQueue(Generic[T]):
         if not (self.rate_bytes_per_s > 0 and self.queue_limit_bytes > 0
                 and self.burst_bytes > 0 and self.overhead_bytes >= 0):
             raise ValueError("rate, queue limit and burst must be > 0")
-        self._tokens = float(self.burst_bytes)
+        self._bucket = TokenBucket(self.rate_bytes_per_s, self.burst_bytes)
 
     @property
     def backlog_bytes(self) -> int:
@@ -90,13 +88,6 @@ class ShapedQueue(Generic[T]):
 
     def __len__(self) -> int:
         return len(self._queue)
-
-    def _refill(self, now: float) -> None:
-        if self._t is not None and now > self._t:
-            self._tokens = min(float(self.burst_bytes),
-                               self._tokens + (now - self._t) * self.rate_bytes_per_s)
-        if self._t is None or now > self._t:
-            self._t = now
 
     def _enqueue(self, size: int, item: T | None) -> bool:
         cost = size + self.overhead_bytes
@@ -133,14 +124,13 @@ class ShapedQueue(Generic[T]):
             t_head = self._head_time()
             t_bg = self._next_background()
             if t_bg is not None and t_bg <= now and (t_head is None or t_bg < t_head):
-                self._refill(t_bg)
+                self._bucket.refill(t_bg)
                 self._offer_background(t_bg)
                 continue
             if t_head is None or t_head > now:
                 break
-            self._refill(t_head)
             cost, item = self._queue.popleft()
-            self._tokens -= cost  # a datagram above the burst leaves a debt
+            self._bucket.take(cost, t_head)
             self._backlog -= cost
             if item is None:
                 self.counters["background_sent_packets"] += 1
@@ -148,15 +138,11 @@ class ShapedQueue(Generic[T]):
                 self.counters["sent_packets"] += 1
                 self.counters["sent_bytes"] += cost - self.overhead_bytes
                 out.append(item)
-        self._refill(now)
+        self._bucket.refill(now)
         self._offer_background(now)
 
     def _head_time(self) -> float | None:
-        if not self._queue:
-            return None
-        t = self._t if self._t is not None else 0.0
-        missing = min(self._queue[0][0], self.burst_bytes) - self._tokens
-        return t if missing <= 0 else t + missing / self.rate_bytes_per_s
+        return self._bucket.due(self._queue[0][0]) if self._queue else None
 
     def _next_background(self) -> float | None:
         if self.background is None or self.origin is None:
@@ -174,7 +160,7 @@ class ShapedQueue(Generic[T]):
         """When the next thing happens (a departure or a background packet), or None
         (``now`` or earlier while the outbox holds datagrams: pop them)."""
         if self._out:
-            return self._t
+            return self._bucket.t
         times = [t for t in (self._head_time(), self._next_background()) if t is not None]
         return min(times) if times else None
 

@@ -29,12 +29,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Generic, TypeVar
 
+from companion.protocol.bucket import UDP_IP_OVERHEAD_BYTES, TokenBucket
+
 __all__ = ["UDP_IP_OVERHEAD_BYTES", "Pacer"]
 
 A = TypeVar("A")
-
-UDP_IP_OVERHEAD_BYTES = 28
-"""IPv4 + UDP header bytes a datagram costs on the link besides its payload."""
 
 
 @dataclass(slots=True)
@@ -43,9 +42,7 @@ class Pacer(Generic[A]):
     ``max_backlog_bytes``; each datagram costs its size + ``overhead_bytes``.
 
     ``offer`` queues a unit whole or drops it whole; ``pop_due`` returns what the bucket pays
-    for by ``now``, in order; ``next_due`` says when the head may leave. A datagram larger
-    than what the bucket holds leaves when the bucket is full and leaves a debt, so any size
-    goes at the rate on average.
+    for by ``now``, in order; ``next_due`` says when the head may leave.
     """
 
     rate_bytes_per_s: float
@@ -57,14 +54,13 @@ class Pacer(Generic[A]):
     max_backlog_seen_bytes: int = 0
     _queue: deque[tuple[bytes, A, int]] = field(default_factory=deque)
     _backlog: int = 0
-    _tokens: float = 0.0
-    _t: float | None = None
+    _bucket: TokenBucket = field(init=False)
 
     def __post_init__(self) -> None:
         _check_rate(self.rate_bytes_per_s)
         if not (self.burst_bytes > 0 and self.max_backlog_bytes > 0 and self.overhead_bytes >= 0):
             raise ValueError("pacer: burst and backlog must be > 0, overhead >= 0")
-        self._tokens = float(self.burst_bytes)
+        self._bucket = TokenBucket(self.rate_bytes_per_s, self.burst_bytes)
 
     @property
     def backlog_bytes(self) -> int:
@@ -78,8 +74,8 @@ class Pacer(Generic[A]):
         """From ``now`` on the bucket fills at the new rate (what was earned so far stays).
         Call it after ``pop_due(now)``, so what was due at the old rate has gone."""
         _check_rate(rate_bytes_per_s)
-        self._refill(now)
-        self.rate_bytes_per_s = float(rate_bytes_per_s)
+        self._bucket.refill(now)
+        self.rate_bytes_per_s = self._bucket.rate_bytes_per_s = float(rate_bytes_per_s)
 
     def offer(self, datagrams: Sequence[bytes], to: A, now: float) -> bool:
         """Queue all ``datagrams`` (one unit) for ``to``; False, and nothing queued, when the
@@ -89,7 +85,7 @@ class Pacer(Generic[A]):
             self.counters["units_dropped"] += 1
             return False
         if not self._queue:  # the bucket filled while idle; a waiting queue keeps its own time
-            self._refill(now)
+            self._bucket.refill(now)
         for data in datagrams:
             self._queue.append((data, to, len(data) + self.overhead_bytes))
         self._backlog += cost
@@ -104,14 +100,13 @@ class Pacer(Generic[A]):
             due = self._head_due()
             if due is None or due > now:
                 break
-            self._refill(due)
             data, to, cost = self._queue.popleft()
-            self._tokens -= cost
+            self._bucket.take(cost, due)
             self._backlog -= cost
             self.counters["datagrams_released"] += 1
             self.counters["bytes_released"] += len(data)
             out.append((data, to))
-        self._refill(now)
+        self._bucket.refill(now)
         return out
 
     def next_due(self) -> float | None:
@@ -122,27 +117,13 @@ class Pacer(Generic[A]):
         """When everything queued now will have left (``now`` when nothing waits)."""
         if not self._queue:
             return now
-        self._refill(now)
-        t = self._t if self._t is not None else now
+        self._bucket.refill(now)
         last = self._queue[-1][2]
-        # the last datagram leaves once the bucket has paid for all before it and holds
-        # its own cost (or is full)
-        missing = self._backlog - last + min(last, self.burst_bytes) - self._tokens
-        return max(now, t + max(0.0, missing) / self.rate_bytes_per_s)
+        # the last datagram leaves once the bucket has paid for all before it
+        return max(now, self._bucket.due(last, ahead=self._backlog - last, idle_t=now))
 
     def _head_due(self) -> float | None:
-        if not self._queue:
-            return None
-        t = self._t if self._t is not None else 0.0
-        missing = min(self._queue[0][2], self.burst_bytes) - self._tokens
-        return t if missing <= 0 else t + missing / self.rate_bytes_per_s
-
-    def _refill(self, now: float) -> None:
-        if self._t is not None and now > self._t:
-            self._tokens = min(float(self.burst_bytes),
-                               self._tokens + (now - self._t) * self.rate_bytes_per_s)
-        if self._t is None or now > self._t:
-            self._t = now
+        return self._bucket.due(self._queue[0][2]) if self._queue else None
 
 
 def _check_rate(rate: float) -> None:
