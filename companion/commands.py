@@ -90,6 +90,7 @@ class CommandExecutor:
         try:
             if command.name == "start":
                 self._mission.state = "running"
+                self._dispatcher.mission_started()
             elif command.name == "end":
                 self._mission.state = "ended"
             elif command.name == "set_params":  # no loop yet (tests driving the app directly)

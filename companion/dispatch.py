@@ -236,6 +236,18 @@ class Dispatcher:
         future = loop.run_in_executor(self._pool, self.decider.on_report, report, self.clock())
         future.add_done_callback(self._after_call)
 
+    def mission_started(self) -> None:
+        """The ground station started the mission: tell a decider that plans the mission's
+        start (the middleware's fleet share), in its executor like every decider call."""
+        hook = getattr(self.decider, "mission_started", None)
+        if hook is None:
+            return
+        if self._loop is None:  # not bound to a loop yet (tests driving the app directly)
+            hook(self.clock())
+            return
+        future = self._loop.run_in_executor(self._pool, hook, self.clock())
+        future.add_done_callback(self._after_call)
+
     async def set_params(self, params: Mapping[str, Any]) -> None:
         """Apply live parameters in the decider's executor; raises what rejected them."""
         loop = asyncio.get_running_loop()

@@ -241,7 +241,10 @@ def companion_toml(plan: FleetPlan, drone: DroneSlot) -> str:
             "options": {"scene": plan.scene, "seed": plan.seed + drone.index},
         },
         "scoring": {"scorers": ["red_share"]},
-        "mission": {"spec": str(plan.spec_path), "log": str(drone.log_path)},
+        # data from the station's start on, which the launcher sends (retried until
+        # acknowledged): the fleet's start share then counts from it (Middleware.mission_started)
+        "mission": {"spec": str(plan.spec_path), "log": str(drone.log_path),
+                    "wait_for_start": True},
         "ground_station": {
             "host": plan.gs_host,
             "port": plan.relay_port if plan.relay_port is not None else plan.gs_udp_port,

@@ -95,8 +95,9 @@ def _fleet(run_dir: Path, *args: str, timeout_s: float = 240.0) -> dict[str, Any
     print(proc.stdout[-3000:])
     assert proc.returncode == 0, f"stdout:\n{proc.stdout[-3000:]}\nstderr:\n{proc.stderr[-3000:]}"
     _no_orphans(run_dir)
-    for name in summary_drones(run_dir):  # the mission started once every optimiser was warm
-        warm_before_start(run_dir, name)
+    optimised = "--policy" not in args or args[args.index("--policy") + 1] == "mcts"
+    for name in summary_drones(run_dir) if optimised else ():  # a baseline has no warm-up;
+        warm_before_start(run_dir, name)  # an optimiser is warm before the mission starts
     warm_up_progress(proc.stdout, len(summary_drones(run_dir)))
     summary: dict[str, Any] = json.loads(summary_path.read_text())
     assert json.loads((run_dir / "summary.json").read_text()) == summary

@@ -116,3 +116,30 @@ def test_the_first_reports_are_not_queued_behind_a_burst_of_full_frames() -> Non
     assert burst == 160_000 and late > 1.0
     late, burst = _first_reports(study.IMAGE_DRONES)
     assert burst <= 40_000 and late < 0.3
+
+
+def _frame_at_the_start(*, started: bool) -> int | None:
+    """The version (0 full, None dropped) of a drone's first frame 10 s after its first
+    decision, the three peers heard before it (their positions, as the product's drones
+    hear each other's status heartbeats before the station starts the mission)."""
+    spec = builtin_spec("image_streaming")
+    mw = Middleware(MiddlewareConfig(spec=spec, agent="uav0", max_iterations=300,
+                                     fleet_size=4),
+                    constraint=ConstantConstraint(limit_bytes_per_s=75_000, window_s=2.5))
+    mw.decide(Message(sender="uav0", seq=0, type="position", t_gen=0.0, size=60), 0.0)
+    mw.on_delivered([Message(sender=f"uav{i}", seq=0, type="position", t_gen=1.0, size=60,
+                             t_sent=1.0) for i in (1, 2, 3)], 1.2)
+    if started:
+        mw.mission_started(10.0)
+    frame = Message(sender="uav0", seq=1, type="image", t_gen=10.0, size=40_000,
+                    data={"red": 0.05}, versions=study.IMAGE_VERSIONS, version=0)
+    decision = mw.decide(frame, 10.0)
+    return decision.version if decision.send else None
+
+
+def test_a_started_mission_shares_the_budget_though_the_peers_were_heard() -> None:
+    """The demo fleet's drones hear each other's heartbeats long before the start, so the
+    share by heard peers gave each the whole window: four full frames within 0.14 s, all
+    lost in the relay's queue. From the station's start the share counts no peer heard."""
+    assert _frame_at_the_start(started=False) == 0
+    assert _frame_at_the_start(started=True) not in (None, 0)
