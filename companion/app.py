@@ -65,9 +65,6 @@ Clock = Callable[[], float]
 class Transport(Protocol):
     """The UDP link to the ground station (``companion.transport``)."""
 
-    pace_rate: Callable[[], float | None] | None
-    """Bytes/s a message's datagrams may leave at (None: all at once)."""
-
     async def run(self) -> None: ...
 
     def stop(self) -> None: ...
@@ -76,6 +73,8 @@ class Transport(Protocol):
                      shared: bool = False) -> int: ...
 
     def send_status(self, status: Any, now: float) -> int: ...
+
+    def pace(self, rate_bytes_per_s: float) -> None: ...
 
 
 TransportFactory = Callable[[Callable[[Any], None]], Transport]
@@ -121,7 +120,7 @@ class CompanionApp:
                                      counters=self.counters)
         link_rate = config.ground_station.link_rate_bytes_per_s
         if link_rate > 0:  # no message's datagrams leave faster than the radio carries them
-            self.transport.pace_rate = lambda: link_rate
+            self.transport.pace(link_rate)
         self.mavlink = MavlinkService(config.mavlink, self.telemetry, clock=clock,
                                       connect=mavlink_connect)
         self.publisher = TelemetryPublisher(config.telemetry, telemetry=self.telemetry,

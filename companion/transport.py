@@ -6,10 +6,10 @@ the single ``loop.call_later`` for ``decoder.get_timer()``. Sending is the socke
 non-blocking ``sendto``: an error (ENOBUFS, unreachable...) or a full write buffer is counted
 and the message is lost, like any other loss on the air; nothing here retries or blocks.
 
-With ``pace_rate`` set (the app's: the configured link rate) the datagrams of a message
-do not leave in one burst: they go through a :class:`~companion.protocol.pacer.Pacer`, driven
-by a second timer, at that rate; a message the pacer's backlog cannot take whole is dropped
-whole and counted (``send_dropped_pacer_full``).
+After :meth:`UdpTransport.pace` (the app's: at the configured link rate) the datagrams of a
+message do not leave in one burst: they go through a :class:`~companion.protocol.pacer.Pacer`,
+driven by a second timer; a message the pacer cannot take whole is dropped whole and counted
+(``send_dropped_pacer_full``).
 """
 
 from __future__ import annotations
@@ -63,13 +63,7 @@ SEND_COUNTERS = (
     "medium_own_echo",
     "medium_reports_sent",
     "send_dropped_pacer_full",
-    "paced_units",
 )
-
-PACE_MAX_DELAY_S = 1.0
-"""A message is refused (dropped whole) when the pacer is still busy this long with the
-messages before it: what it carries would arrive too late, and the link is over-offered."""
-
 
 
 class _MediumProtocol(asyncio.DatagramProtocol):
@@ -144,11 +138,8 @@ class UdpTransport:
         self._timer_deadline: float | None = None
         self._stopped = asyncio.Event()
         self._started = asyncio.Event()
-        self.pace_rate: Callable[[], float | None] | None = None
-        """The pacing rate (bytes/s, read at every send; the app's is
-        ``[ground_station] link_rate_bytes_per_s``); None, or a None rate: each message's
-        datagrams go to the socket at once."""
         self.pacer: Pacer[Address] | None = None
+        """Set by :meth:`pace`; None: each message's datagrams go to the socket at once."""
         self._pace_timer: asyncio.TimerHandle | None = None
         self._pace_deadline: float | None = None
 
@@ -286,40 +277,24 @@ class UdpTransport:
         if _write_buffer_size(transport) + total > self.max_write_buffer_bytes:
             self.counters["send_dropped_buffer_full"] += 1
             return 0
-        pacer = self._pacer_now()
-        if pacer is None:
+        if self.pacer is None:
             for data in datagrams:
                 transport.sendto(data, target)
         else:
             now = self._clock()
-            if len(pacer) and pacer.idle_at(now) - now > PACE_MAX_DELAY_S:
-                pacer.counters["units_dropped"] += 1
+            if not self.pacer.offer(datagrams, target, now):
                 self.counters["send_dropped_pacer_full"] += 1
                 return 0
-            if not pacer.offer(datagrams, target, now):
-                self.counters["send_dropped_pacer_full"] += 1
-                return 0
-            self.counters["paced_units"] += 1
             self._release_paced(now)
         self.counters["datagrams_sent"] += len(datagrams)
         self.counters["bytes_sent"] += total
         return len(datagrams)
 
-    def _pacer_now(self) -> Pacer[Address] | None:
-        """The pacer at the current rate, or None when sending unpaced (no rate and nothing
-        paced still waiting: order is kept, a paced backlog drains first)."""
-        rate = self.pace_rate() if self.pace_rate is not None else None
-        pacer = self.pacer
-        if rate is None or not rate > 0:
-            return pacer if pacer is not None and len(pacer) else None
-        now = self._clock()
-        if pacer is None:
-            pacer = self.pacer = Pacer(rate_bytes_per_s=rate,
-                                       max_backlog_bytes=self.max_write_buffer_bytes)
-        elif rate != pacer.rate_bytes_per_s:
-            self._release_paced(now)
-            pacer.set_rate(rate, now)
-        return pacer
+    def pace(self, rate_bytes_per_s: float) -> None:
+        """From now on every message's datagrams leave at ``rate_bytes_per_s`` (the radio's
+        rate), not in one burst; call it before sending."""
+        self.pacer = Pacer(rate_bytes_per_s=rate_bytes_per_s,
+                           max_backlog_bytes=self.max_write_buffer_bytes)
 
     def _release_paced(self, now: float) -> None:
         """Hand the pacer's due datagrams to the socket; re-arm its one timer."""

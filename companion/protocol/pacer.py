@@ -41,14 +41,17 @@ class Pacer(Generic[A]):
     """Token bucket (``rate_bytes_per_s``, ``burst_bytes``) in front of a FIFO of at most
     ``max_backlog_bytes``; each datagram costs its size + ``overhead_bytes``.
 
-    ``offer`` queues a unit whole or drops it whole; ``pop_due`` returns what the bucket pays
-    for by ``now``, in order; ``next_due`` says when the head may leave.
+    ``offer`` queues a unit whole or drops it whole: when the backlog cannot take all of it,
+    or when what is queued before it still needs more than ``max_delay_s`` (what it carries
+    would arrive too late, and the link is over-offered). ``pop_due`` returns what the bucket
+    pays for by ``now``, in order; ``next_due`` says when the head may leave.
     """
 
     rate_bytes_per_s: float
     burst_bytes: int = 3_000
     max_backlog_bytes: int = 256 * 1024
     overhead_bytes: int = UDP_IP_OVERHEAD_BYTES
+    max_delay_s: float = 1.0
     counters: dict[str, int] = field(default_factory=lambda: dict.fromkeys(
         ("units_queued", "units_dropped", "datagrams_released", "bytes_released"), 0))
     max_backlog_seen_bytes: int = 0
@@ -57,9 +60,12 @@ class Pacer(Generic[A]):
     _bucket: TokenBucket = field(init=False)
 
     def __post_init__(self) -> None:
-        _check_rate(self.rate_bytes_per_s)
-        if not (self.burst_bytes > 0 and self.max_backlog_bytes > 0 and self.overhead_bytes >= 0):
-            raise ValueError("pacer: burst and backlog must be > 0, overhead >= 0")
+        if not (math.isfinite(self.rate_bytes_per_s) and self.rate_bytes_per_s > 0):
+            raise ValueError(f"pacer: rate must be a finite number > 0, got "
+                             f"{self.rate_bytes_per_s!r}")
+        if not (self.burst_bytes > 0 and self.max_backlog_bytes > 0 and self.overhead_bytes >= 0
+                and self.max_delay_s > 0):
+            raise ValueError("pacer: burst, backlog and delay must be > 0, overhead >= 0")
         self._bucket = TokenBucket(self.rate_bytes_per_s, self.burst_bytes)
 
     @property
@@ -70,18 +76,12 @@ class Pacer(Generic[A]):
     def __len__(self) -> int:
         return len(self._queue)
 
-    def set_rate(self, rate_bytes_per_s: float, now: float) -> None:
-        """From ``now`` on the bucket fills at the new rate (what was earned so far stays).
-        Call it after ``pop_due(now)``, so what was due at the old rate has gone."""
-        _check_rate(rate_bytes_per_s)
-        self._bucket.refill(now)
-        self.rate_bytes_per_s = self._bucket.rate_bytes_per_s = float(rate_bytes_per_s)
-
     def offer(self, datagrams: Sequence[bytes], to: A, now: float) -> bool:
         """Queue all ``datagrams`` (one unit) for ``to``; False, and nothing queued, when the
-        backlog cannot take all of them."""
+        backlog cannot take all of them or is busy for longer than ``max_delay_s``."""
         cost = sum(len(d) + self.overhead_bytes for d in datagrams)
-        if self._backlog + cost > self.max_backlog_bytes:
+        if self._backlog + cost > self.max_backlog_bytes \
+                or (self._queue and self.idle_at(now) - now > self.max_delay_s):
             self.counters["units_dropped"] += 1
             return False
         if not self._queue:  # the bucket filled while idle; a waiting queue keeps its own time
@@ -124,8 +124,3 @@ class Pacer(Generic[A]):
 
     def _head_due(self) -> float | None:
         return self._bucket.due(self._queue[0][2]) if self._queue else None
-
-
-def _check_rate(rate: float) -> None:
-    if not (math.isfinite(rate) and rate > 0):
-        raise ValueError(f"pacer: rate must be a finite number > 0, got {rate!r}")

@@ -45,7 +45,10 @@ class _Transport:
     """Records what the app sets; sends nothing."""
 
     def __init__(self) -> None:
-        self.pace_rate: Any = None
+        self.paced_at: float | None = None
+
+    def pace(self, rate_bytes_per_s: float) -> None:
+        self.paced_at = rate_bytes_per_s
 
     async def run(self) -> None:
         pass
@@ -83,5 +86,4 @@ def test_the_companion_paces_at_the_configured_link_rate(
     CompanionApp(config, decider=_SendAll(), transport_factory=factory,  # type: ignore[arg-type]
                  clock=time.time)
     (transport,) = made
-    rate = transport.pace_rate() if transport.pace_rate is not None else None
-    assert rate == paced_at  # 0 (unknown): every message's datagrams leave at once
+    assert transport.paced_at == paced_at  # 0 (unknown): every message's datagrams leave at once

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -69,24 +71,10 @@ def test_a_unit_goes_whole_or_not_at_all() -> None:
     assert pacer.max_backlog_seen_bytes == 2000
 
 
-def test_a_new_rate_applies_from_now() -> None:
-    pacer: Pacer[str] = Pacer(rate_bytes_per_s=1000.0, burst_bytes=500)
-    pacer.offer([_d(500)] * 3, "a", now=0.0)
-    assert len(pacer.pop_due(0.0)) == 1
-    assert pacer.next_due() == 0.5
-    assert pacer.pop_due(0.25) == []
-    pacer.set_rate(250.0, now=0.25)  # 250 B earned at the old rate; 250 more take 1 s
-    assert pacer.next_due() == 1.25
-    assert pacer.idle_at(0.25) == 3.25
-
-
 @pytest.mark.parametrize("rate", [0.0, -1.0, float("nan"), float("inf")])
 def test_bad_rates_are_refused(rate: float) -> None:
     with pytest.raises(ValueError, match="rate"):
         Pacer(rate_bytes_per_s=rate)
-    pacer: Pacer[str] = Pacer(rate_bytes_per_s=1.0)
-    with pytest.raises(ValueError, match="rate"):
-        pacer.set_rate(rate, now=0.0)
 
 
 @settings(max_examples=60, deadline=None)
@@ -98,7 +86,7 @@ def test_never_faster_than_rate_plus_one_burst(sizes: list[int], gaps: list[floa
     """Over any interval the pacer releases at most burst + rate·interval bytes (plus one
     datagram: a datagram above the bucket leaves when it is full), and everything leaves."""
     pacer: Pacer[int] = Pacer(rate_bytes_per_s=rate, burst_bytes=burst,
-                              max_backlog_bytes=10**9)
+                              max_backlog_bytes=10**9, max_delay_s=math.inf)  # takes all
     released: list[tuple[float, int]] = []
     now = 0.0
 
@@ -120,3 +108,14 @@ def test_never_faster_than_rate_plus_one_burst(sizes: list[int], gaps: list[floa
         for t1, cost in released[i:]:
             window += cost
             assert window <= burst + biggest + rate * (t1 - t0) + 1e-6
+
+
+def test_a_unit_behind_more_than_max_delay_is_refused_whole() -> None:
+    pacer: Pacer[str] = Pacer(rate_bytes_per_s=1000.0, burst_bytes=500, max_delay_s=1.0)
+    assert pacer.offer([_d(500)] * 3, "a", now=0.0)  # the last leaves at 1.0 s
+    assert pacer.idle_at(0.0) == 1.0
+    assert pacer.offer([_d(500)], "b", now=0.0)  # behind exactly 1.0 s: still taken
+    assert not pacer.offer([_d(500)], "c", now=0.0)  # behind 1.5 s: refused, nothing queued
+    assert len(pacer.pop_due(0.5)) == 2  # the shell's timer: two have left by 0.5 s
+    assert pacer.offer([_d(500)], "c", now=0.5)  # now it is behind 1.0 s again
+    assert pacer.counters["units_dropped"] == 1 and len(pacer) == 3

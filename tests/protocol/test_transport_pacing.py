@@ -57,8 +57,9 @@ async def _two_drones_send_at_once(pace_rate: float | None) -> tuple[Bottleneck,
     drones = [UdpTransport(encoder=Encoder(FLEET, f"drone{i}", KEY), decoder=Decoder(FLEET, KEY),
                            remote_addr=("127.0.0.1", port), local_addr=LOCAL)
               for i in (1, 2)]
-    for drone in drones:
-        drone.pace_rate = lambda: pace_rate
+    if pace_rate is not None:
+        for drone in drones:
+            drone.pace(pace_rate)
     tasks = [asyncio.create_task(d.run()) for d in drones]
     try:
         for d in drones:
@@ -109,7 +110,7 @@ async def test_a_message_the_busy_pacer_cannot_take_is_dropped_whole() -> None:
     drone = UdpTransport(encoder=Encoder(FLEET, "drone1", KEY), decoder=Decoder(FLEET, KEY),
                          remote_addr=("127.0.0.1", server.get_extra_info("sockname")[1]),
                          local_addr=LOCAL)
-    drone.pace_rate = lambda: 20_000.0  # 30 kB: 1.4 s of pacing, more than PACE_MAX_DELAY_S
+    drone.pace(20_000.0)  # 30 kB: 1.4 s of pacing, more than the pacer's max_delay_s
     task = asyncio.create_task(drone.run())
     try:
         await drone.wait_started()
