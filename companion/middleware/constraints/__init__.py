@@ -10,7 +10,7 @@ that importing the optimiser does not import scikit-learn.
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from companion.middleware.constraints.base import ConstantConstraint, GoodputConstraint
 from companion.middleware.constraints.linkstats import (
@@ -21,6 +21,14 @@ from companion.middleware.constraints.linkstats import (
     RoundTrip,
     WindowStats,
 )
+
+if TYPE_CHECKING:  # the lazy names, typed for checkers (imported on first use at run time)
+    from companion.middleware.constraints.adaptive import (
+        AdaptiveConstraint,
+        LinkStatsConstraint,
+    )
+    from companion.middleware.constraints.aimd import AimdConstraint
+    from companion.middleware.constraints.registry import CONSTRAINTS, make_constraint
 
 _LAZY = {
     "AdaptiveConstraint": "companion.middleware.constraints.adaptive",
