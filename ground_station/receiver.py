@@ -38,6 +38,7 @@ from ground_station.link_output import (
     LinkOutput,
     tile_interval,
 )
+from ground_station.mission_state import MissionStateFile, restore_missions, snapshot_missions
 from ground_station.missions import MissionManager
 from ground_station.replay_state import load_replay_state, save_replay_state
 from ground_station.reports import ReportScheduler
@@ -106,6 +107,8 @@ class GroundLink(LinkOutput):
         """Boot epoch each drone announced; its commands must carry it (docs/protocol.md)."""
         self.replay_path = config.data_dir / "replay_state.json"
         self._replay_saving = False
+        self.mission_file = MissionStateFile(config.data_dir / "mission_state.json")
+        self._mission_saved = 0
         self.reports = ReportScheduler(interval_s=config.report_interval_s, now=now)
         self.transport: GroundTransport[Address] = (
             transport if transport is not None else udp_transport(config)
@@ -134,6 +137,10 @@ class GroundLink(LinkOutput):
         restored = self.decoder.restore_replay_state(saved, self.clock())
         if restored:
             log.info("replay protection restored for %d sender(s)", restored)
+        saved_mission = await asyncio.to_thread(self.mission_file.load)
+        if saved_mission and restore_missions(self.missions, saved_mission):
+            log.info("mission state restored: phase %s, %d command(s)",
+                     self.missions.phase(now=self.clock()), len(self.missions.commands))
         addr = await self.transport.open(self)
         self._open = True
         self._arm()
@@ -170,9 +177,34 @@ class GroundLink(LinkOutput):
                                                             state)
         future.add_done_callback(done)
 
+    async def save_mission_state(self) -> None:
+        """Write the mission state now, off the loop (an accepted command is on disk before
+        the API answers)."""
+        await asyncio.to_thread(self._write_mission_state, snapshot_missions(self.missions),
+                                self.missions.changes)
+
+    def _write_mission_state(self, snapshot: dict[str, Any], changes: int) -> None:
+        try:
+            self.mission_file.save(snapshot, changes)
+        except OSError as exc:
+            self.counters["mission_state_errors"] += 1
+            if self.counters["mission_state_errors"] % 60 == 1:
+                log.warning("mission state not saved (%d times): %s",
+                            self.counters["mission_state_errors"], exc)
+
+    def _save_mission_state_soon(self) -> None:
+        """Once a second while something changed, off the event loop."""
+        if self.missions.changes == self._mission_saved:
+            return
+        self._mission_saved = self.missions.changes
+        asyncio.get_running_loop().run_in_executor(
+            None, self._write_mission_state, snapshot_missions(self.missions),
+            self.missions.changes)
+
     def close(self) -> None:
         if self._open:
             self.save_replay_state()
+            self._write_mission_state(snapshot_missions(self.missions), self.missions.changes)
             self._open = False
         if self._timer is not None:
             self._timer.cancel()
@@ -227,6 +259,13 @@ class GroundLink(LinkOutput):
         report = message.data.get("report")
         if isinstance(report, str) and report:
             self.missions.on_report(message.sender, report, now=now)
+        window = message.data.get("mission")
+        if message.type == "status" and window in ("idle", "running", "ended") \
+                and self.missions.on_mission_state(message.sender, str(window),
+                                                   t_gen=message.t_gen, now=now):
+            log.info("%s says its mission is %s: sending it the mission's commands again",
+                     message.sender, window)
+            self.send_commands(now)
         if message.t_sent is not None:
             self.reports.on_datagram(message.sender, t_sent=message.t_sent, t_rcv=event.t_rcv)
         # Reported delivered only once durable: the report entry is added by
@@ -306,12 +345,15 @@ class GroundLink(LinkOutput):
                 Alert(t=now, level="info", kind="fleet", drone=event.sender, text="drone joined")
             )
         self.fleet.heard(event.sender, now=now, addr=addr)
-        if self.command_epochs.get(event.sender) != epoch:
+        previous = self.command_epochs.get(event.sender)
+        if previous != epoch:
             self.command_epochs.pop(event.sender, None)
             self.command_epochs[event.sender] = epoch
             while len(self.command_epochs) > MAX_EPOCHS:  # oldest announcement first
                 del self.command_epochs[next(iter(self.command_epochs))]
             self.missions.resend_to(event.sender)
+            if previous is not None and self.missions.rejoin(event.sender, now=now):
+                log.info("%s restarted: sending it the mission's commands again", event.sender)
             self.send_commands(now)
 
     # -- timer ---------------------------------------------------------------------------
@@ -346,6 +388,7 @@ class GroundLink(LinkOutput):
         if now >= self._next_tick:
             self._next_tick = now + TICK_S
             self._save_replay_state_soon()
+            self._save_mission_state_soon()
             point = self.fleet.tick(now=now)
             for drone in self.fleet.take_forgotten():
                 self.missions.forget(drone)
