@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from ground_station.config import ConfigError, GroundConfig, load_config, missing_keys
+from ground_station.mission_input import HELP
 from ground_station.token import ensure_token
 from utility_specs.errors import UtilitySpecsError
 
@@ -76,7 +77,11 @@ def _parser() -> argparse.ArgumentParser:
                           "other names are refused (DNS rebinding). IP addresses and "
                           "localhost always work")
     run.add_argument("-v", "--verbose", action="store_true")
-    shell = sub.add_parser("shell", help="interactive mission manager (thesis fig. 3.7)")
+    shell = sub.add_parser(
+        "shell", help="interactive mission manager (thesis fig. 3.7)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=HELP + '\n\nScripted: -c "drones 3; start +5; params alpha=10" exits 1 when a '
+                      "line failed or a drone did not answer done.")
     _common(shell)
     shell.add_argument("--url", help="ground station base URL (default from the config)")
     shell.add_argument("--token", help="control token (default: read from data_dir/token)")
