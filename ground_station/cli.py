@@ -7,6 +7,7 @@ import asyncio
 import logging
 import math
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -275,7 +276,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"uav-ground-station: --url must start with http:// or https://, got {url!r}",
               file=sys.stderr)
         return 2
-    return asyncio.run(run_shell(url, token, lines=lines, wait_timeout_s=args.timeout))
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # ends it like Ctrl-C
+    try:
+        return asyncio.run(run_shell(url, token, lines=lines, wait_timeout_s=args.timeout))
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: a line, not a traceback
+        print("uav-ground-station shell: interrupted", file=sys.stderr)
+        return 0
 
 
 if __name__ == "__main__":
