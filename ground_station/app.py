@@ -276,7 +276,7 @@ async def link_ctx(app: web.Application) -> AsyncIterator[None]:
     fleet = app[FLEET]
     rows = await app[STORAGE].read(lambda s: s.latest_images(config.mission))
     for row in rows:
-        state = fleet.heard(row.sender, now=row.t_rcv)
+        state = fleet.restore(row.sender, last_heard=row.t_rcv)
         state.latest_image = LatestImage(
             image_id=row.id,
             seq=row.seq,

@@ -79,6 +79,10 @@ class DroneState:
     delta_s: float | None = None
     loss: float | None = None
     link_lost: bool = False
+    restored: bool = False
+    """Seeded from storage when the station started, not heard since: shown lost (dimmed)
+    without a "link lost" alert, and back without a "link back" one (the station was down,
+    not the drone's link)."""
     failsafe: bool | None = None
     autopilot_connected: bool | None = None
     optimiser_ready: bool | None = None

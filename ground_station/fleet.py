@@ -100,7 +100,19 @@ class FleetView:
             state.addr = addr
         if state.link_lost:
             state.link_lost = False
-            self.alert(Alert(t=now, level="info", kind="link", drone=drone, text="link back"))
+            if state.restored:
+                state.restored = False
+            else:
+                self.alert(Alert(t=now, level="info", kind="link", drone=drone,
+                                 text="link back"))
+        return state
+
+    def restore(self, drone: str, *, last_heard: float) -> DroneState:
+        """A drone's tile from storage at a restart: lost until heard, with no alert either
+        way (every restart raised "link lost" then "link back" for every drone)."""
+        state = self.heard(drone, now=last_heard)
+        if state.last_heard <= last_heard:  # not heard in this run yet
+            state.link_lost = state.restored = True
         return state
 
     def on_message(
