@@ -342,6 +342,7 @@ def create_app(
     app[MISSIONS] = MissionManager(
         retry_s=config.command_retry_s,
         reply_timeout_s=config.command_reply_timeout_s,
+        command_ttl_s=config.command_ttl_s,
         first_command_id=int(clock() * 10) % (2**31)
     )
     app[BROADCASTER] = Broadcaster(queue_size=config.ws_queue_size)

@@ -13,6 +13,8 @@ repeat with its result), so a lost ``done`` datagram is recovered. Status report
 A drone that lost what it was told (it restarted: a new boot epoch, or its mission state
 contradicts the station's phase) gets the commands that make the mission's state again
 (:meth:`MissionManager.rejoin`): the latest start, the ends after it and every set_params.
+A drone heard again after a link loss gets those of them it has no result for
+(:meth:`MissionManager.catch_up`), however long ago they expired.
 """
 
 from __future__ import annotations
@@ -281,6 +283,22 @@ class MissionManager:
             for table in (issued.acked, issued.states, issued.results, issued.first_sent,
                           issued.last_sent):
                 table.pop(drone, None)
+            issued.rejoined[drone] = now
+            issued.targets.add(drone)
+            armed += 1
+        if armed:
+            self.changes += 1
+        return armed
+
+    def catch_up(self, drone: str, *, now: float) -> int:
+        """``drone`` is heard again after a link loss: the commands of
+        :meth:`state_commands` it has no result for are sent to it again, even those
+        expired meanwhile (a set_params issued during a 40 s outage never reached the drones,
+        which showed ``no reply`` for good). Returns how many were armed again."""
+        armed = 0
+        for issued in self.state_commands():
+            if drone in issued.results or self._on_its_way(issued, drone, now):
+                continue
             issued.rejoined[drone] = now
             issued.targets.add(drone)
             armed += 1

@@ -253,7 +253,10 @@ class GroundLink(LinkOutput):
             self.fleet.alert(
                 Alert(t=now, level="info", kind="fleet", drone=message.sender, text="drone joined")
             )
+        was_lost = self._link_lost(message.sender)
         self.fleet.on_message(message, now=now, addr=addr, utility=utility)
+        if was_lost:
+            self._catch_up(message.sender, now)
         for listener in self.data_listeners:
             listener(message.sender, message.data)
         report = message.data.get("report")
@@ -303,7 +306,10 @@ class GroundLink(LinkOutput):
             self.fleet.alert(
                 Alert(t=now, level="info", kind="fleet", drone=event.sender, text="drone joined")
             )
+        was_lost = self._link_lost(event.sender)
         state = self.fleet.heard(event.sender, now=now, addr=addr)
+        if was_lost:
+            self._catch_up(event.sender, now)
         self.fleet.apply_data(state, status.info, now=now)
         for listener in self.data_listeners:
             listener(event.sender, status.info)
@@ -333,6 +339,17 @@ class GroundLink(LinkOutput):
                 "mission": self.missions.state(now=now),
             },
         )
+
+    def _link_lost(self, drone: str) -> bool:
+        state = self.fleet.drones.get(drone)
+        return state is not None and state.link_lost
+
+    def _catch_up(self, drone: str, now: float) -> None:
+        """Heard again after a link loss (or for the first time since a restart)."""
+        if self.missions.catch_up(drone, now=now):
+            log.info("%s is back: sending it the mission's commands it has not answered",
+                     drone)
+            self.send_commands(now)
 
     def _on_epoch(self, event: StatusReceived, addr: Address, now: float) -> None:
         """A drone (re)started: remember its epoch, resend its unacknowledged commands."""

@@ -126,3 +126,19 @@ def test_a_damaged_mission_state_file_starts_empty(tmp_path: Path) -> None:
     mm = MissionManager(retry_s=0.5)
     assert restore_missions(mm, MissionStateFile(path).load()) == 0
     assert mm.t_start == T0 and mm.commands == {}
+
+
+def test_a_drone_back_after_a_long_outage_gets_the_commands_it_missed() -> None:
+    mm, *_ = _running_mission()
+    missed = mm.issue("params", t_exec=T0 + 10, now=T0 + 10, args={"alpha": 5})
+    cid = missed.command.command_id
+    mm.due(now=T0 + 10)
+    _done(mm, "d1", cid, T0 + 10.1)  # d2 is out of reach: sent, never acknowledged
+    report = mm.issue("report", t_exec=T0 + 11, now=T0 + 11).command.command_id
+    assert mm.due(now=T0 + 100) == [] and missed.result("d2", T0 + 100) == "no reply"
+    assert mm.catch_up("d2", now=T0 + 100) == 1  # not the start, params it has, nor report
+    assert [(d, c.command_id) for d, c in mm.due(now=T0 + 100)] == [("d2", cid)]
+    assert report not in {c.command_id for _, c in mm.due(now=T0 + 200)}
+    _done(mm, "d2", cid, T0 + 100.2)
+    assert missed.result("d2", T0 + 101) == "done"  # a late answer counts
+    assert mm.catch_up("d2", now=T0 + 200) == 0 and mm.catch_up("d1", now=T0 + 200) == 0

@@ -44,7 +44,8 @@ class Station:
         self.config.write_text(
             f'[ground_station]\nfleet_id = {FLEET}\ndata_dir = "data"\nmission = "ops"\n'
             f'udp_host = "127.0.0.1"\nudp_port = {self.udp}\nhttp_port = {http}\n'
-            "fsync = false\ncommand_retry_s = 0.2\n")
+            "fsync = false\ncommand_retry_s = 0.2\ncommand_ttl_s = 2.0\nlink_lost_s = 1.0\n"
+            "command_reply_timeout_s = 1.0\n")
         self.http = f"http://127.0.0.1:{http}"
         self.token_file = tmp_path / "data" / "token"
         self.proc: subprocess.Popen[str] | None = None
@@ -140,6 +141,31 @@ async def test_restarted_drones_and_station_keep_the_mission(tmp_path: Path) -> 
             logs += station.stop()
     assert "drone1 restarted: sending it the mission's commands again" in logs
     assert "drone1 says its mission is idle" in logs
+
+
+@pytest.mark.timeout(60)
+async def test_a_drone_back_from_an_outage_gets_the_expired_params(tmp_path: Path) -> None:
+    """Before: a set_params issued while a drone was out of reach for longer than the
+    command's TTL never reached it; the station showed ``no reply`` for good."""
+    station = Station(tmp_path)
+    await station.start()
+    fake = await drone(station)
+    try:
+        fake.send_telemetry("status", {"mission": "running"})
+        await until(lambda: _heard(station))
+        fake.datagram_received = lambda *_: None  # type: ignore[method-assign]  # out of reach
+        await station.api("POST", "/api/mission/params", {"params": "alpha=5"})
+        await asyncio.sleep(3.5)  # lost (1 s), and the command expired (2 s after t_exec)
+        state = await station.api("GET", "/api/mission")
+        assert state["commands"][0]["summary"]["no reply"] == 1 and fake.commands == []
+        del fake.datagram_received  # back in reach
+        fake.send_telemetry("status", {"mission": "running"})
+        await until(lambda: _done(station, 1))
+        assert fake.commands and all(c.command.args == {"alpha": 5} for c in fake.commands)
+    finally:
+        fake.close()
+        logs = station.stop()
+    assert "drone1 is back: sending it the mission's commands it has not answered" in logs
 
 
 async def _async(value: bool) -> bool:
