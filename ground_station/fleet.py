@@ -189,6 +189,9 @@ class FleetView:
         ready = data.get("optimiser_ready")
         if isinstance(ready, bool) and newer("optimiser_ready"):
             state.optimiser_ready = ready
+        window = data.get("mission")
+        if window in ("idle", "running", "ended") and newer("mission"):
+            state.mission = str(window)
         fix = first_number(data, "gps_fix", "fix_type", "fix")
         if fix is not None and newer("gps_fix"):
             state.gps_fix = int(fix)
@@ -371,6 +374,7 @@ class FleetView:
             "failsafe": state.failsafe,
             "autopilot_connected": state.autopilot_connected,
             "optimiser_ready": state.optimiser_ready,
+            "mission": state.mission,
             "no_position": state.no_position,
             "peers": _peer_ages(state, now),
             "ages": ages,
