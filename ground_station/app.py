@@ -268,6 +268,10 @@ async def storage_ctx(app: web.Application) -> AsyncIterator[None]:
         yield
     finally:
         await service.close()
+        s = service.stats()  # the one line a stop leaves: what this run kept, and did not
+        log.info("stopped: %d messages stored (%d images), %d not stored, %d refused",
+                 s["written"] - s["not_stored"], s["images_stored"], s["not_stored"],
+                 s["refused"])
 
 
 async def link_ctx(app: web.Application) -> AsyncIterator[None]:

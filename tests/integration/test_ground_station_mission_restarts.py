@@ -166,6 +166,8 @@ async def test_a_drone_back_from_an_outage_gets_the_expired_params(tmp_path: Pat
         fake.close()
         logs = station.stop()
     assert "drone1 is back: sending it the mission's commands it has not answered" in logs
+    # a stop says in one line what the run kept (it said nothing): the three statuses
+    assert "stopped: 3 messages stored (0 images), 0 not stored, 0 refused" in logs
 
 
 async def _async(value: bool) -> bool:
