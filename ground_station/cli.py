@@ -245,6 +245,10 @@ def main(argv: list[str] | None = None) -> int:
         except OSError as exc:  # an unwritable --out, a full disk...
             print(f"uav-ground-station: export to {args.out} failed: {exc}", file=sys.stderr)
             return 1
+        except KeyboardInterrupt:  # a line, not a traceback; not 0: the export is partial
+            print(f"uav-ground-station: export interrupted; {args.out} is incomplete",
+                  file=sys.stderr)
+            return 130
         print(f"exported {result.images} images to {args.out} (geotags: {result.csv_path})")
         if result.missing:
             print(f"warning: {result.missing} indexed images had no file", file=sys.stderr)
