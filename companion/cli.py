@@ -96,7 +96,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command == "run":
         return _run(args)
     if args.command == "check":
-        return _check(args)
+        try:
+            return _check(args)
+        except KeyboardInterrupt:  # a line, not a traceback; not 0: nothing was checked
+            print("uav-companion check: interrupted", file=sys.stderr)
+            return 130
     return _install(args)
 
 

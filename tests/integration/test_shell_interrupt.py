@@ -1,4 +1,5 @@
-"""Operator checks (audit 12): Ctrl-C in ``uav-ground-station shell``.
+"""Operator checks (audit 12): Ctrl-C in ``uav-ground-station shell`` and ``uav-companion
+check``.
 
 Before: a Ctrl-C at the prompt printed a KeyboardInterrupt traceback and then the process
 hung (the thread waiting for the terminal kept it alive) until killed; during a scripted
@@ -19,6 +20,9 @@ import time
 from pathlib import Path
 
 import pytest
+
+from sitl.fleet_config import free_port
+from tests.keys import write_test_keys
 
 SCRIPT = Path(sys.executable).parent / "uav-ground-station"
 SHELL = [str(SCRIPT) if SCRIPT.exists() else sys.executable, *(
@@ -83,3 +87,40 @@ def test_a_signal_during_a_scripted_wait_is_one_line_and_exit_0(sig: int) -> Non
     _, err = proc.communicate(timeout=10)
     assert proc.returncode == 0, err
     assert err.strip().splitlines() == ["uav-ground-station shell: interrupted"], err
+
+
+COMPANION = Path(sys.executable).parent / "uav-companion"
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_ctrl_c_while_check_waits_for_the_autopilot(tmp_path: Path) -> None:
+    """Before: a KeyboardInterrupt traceback. Now one line and 130 (nothing was checked)."""
+    if not COMPANION.exists():
+        pytest.skip(f"{COMPANION} missing: install the project in this venv")
+    keys = write_test_keys(tmp_path / "keys")
+    text = (ROOT / "examples" / "companion.toml").read_text()
+    for old, new in {
+        'url = "udpin:0.0.0.0:14550"': f'url = "udpin:127.0.0.1:{free_port()}"',  # silent
+        '# fleet_key_file = "/etc/uav-companion/fleet.key"':
+            f'fleet_key_file = "{keys / "fleet.key"}"',
+        '# command_public_key_file = "/etc/uav-companion/command.pub"':
+            f'command_public_key_file = "{keys / "command.pub"}"',
+    }.items():
+        assert text.count(old) == 1, old
+        text = text.replace(old, new)
+    config = tmp_path / "companion.toml"
+    config.write_text(text)
+    proc = subprocess.Popen([str(COMPANION), "check", "--config", str(config), "--timeout",
+                             "60", "--skip-camera"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    assert proc.stdout is not None
+    for line in proc.stdout:  # the config is read: now it waits for a HEARTBEAT
+        if line.startswith("config:"):
+            break
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=15)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1] == "uav-companion check: interrupted"
