@@ -11,6 +11,7 @@ anything changed, and at shutdown.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import json
 import logging
@@ -25,7 +26,7 @@ from typing import Any
 from companion.protocol.records import Command
 from ground_station.missions import IssuedCommand, MissionManager
 
-__all__ = ["MissionStateFile", "restore_missions", "snapshot_missions"]
+__all__ = ["MissionStateFile", "MissionStateKeeper", "restore_missions", "snapshot_missions"]
 
 log = logging.getLogger(__name__)
 
@@ -33,8 +34,8 @@ VERSION = 1
 PER_DRONE = ("first_sent", "last_sent", "acked", "states", "results", "rejoined")
 
 
-def snapshot_missions(missions: MissionManager) -> dict[str, Any]:
-    """Everything a restarted station needs to show and continue the mission (JSON)."""
+def snapshot_missions(missions: MissionManager, mission: str) -> dict[str, Any]:
+    """Everything a restarted station needs to show and continue ``mission`` (JSON)."""
     commands = []
     for issued in missions.commands.values():
         c = issued.command
@@ -45,7 +46,8 @@ def snapshot_missions(missions: MissionManager) -> dict[str, Any]:
             **{name: dict(getattr(issued, name)) for name in PER_DRONE},
         })
     return {
-        "version": VERSION, "t_start": missions.t_start, "t_end": missions.t_end,
+        "version": VERSION, "mission": mission,
+        "t_start": missions.t_start, "t_end": missions.t_end,
         "params": dict(missions.params), "next_id": missions._next_id,
         "reports": dict(missions.report_counts),
         "report_drones": {k: sorted(v) for k, v in missions.report_drones.items()},
@@ -60,10 +62,16 @@ def _time(value: Any) -> float | None:
     return float(value)
 
 
-def restore_missions(missions: MissionManager, saved: dict[str, Any]) -> int:
-    """Load a :func:`snapshot_missions` into a fresh manager; returns the commands restored.
-    A damaged entry is skipped (logged by the caller's count), never fatal."""
+def restore_missions(missions: MissionManager, saved: dict[str, Any], mission: str) -> int:
+    """Load a :func:`snapshot_missions` of ``mission`` into a fresh manager; returns the
+    commands restored. Another mission's state is not loaded (a station started with a new
+    ``--mission`` must not show, or send a rejoining drone, the old one's start). A damaged
+    entry is skipped, never fatal."""
     if saved.get("version") != VERSION:
+        return 0
+    if saved.get("mission") != mission:
+        log.info("mission state of %r not restored: this run's mission is %r",
+                 saved.get("mission"), mission)
         return 0
     missions.t_start, missions.t_end = _time(saved.get("t_start")), _time(saved.get("t_end"))
     if isinstance(saved.get("params"), dict):
@@ -145,3 +153,46 @@ class MissionStateFile:
                     os.unlink(tmp)
                 raise
             self._written = changes
+
+
+class MissionStateKeeper:
+    """The station's link to its mission state file: restore at open, then save now (an
+    accepted command, off the loop), soon (from the once-a-second tick, while anything
+    changed) and at close (blocking). A failing disk is counted and logged, never fatal."""
+
+    def __init__(self, missions: MissionManager, mission: str, path: Path,
+                 counters: Counter[str]) -> None:
+        self.missions = missions
+        self.mission = mission
+        self.file = MissionStateFile(path)
+        self.counters = counters
+        self._saved = 0
+
+    async def restore(self) -> int:
+        saved = await asyncio.to_thread(self.file.load)
+        return restore_missions(self.missions, saved, self.mission) if saved else 0
+
+    async def save_now(self) -> None:
+        await asyncio.to_thread(self._write, self._snapshot(), self.missions.changes)
+
+    def save_soon(self) -> None:
+        if self.missions.changes == self._saved:
+            return
+        self._saved = self.missions.changes
+        asyncio.get_running_loop().run_in_executor(None, self._write, self._snapshot(),
+                                                   self.missions.changes)
+
+    def save_blocking(self) -> None:
+        self._write(self._snapshot(), self.missions.changes)
+
+    def _snapshot(self) -> dict[str, Any]:
+        return snapshot_missions(self.missions, self.mission)
+
+    def _write(self, snapshot: dict[str, Any], changes: int) -> None:
+        try:
+            self.file.save(snapshot, changes)
+        except OSError as exc:
+            self.counters["mission_state_errors"] += 1
+            if self.counters["mission_state_errors"] % 60 == 1:  # once a minute at most
+                log.warning("mission state not saved (%d times): %s",
+                            self.counters["mission_state_errors"], exc)

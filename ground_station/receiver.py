@@ -38,7 +38,7 @@ from ground_station.link_output import (
     LinkOutput,
     tile_interval,
 )
-from ground_station.mission_state import MissionStateFile, restore_missions, snapshot_missions
+from ground_station.mission_state import MissionStateKeeper
 from ground_station.missions import MissionManager
 from ground_station.replay_state import load_replay_state, save_replay_state
 from ground_station.reports import ReportScheduler
@@ -107,14 +107,14 @@ class GroundLink(LinkOutput):
         """Boot epoch each drone announced; its commands must carry it (docs/protocol.md)."""
         self.replay_path = config.data_dir / "replay_state.json"
         self._replay_saving = False
-        self.mission_file = MissionStateFile(config.data_dir / "mission_state.json")
-        self._mission_saved = 0
         self.reports = ReportScheduler(interval_s=config.report_interval_s, now=now)
         self.transport: GroundTransport[Address] = (
             transport if transport is not None else udp_transport(config)
         )
         self._open = False
         self.counters: Counter[str] = Counter()
+        self.mission_state = MissionStateKeeper(
+            missions, config.mission, config.data_dir / "mission_state.json", self.counters)
         self._timer: asyncio.TimerHandle | None = None
         self._timer_at: float | None = None
         self._next_tick = now + TICK_S
@@ -137,8 +137,7 @@ class GroundLink(LinkOutput):
         restored = self.decoder.restore_replay_state(saved, self.clock())
         if restored:
             log.info("replay protection restored for %d sender(s)", restored)
-        saved_mission = await asyncio.to_thread(self.mission_file.load)
-        if saved_mission and restore_missions(self.missions, saved_mission):
+        if await self.mission_state.restore():
             log.info("mission state restored: phase %s, %d command(s)",
                      self.missions.phase(now=self.clock()), len(self.missions.commands))
         addr = await self.transport.open(self)
@@ -178,33 +177,14 @@ class GroundLink(LinkOutput):
         future.add_done_callback(done)
 
     async def save_mission_state(self) -> None:
-        """Write the mission state now, off the loop (an accepted command is on disk before
-        the API answers)."""
-        await asyncio.to_thread(self._write_mission_state, snapshot_missions(self.missions),
-                                self.missions.changes)
-
-    def _write_mission_state(self, snapshot: dict[str, Any], changes: int) -> None:
-        try:
-            self.mission_file.save(snapshot, changes)
-        except OSError as exc:
-            self.counters["mission_state_errors"] += 1
-            if self.counters["mission_state_errors"] % 60 == 1:
-                log.warning("mission state not saved (%d times): %s",
-                            self.counters["mission_state_errors"], exc)
-
-    def _save_mission_state_soon(self) -> None:
-        """Once a second while something changed, off the event loop."""
-        if self.missions.changes == self._mission_saved:
-            return
-        self._mission_saved = self.missions.changes
-        asyncio.get_running_loop().run_in_executor(
-            None, self._write_mission_state, snapshot_missions(self.missions),
-            self.missions.changes)
+        """Write the mission state now (an accepted command is on disk before the API
+        answers)."""
+        await self.mission_state.save_now()
 
     def close(self) -> None:
         if self._open:
             self.save_replay_state()
-            self._write_mission_state(snapshot_missions(self.missions), self.missions.changes)
+            self.mission_state.save_blocking()
             self._open = False
         if self._timer is not None:
             self._timer.cancel()
@@ -405,7 +385,7 @@ class GroundLink(LinkOutput):
         if now >= self._next_tick:
             self._next_tick = now + TICK_S
             self._save_replay_state_soon()
-            self._save_mission_state_soon()
+            self.mission_state.save_soon()
             point = self.fleet.tick(now=now)
             for drone in self.fleet.take_forgotten():
                 self.missions.forget(drone)

@@ -102,10 +102,12 @@ def test_the_mission_survives_a_station_restart(tmp_path: Path) -> None:
     mm, start, params = _running_mission()
     mm.on_status("d1", state="done", command_id=None, now=T0 + 5)  # a named report
     file = MissionStateFile(tmp_path / "mission_state.json")
-    file.save(snapshot_missions(mm), mm.changes)
+    file.save(snapshot_missions(mm, "m"), mm.changes)
     file.save({"stale": True}, mm.changes - 1)  # an older snapshot never overwrites
     again = MissionManager(retry_s=0.5, command_ttl_s=30.0, first_command_id=5)
-    assert restore_missions(again, file.load()) == 2
+    assert restore_missions(again, file.load(), "other") == 0  # another mission's state
+    assert again.phase(now=T0 + 100) == "idle" and again.commands == {}
+    assert restore_missions(again, file.load(), "m") == 2
     assert again.phase(now=T0 + 100) == "running"
     assert again.params == {"mcts_iterations": 77}
     assert again.report_counts == {"done": 1}
@@ -122,9 +124,10 @@ def test_a_damaged_mission_state_file_starts_empty(tmp_path: Path) -> None:
     path = tmp_path / "mission_state.json"
     path.write_text('{"version": 1, "t_start": "x", "commands": [{"command_id": 1}]')
     assert MissionStateFile(path).load() == {}
-    path.write_text(json.dumps({"version": 1, "t_start": T0, "commands": [{"name": "start"}]}))
+    path.write_text(json.dumps({"version": 1, "mission": "m", "t_start": T0,
+                                "commands": [{"name": "start"}]}))
     mm = MissionManager(retry_s=0.5)
-    assert restore_missions(mm, MissionStateFile(path).load()) == 0
+    assert restore_missions(mm, MissionStateFile(path).load(), "m") == 0
     assert mm.t_start == T0 and mm.commands == {}
 
 
