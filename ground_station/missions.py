@@ -262,12 +262,20 @@ class MissionManager:
 
     def state_commands(self) -> list[IssuedCommand]:
         """The commands that make the mission's state, in issue order: the latest start,
-        every end after it, and the last :data:`PARAMS_KEPT` set_params."""
+        every end after it, and of the last :data:`PARAMS_KEPT` set_params those with a key
+        no later one sets (a rejected one, all or nothing, sets none)."""
         issued = list(self.commands.values())
         starts = [i for i, c in enumerate(issued) if c.command.name == "start"]
         first = starts[-1] if starts else len(issued)
-        params = [c for c in issued if c.command.name == "set_params"][-PARAMS_KEPT:]
-        return [c for i, c in enumerate(issued) if c in params or (
+        params: list[IssuedCommand] = []
+        later: set[str] = set()
+        for c in reversed([c for c in issued if c.command.name == "set_params"][-PARAMS_KEPT:]):
+            keys = set(c.command.args)
+            if not keys <= later:
+                params.append(c)
+            if not any(r["state"] == "error" for r in c.results.values()):
+                later |= keys
+        return [c for i, c in enumerate(issued) if any(c is p for p in params) or (
             i >= first and c.command.name in ("start", "end"))]
 
     def rejoin(self, drone: str, *, now: float) -> int:
@@ -322,8 +330,8 @@ class MissionManager:
         command = decisive[-1] if phase == "ended" else decisive[0]
         result = command.results.get(drone)
         if result is None:
-            if self._on_its_way(command, drone, now):
-                return 0
+            if self._on_its_way(command, drone, now) or drone in command.rejoined:
+                return 0  # on its way, or sent again once already without an answer
         elif t_gen <= result["t"] + STATUS_AFTER_RESULT_S:
             return 0  # said before it executed the command
         return self.rejoin(drone, now=now)

@@ -145,3 +145,21 @@ def test_a_drone_back_after_a_long_outage_gets_the_commands_it_missed() -> None:
     _done(mm, "d2", cid, T0 + 100.2)
     assert missed.result("d2", T0 + 101) == "done"  # a late answer counts
     assert mm.catch_up("d2", now=T0 + 200) == 0 and mm.catch_up("d1", now=T0 + 200) == 0
+
+
+def test_superseded_params_are_not_sent_again_and_a_silent_drone_is_not_flooded() -> None:
+    mm, start, first = _running_mission()  # first: mcts_iterations=77
+    alpha = mm.issue("params", t_exec=T0 + 3, now=T0 + 3, args={"alpha": 5}).command.command_id
+    again = mm.issue("params", t_exec=T0 + 4, now=T0 + 4,
+                     args={"mcts_iterations": 9}).command.command_id  # supersedes first
+    bad = mm.issue("params", t_exec=T0 + 5, now=T0 + 5, args={"alpha": 1, "warp": 2})
+    mm.on_status("d1", state="error", command_id=bad.command.command_id, now=T0 + 5.1,
+                 info={"error": "unknown parameter 'warp'"})  # rejected: alpha=5 holds
+    assert [c.command.command_id for c in mm.state_commands()] == [
+        start, alpha, again, bad.command.command_id]
+    assert first not in [c.command.command_id for c in mm.state_commands()]
+    # a drone that never answers (say, the wrong command key) is sent them again once
+    mm.on_drone_heard("deaf", now=T0 + 60)
+    assert mm.on_mission_state("deaf", "idle", t_gen=T0 + 60, now=T0 + 60) == 4
+    assert mm.on_mission_state("deaf", "idle", t_gen=T0 + 200, now=T0 + 200) == 0
+    assert mm.due(now=T0 + 200) == []
