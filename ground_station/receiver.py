@@ -341,7 +341,10 @@ class GroundLink(LinkOutput):
             self.fleet.alert(
                 Alert(t=now, level="info", kind="fleet", drone=event.sender, text="drone joined")
             )
+        was_lost = self._link_lost(event.sender)
         self.fleet.heard(event.sender, now=now, addr=addr)
+        if was_lost:
+            self._catch_up(event.sender, now)
         previous = self.command_epochs.get(event.sender)
         if previous != epoch:
             self.command_epochs.pop(event.sender, None)
