@@ -27,7 +27,14 @@ from sitl.fleet.processes import (
     tool,
     wait,
 )
-from sitl.fleet.summary import evaluate_utility, finite, format_summary, summarize, write_report_png
+from sitl.fleet.summary import (
+    evaluate_utility,
+    finite,
+    format_summary,
+    summarize,
+    unused_note,
+    write_report_png,
+)
 from sitl.fleet.warmup import wait_for_warm_up
 from sitl.fleet_config import DroneSlot, mavlink_host, write_run_configs
 
@@ -80,7 +87,8 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
             print(f"link:       {relay_description(args)}", file=out)
         elif netns is None:
             print("link:       loopback, unshaped (no relay: --relay-rate 0)", file=out)
-        print(f"constraint: {plan.constraint} {dict(plan.constraint_params)}", file=out)
+        print(f"constraint: {plan.constraint} {dict(plan.constraint_params)}"
+              f"{unused_note(args.policy)}", file=out)
         if netns is not None:
             print(f"link:       {netns.medium.describe()}", file=out)
             if netns.medium.netem is False:  # said on stderr too, where warnings go
