@@ -140,6 +140,7 @@ class GroundLink(LinkOutput):
         if await self.mission_state.restore():
             log.info("mission state restored: phase %s, %d command(s)",
                      self.missions.phase(now=self.clock()), len(self.missions.commands))
+            await self._reopen_mission()
         addr = await self.transport.open(self)
         self._open = True
         self._arm()
@@ -175,6 +176,19 @@ class GroundLink(LinkOutput):
         future = asyncio.get_running_loop().run_in_executor(None, self._write_replay_state,
                                                             state)
         future.add_done_callback(done)
+
+    async def _reopen_mission(self) -> None:
+        """A restored mission not ended goes on in the mission log: its start again, so the
+        interval ``uav-utility evaluate`` takes spans the restart (the shutdown wrote a
+        ``t_end``; what came after was outside every interval, not counted)."""
+        t_start, mission = self.missions.t_start, self.config.mission
+        if t_start is None or self.missions.phase(now=self.clock()) == "ended":
+            return
+        try:
+            await self.storage.call_writer(
+                lambda s: s.mark_mission(mission, now=self.clock(), t_start=t_start))
+        except Exception as exc:  # full disk, SQLite: shown, the station still runs
+            log.warning("mission %s not reopened in its log: %s", mission, exc)
 
     async def save_mission_state(self) -> None:
         """Write the mission state now (an accepted command is on disk before the API

@@ -11,6 +11,7 @@ done``); a station restarted mid-mission showed phase ``idle`` with no command.
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import signal
 import socket
@@ -24,6 +25,7 @@ import pytest
 
 from ground_station.fake_drone import FakeDrone
 from tests.keys import TEST_COMMAND_PUB, TEST_FLEET_KEY, write_test_keys
+from utility_specs.intervals import intervals_of, select_intervals
 
 SCRIPT = Path(sys.executable).parent / "uav-ground-station"
 STATION = [str(SCRIPT)] if SCRIPT.exists() else [sys.executable, "-m", "ground_station.cli"]
@@ -141,6 +143,17 @@ async def test_restarted_drones_and_station_keep_the_mission(tmp_path: Path) -> 
             logs += station.stop()
     assert "drone1 restarted: sending it the mission's commands again" in logs
     assert "drone1 says its mission is idle" in logs
+    # the evaluated interval spans the restart: from the start command to the last stop
+    # (before: the first stop's t_end closed it, and what came after counted nowhere)
+    log = tmp_path / "data" / "missions" / "ops" / "mission_log.jsonl"
+    records = [json.loads(x) for x in log.read_text().splitlines() if x.strip()]
+    bounds = [(r["mission"].get("t_start"), r["mission"].get("t_end"))
+              for r in records if "mission" in r]
+    [chosen] = select_intervals([intervals_of(bounds, "gs")], [], None).chosen
+    assert chosen.t_start == start["t_exec"] and chosen.t_end == bounds[-1][1]
+    first_stop = next(t_end for _, t_end in bounds if t_end is not None)
+    after = [r["t_rcv"] for r in records if "sender" in r and r["t_rcv"] > first_stop]
+    assert after and all(chosen.t_start <= t <= chosen.t_end for t in after)
 
 
 @pytest.mark.timeout(60)
