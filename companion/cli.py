@@ -22,6 +22,8 @@ from typing import Any
 __all__ = ["main"]
 
 DEFAULT_CONFIG = "/etc/uav-companion/config.toml"
+CONFIG_HELP = (f"TOML file (default {DEFAULT_CONFIG}; examples/companion.toml is the "
+               "commented template)")
 _STD_ATTRS = frozenset(vars(logging.LogRecord("", 0, "", 0, "", (), None))) | {"message"}
 
 
@@ -64,18 +66,18 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--log-format", default="json", choices=["json", "text"])
     sub = parser.add_subparsers(dest="command", required=True)
 
-    run = sub.add_parser("run", help="run the companion until SIGTERM")
-    run.add_argument("--config", default=DEFAULT_CONFIG)
+    run = sub.add_parser("run", help="run the companion until SIGTERM or Ctrl-C")
+    run.add_argument("--config", default=DEFAULT_CONFIG, help=CONFIG_HELP)
 
     check = sub.add_parser("check", help="validate the config, probe MAVLink and the camera")
-    check.add_argument("--config", default=DEFAULT_CONFIG)
+    check.add_argument("--config", default=DEFAULT_CONFIG, help=CONFIG_HELP)
     check.add_argument("--timeout", type=_seconds, default=5.0,
                        help="seconds to wait for the autopilot (default 5)")
     check.add_argument("--skip-mavlink", action="store_true")
     check.add_argument("--skip-camera", action="store_true")
 
     inst = sub.add_parser("install-service", help="write and enable the systemd unit")
-    inst.add_argument("--config", default=DEFAULT_CONFIG)
+    inst.add_argument("--config", default=DEFAULT_CONFIG, help=CONFIG_HELP)
     inst.add_argument("--unit-dir", default=None,
                       help="where to write the unit (default /etc/systemd/system)")
     inst.add_argument("--dry-run", action="store_true", help="print the unit, change nothing")
@@ -94,7 +96,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command == "run":
         return _run(args)
     if args.command == "check":
-        return _check(args)
+        try:
+            return _check(args)
+        except KeyboardInterrupt:  # a line, not a traceback; not 0: nothing was checked
+            print("uav-companion check: interrupted", file=sys.stderr)
+            return 130
     return _install(args)
 
 

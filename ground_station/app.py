@@ -268,6 +268,10 @@ async def storage_ctx(app: web.Application) -> AsyncIterator[None]:
         yield
     finally:
         await service.close()
+        s = service.stats()  # the one line a stop leaves: what this run kept, and did not
+        log.info("stopped: %d messages stored (%d images), %d not stored, %d refused",
+                 s["written"] - s["not_stored"], s["images_stored"], s["not_stored"],
+                 s["refused"])
 
 
 async def link_ctx(app: web.Application) -> AsyncIterator[None]:
@@ -276,7 +280,7 @@ async def link_ctx(app: web.Application) -> AsyncIterator[None]:
     fleet = app[FLEET]
     rows = await app[STORAGE].read(lambda s: s.latest_images(config.mission))
     for row in rows:
-        state = fleet.heard(row.sender, now=row.t_rcv)
+        state = fleet.restore(row.sender, last_heard=row.t_rcv)
         state.latest_image = LatestImage(
             image_id=row.id,
             seq=row.seq,
@@ -342,6 +346,7 @@ def create_app(
     app[MISSIONS] = MissionManager(
         retry_s=config.command_retry_s,
         reply_timeout_s=config.command_reply_timeout_s,
+        command_ttl_s=config.command_ttl_s,
         first_command_id=int(clock() * 10) % (2**31)
     )
     app[BROADCASTER] = Broadcaster(queue_size=config.ws_queue_size)

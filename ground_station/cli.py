@@ -7,10 +7,12 @@ import asyncio
 import logging
 import math
 import os
+import signal
 import sys
 from pathlib import Path
 
 from ground_station.config import ConfigError, GroundConfig, load_config, missing_keys
+from ground_station.mission_input import HELP
 from ground_station.token import ensure_token
 from utility_specs.errors import UtilitySpecsError
 
@@ -76,7 +78,11 @@ def _parser() -> argparse.ArgumentParser:
                           "other names are refused (DNS rebinding). IP addresses and "
                           "localhost always work")
     run.add_argument("-v", "--verbose", action="store_true")
-    shell = sub.add_parser("shell", help="interactive mission manager (thesis fig. 3.7)")
+    shell = sub.add_parser(
+        "shell", help="interactive mission manager (thesis fig. 3.7)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=HELP + '\n\nScripted: -c "drones 3; start +5; params alpha=10" exits 1 when a '
+                      "line failed or a drone did not answer done.")
     _common(shell)
     shell.add_argument("--url", help="ground station base URL (default from the config)")
     shell.add_argument("--token", help="control token (default: read from data_dir/token)")
@@ -239,6 +245,10 @@ def main(argv: list[str] | None = None) -> int:
         except OSError as exc:  # an unwritable --out, a full disk...
             print(f"uav-ground-station: export to {args.out} failed: {exc}", file=sys.stderr)
             return 1
+        except KeyboardInterrupt:  # a line, not a traceback; not 0: the export is partial
+            print(f"uav-ground-station: export interrupted; {args.out} is incomplete",
+                  file=sys.stderr)
+            return 130
         print(f"exported {result.images} images to {args.out} (geotags: {result.csv_path})")
         if result.missing:
             print(f"warning: {result.missing} indexed images had no file", file=sys.stderr)
@@ -270,7 +280,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"uav-ground-station: --url must start with http:// or https://, got {url!r}",
               file=sys.stderr)
         return 2
-    return asyncio.run(run_shell(url, token, lines=lines, wait_timeout_s=args.timeout))
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # ends it like Ctrl-C
+    try:
+        return asyncio.run(run_shell(url, token, lines=lines, wait_timeout_s=args.timeout))
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: a line, not a traceback
+        print("uav-ground-station shell: interrupted", file=sys.stderr)
+        return 0
 
 
 if __name__ == "__main__":

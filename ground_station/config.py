@@ -81,6 +81,8 @@ class GroundConfig:
     """How often an unacknowledged mission command is sent again."""
     command_reply_timeout_s: float = 5.0
     """A drone without a done/error this long after a command's execution time: no reply."""
+    command_ttl_s: float = 30.0
+    """How long after its execution time a command still goes to drones that lack it."""
     link_lost_s: float = 3.0
     """A drone not heard for this long raises a link-loss alert."""
     reassembly_timeout_s: float = 2.0
@@ -143,6 +145,7 @@ class GroundConfig:
             ("report_interval_s", self.report_interval_s > 0, "a number > 0"),
             ("command_retry_s", self.command_retry_s > 0, "a number > 0"),
             ("command_reply_timeout_s", self.command_reply_timeout_s > 0, "a number > 0"),
+            ("command_ttl_s", self.command_ttl_s > 0, "a number > 0"),
             ("link_lost_s", self.link_lost_s > 0, "a number > 0"),
             ("reassembly_timeout_s", self.reassembly_timeout_s > 0, "a number > 0"),
             ("max_pending_messages", self.max_pending_messages > 0, "an integer > 0"),
@@ -210,6 +213,7 @@ _TYPES: dict[str, tuple[type | tuple[type, ...], str]] = {
     "report_interval_s": ((int, float), "a number of seconds"),
     "command_retry_s": ((int, float), "a number of seconds"),
     "command_reply_timeout_s": ((int, float), "a number of seconds"),
+    "command_ttl_s": ((int, float), "a number of seconds"),
     "link_lost_s": ((int, float), "a number of seconds"),
     "reassembly_timeout_s": ((int, float), "a number of seconds"),
     "max_pending_messages": (int, "an integer"),

@@ -118,6 +118,7 @@ async def _issue(request: web.Request, verb: str) -> web.Response:
     link = app[LINK]
     link.kick()
     link._flush_alerts()
+    await link.save_mission_state()  # acknowledged: a restart must not lose it
     state = app[MISSIONS].state(now=now)
     app[BROADCASTER].publish("mission", {"mission": state})
     return json_reply({"command": issued.as_json(now), "mission": state})

@@ -79,9 +79,16 @@ class DroneState:
     delta_s: float | None = None
     loss: float | None = None
     link_lost: bool = False
+    restored: bool = False
+    """Seeded from storage when the station started, not heard since: shown lost (dimmed)
+    without a "link lost" alert, and back without a "link back" one (the station was down,
+    not the drone's link)."""
     failsafe: bool | None = None
     autopilot_connected: bool | None = None
     optimiser_ready: bool | None = None
+    mission: str | None = None
+    """The drone's own mission window (``idle``, ``running``, ``ended``) from its status:
+    a drone that runs no mission while the station's does shows it on its tile."""
     """The drone's optimiser has warmed up (numba compiled); None: its statuses do not say."""
     no_position: bool = False
     """The newest word on the position is "none" (no fix, no estimator origin)."""

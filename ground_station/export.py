@@ -44,7 +44,14 @@ COLUMNS = [
     "y_m",
     "pose_age_s",
     "pose",
+    "altitude_above_home",
+    "altitude_ref",
 ]
+"""``altitude`` is above mean sea level, as photogrammetry tools read a GPS altitude, when
+the drone sent it (``altitude_ref`` = ``amsl``); from a drone that sent only its height
+above home it is that height (``home``). The export wrote the height above home (30 m in
+the demo, where home is at 488 m) as ``altitude`` before: georeferenced elevations came out
+off by the home's elevation."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -103,7 +110,7 @@ def export_mission(data_dir: Path, mission: str, out: Path, *,
                     f"images/{name}",
                     row.lat_deg,
                     row.lon_deg,
-                    row.alt_m,
+                    row.alt_amsl_m if row.alt_amsl_m is not None else row.alt_m,
                     row.yaw_deg,
                     row.pitch_deg,
                     row.roll_deg,
@@ -118,6 +125,9 @@ def export_mission(data_dir: Path, mission: str, out: Path, *,
                     row.y_m,
                     row.pose_age_s,
                     pose,
+                    row.alt_m,
+                    "amsl" if row.alt_amsl_m is not None else "home" if row.alt_m is not None
+                    else "",
                 ]
             )
     return ExportResult(images=copied, missing=missing, csv_path=csv_path, untagged=untagged)

@@ -100,7 +100,19 @@ class FleetView:
             state.addr = addr
         if state.link_lost:
             state.link_lost = False
-            self.alert(Alert(t=now, level="info", kind="link", drone=drone, text="link back"))
+            if state.restored:
+                state.restored = False
+            else:
+                self.alert(Alert(t=now, level="info", kind="link", drone=drone,
+                                 text="link back"))
+        return state
+
+    def restore(self, drone: str, *, last_heard: float) -> DroneState:
+        """A drone's tile from storage at a restart: lost until heard, with no alert either
+        way (every restart raised "link lost" then "link back" for every drone)."""
+        state = self.heard(drone, now=last_heard)
+        if state.last_heard <= last_heard:  # not heard in this run yet
+            state.link_lost = state.restored = True
         return state
 
     def on_message(
@@ -177,6 +189,9 @@ class FleetView:
         ready = data.get("optimiser_ready")
         if isinstance(ready, bool) and newer("optimiser_ready"):
             state.optimiser_ready = ready
+        window = data.get("mission")
+        if window in ("idle", "running", "ended") and newer("mission"):
+            state.mission = str(window)
         fix = first_number(data, "gps_fix", "fix_type", "fix")
         if fix is not None and newer("gps_fix"):
             state.gps_fix = int(fix)
@@ -359,6 +374,7 @@ class FleetView:
             "failsafe": state.failsafe,
             "autopilot_connected": state.autopilot_connected,
             "optimiser_ready": state.optimiser_ready,
+            "mission": state.mission,
             "no_position": state.no_position,
             "peers": _peer_ages(state, now),
             "ages": ages,

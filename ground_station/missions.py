@@ -9,6 +9,12 @@ reason) or ``no reply`` once ``reply_timeout_s`` passed after its execution time
 that acknowledged but whose result did not arrive gets the command again (it answers a
 repeat with its result), so a lost ``done`` datagram is recovered. Status reports
 ("done"...) are counted so an operator can wait for them.
+
+A drone that lost what it was told (it restarted: a new boot epoch, or its mission state
+contradicts the station's phase) gets the commands that make the mission's state again
+(:meth:`MissionManager.rejoin`): the latest start, the ends after it and every set_params.
+A drone heard again after a link loss gets those of them it has no result for
+(:meth:`MissionManager.catch_up`), however long ago they expired.
 """
 
 from __future__ import annotations
@@ -46,6 +52,10 @@ COMMAND_NAMES = {"start": "start", "end": "end", "params": "set_params",
 FINAL = ("done", "error")
 """Drone states that end a command (a STATUS naming its id)."""
 NO_REPLY = "no reply"
+PARAMS_KEPT = 64
+"""set_params commands kept for drones that rejoin (the oldest are forgotten first)."""
+STATUS_AFTER_RESULT_S = 1.0
+"""A drone's mission state generated this soon after its result may predate it (clocks)."""
 
 
 @dataclass(slots=True, kw_only=True)
@@ -63,6 +73,9 @@ class IssuedCommand:
     states: dict[str, str] = field(default_factory=dict)
     results: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Drone -> ``{"state": "done"|"error", "t": ..., "info": {...}}`` from its final STATUS."""
+    rejoined: dict[str, float] = field(default_factory=dict)
+    """Drone -> when the command was armed for it again (:meth:`MissionManager.rejoin`); it
+    is sent to that drone until ``command_ttl_s`` after that."""
 
     def reply_deadline(self, drone: str) -> float:
         """When a drone without a result counts as ``no reply``."""
@@ -158,6 +171,8 @@ class MissionManager:
         self.t_start: float | None = None
         self.t_end: float | None = None
         self.params: dict[str, Any] = {}
+        self.changes = 0
+        """Counts changes worth saving (commands, acks, results, reports)."""
 
     # -- inputs -------------------------------------------------------------------------
     def on_drone_heard(self, drone: str, *, now: float) -> bool:
@@ -197,8 +212,12 @@ class MissionManager:
             self.t_end = t_exec
         else:
             self.params.update(args or {})
-        # Keep memory bounded: forget commands long past their execution.
-        for cid in [c for c, i in self.commands.items() if not self._live(i, now - 3600.0)]:
+        self.changes += 1
+        # Keep memory bounded: forget commands long past their execution, except those
+        # that make the mission's state (a drone that rejoins gets them again).
+        keep = {id(i) for i in self.state_commands()}
+        for cid in [c for c, i in self.commands.items()
+                    if not self._live(i, now - 3600.0) and id(i) not in keep]:
             del self.commands[cid]
         return issued
 
@@ -221,6 +240,7 @@ class MissionManager:
         if command_id is not None:
             issued = self.commands.get(command_id)
             if issued is not None:
+                self.changes += 1
                 issued.acked.setdefault(drone, now)
                 if state in FINAL:
                     issued.results[drone] = {"state": state, "t": now, "info": dict(info or {})}
@@ -240,17 +260,110 @@ class MissionManager:
             if drone not in issued.acked:
                 issued.last_sent.pop(drone, None)
 
+    def state_commands(self) -> list[IssuedCommand]:
+        """The commands that make the mission's state, in issue order: the latest start,
+        every end after it, and of the last :data:`PARAMS_KEPT` set_params those with a key
+        no later one sets (a rejected one, all or nothing, sets none)."""
+        issued = list(self.commands.values())
+        starts = [i for i, c in enumerate(issued) if c.command.name == "start"]
+        first = starts[-1] if starts else len(issued)
+        params: list[IssuedCommand] = []
+        later: set[str] = set()
+        for c in reversed([c for c in issued if c.command.name == "set_params"][-PARAMS_KEPT:]):
+            keys = set(c.command.args)
+            if not keys <= later:
+                params.append(c)
+            if not any(r["state"] == "error" for r in c.results.values()):
+                later |= keys
+        return [c for i, c in enumerate(issued) if any(c is p for p in params) or (
+            i >= first and c.command.name in ("start", "end"))]
+
+    def rejoin(self, drone: str, *, now: float) -> int:
+        """``drone`` lost what it was told (it restarted): send it the commands of
+        :meth:`state_commands` again, as new for it, with their ids (a drone that did not
+        restart answers a repeat with its result; a restarted one executes it at once, its
+        ``t_exec`` being past). One on its way to the drone is left alone. Returns how many
+        were armed again."""
+        armed = 0
+        for issued in self.state_commands():
+            if self._on_its_way(issued, drone, now):
+                continue
+            for table in (issued.acked, issued.states, issued.results, issued.first_sent,
+                          issued.last_sent):
+                table.pop(drone, None)
+            issued.rejoined[drone] = now
+            issued.targets.add(drone)
+            armed += 1
+        if armed:
+            self.changes += 1
+        return armed
+
+    def catch_up(self, drone: str, *, now: float) -> int:
+        """``drone`` is heard again after a link loss: the commands of
+        :meth:`state_commands` it has no result for are sent to it again, even those
+        expired meanwhile (a set_params issued during a 40 s outage never reached the drones,
+        which showed ``no reply`` for good). Returns how many were armed again."""
+        armed = 0
+        for issued in self.state_commands():
+            if drone in issued.results or self._on_its_way(issued, drone, now):
+                continue
+            issued.rejoined[drone] = now
+            issued.targets.add(drone)
+            armed += 1
+        if armed:
+            self.changes += 1
+        return armed
+
+    def on_mission_state(self, drone: str, state: str, *, t_gen: float, now: float) -> int:
+        """A drone says where its mission window is (``idle``, ``running``, ``ended``): one
+        that runs no mission while ours runs (restarted, or joined after the start's
+        ``command_ttl_s``), or runs one we ended, rejoins. Returns the commands armed."""
+        phase = self.phase(now=now)
+        if not ((phase == "running" and state != "running")
+                or (phase == "ended" and state == "running")):
+            return 0
+        decisive = [c for c in self.state_commands() if c.command.name in ("start", "end")]
+        if phase == "ended":
+            decisive = [c for c in decisive if c.command.name == "end"]
+        if not decisive:
+            return 0
+        command = decisive[-1] if phase == "ended" else decisive[0]
+        result = command.results.get(drone)
+        if result is None:
+            if self._on_its_way(command, drone, now) or drone in command.rejoined:
+                return 0  # on its way, or sent again once already without an answer
+        elif t_gen <= result["t"] + STATUS_AFTER_RESULT_S:
+            return 0  # said before it executed the command
+        return self.rejoin(drone, now=now)
+
     def on_report(self, drone: str, name: str, *, now: float) -> None:
+        self.changes += 1
         self.report_counts[name] += 1
         self.report_drones.setdefault(name, set()).add(drone)
 
     def reset_reports(self) -> None:
+        self.changes += 1
         self.report_counts.clear()
         self.report_drones.clear()
 
     # -- outputs ------------------------------------------------------------------------
     def _live(self, issued: IssuedCommand, now: float) -> bool:
-        return now <= issued.command.t_exec + self.command_ttl_s
+        """Still sent to some drone."""
+        latest = max([issued.command.t_exec, *issued.rejoined.values()])
+        return now <= latest + self.command_ttl_s
+
+    def _expiry(self, issued: IssuedCommand, drone: str) -> float:
+        """Until when ``issued`` is sent to ``drone``."""
+        return max(issued.command.t_exec,
+                   issued.rejoined.get(drone, -math.inf)) + self.command_ttl_s
+
+    def _live_for(self, issued: IssuedCommand, drone: str, now: float) -> bool:
+        return now <= self._expiry(issued, drone)
+
+    def _on_its_way(self, issued: IssuedCommand, drone: str, now: float) -> bool:
+        """Sent (or armed again) to ``drone``, no result yet, still being resent."""
+        return (drone not in issued.results and self._live_for(issued, drone, now)
+                and (drone in issued.last_sent or drone in issued.rejoined))
 
     def _next_send(self, issued: IssuedCommand, drone: str) -> float | None:
         """When ``drone`` should get ``issued`` next: until acknowledged every ``retry_s``;
@@ -271,6 +384,8 @@ class MissionManager:
             if not self._live(issued, now):
                 continue
             for drone in self.drones:
+                if not self._live_for(issued, drone, now):
+                    continue
                 issued.targets.add(drone)
                 t = self._next_send(issued, drone)
                 if t is not None and now >= t:
@@ -283,8 +398,8 @@ class MissionManager:
         """Next time :meth:`due` has something to send, or None."""
         deadline: float | None = None
         for issued in self.commands.values():
-            expiry = issued.command.t_exec + self.command_ttl_s
             for drone in self.drones:
+                expiry = self._expiry(issued, drone)
                 t = self._next_send(issued, drone)
                 if t is not None and t <= expiry and (deadline is None or t < deadline):
                     deadline = t

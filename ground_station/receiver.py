@@ -38,6 +38,7 @@ from ground_station.link_output import (
     LinkOutput,
     tile_interval,
 )
+from ground_station.mission_state import MissionStateKeeper
 from ground_station.missions import MissionManager
 from ground_station.replay_state import load_replay_state, save_replay_state
 from ground_station.reports import ReportScheduler
@@ -112,6 +113,8 @@ class GroundLink(LinkOutput):
         )
         self._open = False
         self.counters: Counter[str] = Counter()
+        self.mission_state = MissionStateKeeper(
+            missions, config.mission, config.data_dir / "mission_state.json", self.counters)
         self._timer: asyncio.TimerHandle | None = None
         self._timer_at: float | None = None
         self._next_tick = now + TICK_S
@@ -134,6 +137,10 @@ class GroundLink(LinkOutput):
         restored = self.decoder.restore_replay_state(saved, self.clock())
         if restored:
             log.info("replay protection restored for %d sender(s)", restored)
+        if await self.mission_state.restore():
+            log.info("mission state restored: phase %s, %d command(s)",
+                     self.missions.phase(now=self.clock()), len(self.missions.commands))
+            await self._reopen_mission()
         addr = await self.transport.open(self)
         self._open = True
         self._arm()
@@ -170,9 +177,28 @@ class GroundLink(LinkOutput):
                                                             state)
         future.add_done_callback(done)
 
+    async def _reopen_mission(self) -> None:
+        """A restored mission not ended goes on in the mission log: its start again, so the
+        interval ``uav-utility evaluate`` takes spans the restart (the shutdown wrote a
+        ``t_end``; what came after was outside every interval, not counted)."""
+        t_start, mission = self.missions.t_start, self.config.mission
+        if t_start is None or self.missions.phase(now=self.clock()) == "ended":
+            return
+        try:
+            await self.storage.call_writer(
+                lambda s: s.mark_mission(mission, now=self.clock(), t_start=t_start))
+        except Exception as exc:  # full disk, SQLite: shown, the station still runs
+            log.warning("mission %s not reopened in its log: %s", mission, exc)
+
+    async def save_mission_state(self) -> None:
+        """Write the mission state now (an accepted command is on disk before the API
+        answers)."""
+        await self.mission_state.save_now()
+
     def close(self) -> None:
         if self._open:
             self.save_replay_state()
+            self.mission_state.save_blocking()
             self._open = False
         if self._timer is not None:
             self._timer.cancel()
@@ -221,12 +247,22 @@ class GroundLink(LinkOutput):
             self.fleet.alert(
                 Alert(t=now, level="info", kind="fleet", drone=message.sender, text="drone joined")
             )
+        was_lost = self._link_lost(message.sender)
         self.fleet.on_message(message, now=now, addr=addr, utility=utility)
+        if was_lost:
+            self._catch_up(message.sender, now)
         for listener in self.data_listeners:
             listener(message.sender, message.data)
         report = message.data.get("report")
         if isinstance(report, str) and report:
             self.missions.on_report(message.sender, report, now=now)
+        window = message.data.get("mission")
+        if message.type == "status" and window in ("idle", "running", "ended") \
+                and self.missions.on_mission_state(message.sender, str(window),
+                                                   t_gen=message.t_gen, now=now):
+            log.info("%s says its mission is %s: sending it the mission's commands again",
+                     message.sender, window)
+            self.send_commands(now)
         if message.t_sent is not None:
             self.reports.on_datagram(message.sender, t_sent=message.t_sent, t_rcv=event.t_rcv)
         # Reported delivered only once durable: the report entry is added by
@@ -264,7 +300,10 @@ class GroundLink(LinkOutput):
             self.fleet.alert(
                 Alert(t=now, level="info", kind="fleet", drone=event.sender, text="drone joined")
             )
+        was_lost = self._link_lost(event.sender)
         state = self.fleet.heard(event.sender, now=now, addr=addr)
+        if was_lost:
+            self._catch_up(event.sender, now)
         self.fleet.apply_data(state, status.info, now=now)
         for listener in self.data_listeners:
             listener(event.sender, status.info)
@@ -295,6 +334,17 @@ class GroundLink(LinkOutput):
             },
         )
 
+    def _link_lost(self, drone: str) -> bool:
+        state = self.fleet.drones.get(drone)
+        return state is not None and state.link_lost
+
+    def _catch_up(self, drone: str, now: float) -> None:
+        """Heard again after a link loss (or for the first time since a restart)."""
+        if self.missions.catch_up(drone, now=now):
+            log.info("%s is back: sending it the mission's commands it has not answered",
+                     drone)
+            self.send_commands(now)
+
     def _on_epoch(self, event: StatusReceived, addr: Address, now: float) -> None:
         """A drone (re)started: remember its epoch, resend its unacknowledged commands."""
         epoch = event.status.info.get("epoch")
@@ -305,13 +355,19 @@ class GroundLink(LinkOutput):
             self.fleet.alert(
                 Alert(t=now, level="info", kind="fleet", drone=event.sender, text="drone joined")
             )
+        was_lost = self._link_lost(event.sender)
         self.fleet.heard(event.sender, now=now, addr=addr)
-        if self.command_epochs.get(event.sender) != epoch:
+        if was_lost:
+            self._catch_up(event.sender, now)
+        previous = self.command_epochs.get(event.sender)
+        if previous != epoch:
             self.command_epochs.pop(event.sender, None)
             self.command_epochs[event.sender] = epoch
             while len(self.command_epochs) > MAX_EPOCHS:  # oldest announcement first
                 del self.command_epochs[next(iter(self.command_epochs))]
             self.missions.resend_to(event.sender)
+            if previous is not None and self.missions.rejoin(event.sender, now=now):
+                log.info("%s restarted: sending it the mission's commands again", event.sender)
             self.send_commands(now)
 
     # -- timer ---------------------------------------------------------------------------
@@ -346,6 +402,7 @@ class GroundLink(LinkOutput):
         if now >= self._next_tick:
             self._next_tick = now + TICK_S
             self._save_replay_state_soon()
+            self.mission_state.save_soon()
             point = self.fleet.tick(now=now)
             for drone in self.fleet.take_forgotten():
                 self.missions.forget(drone)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import datetime as dt
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterable
 from typing import Any, TextIO
@@ -246,11 +247,36 @@ class MissionShell:
         self.say(HELP)
         while True:
             try:
-                line = await asyncio.to_thread(input, prompt)
+                line = await _read_line(prompt)
             except EOFError:
                 return
             if not await self.execute(line):
                 return
+
+
+async def _read_line(prompt: str) -> str:
+    """``input(prompt)`` on a daemon thread: on Ctrl-C the process exits even though the
+    thread still waits for the terminal (an executor thread there hung the exit)."""
+    loop = asyncio.get_running_loop()
+    future: asyncio.Future[str] = loop.create_future()
+
+    def settle(line: str | None, error: Exception | None) -> None:
+        if not future.done():  # cancelled meanwhile: nobody waits for this line
+            if error is not None:
+                future.set_exception(error)
+            else:
+                future.set_result(line or "")
+
+    def read() -> None:
+        try:
+            line = input(prompt)
+        except Exception as exc:  # EOFError: the terminal or the pipe closed
+            loop.call_soon_threadsafe(settle, None, exc)
+            return
+        loop.call_soon_threadsafe(settle, line, None)
+
+    threading.Thread(target=read, name="shell-input", daemon=True).start()
+    return await future
 
 
 async def run_shell(

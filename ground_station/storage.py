@@ -324,8 +324,8 @@ class Storage(StorageReads):
             cur.execute(
                 "INSERT OR REPLACE INTO images (mission, sender, seq, type, t_gen, t_rcv, size,"
                 " version, red, object, utility, lat_deg, lon_deg, alt_m, x_m, y_m, roll_deg,"
-                " pitch_deg, yaw_deg, path, error, pose_age_s, pose)"
-                " VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                " pitch_deg, yaw_deg, path, error, pose_age_s, pose, alt_amsl_m)"
+                " VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                 (
                     item.mission,
                     m.sender,
@@ -350,6 +350,7 @@ class Storage(StorageReads):
                     error,
                     pose_age,
                     pose,
+                    geo_number(d, "alt_amsl_m") if placed else None,
                 ),
             )
             ids.append(cur.lastrowid)

@@ -73,6 +73,7 @@ CREATE TABLE IF NOT EXISTS images (
     error TEXT,
     pose_age_s REAL,
     pose TEXT,
+    alt_amsl_m REAL,
     UNIQUE (mission, sender, seq)
 );
 CREATE INDEX IF NOT EXISTS images_by_sender ON images (mission, sender, t_rcv);
@@ -170,6 +171,8 @@ class ImageRow:
     """How old the position was when the image was taken (None: not reported)."""
     pose: str | None = None
     """``ok``, ``stale`` (older than POSE_STALE_AFTER_S) or ``none`` (no fix: no position)."""
+    alt_amsl_m: float | None = None
+    """Altitude above mean sea level at capture (``alt_m`` is above home); None: not sent."""
 
     def as_json(self) -> dict[str, Any]:
         return {name: getattr(self, name) for name in self.__dataclass_fields__}
@@ -178,7 +181,7 @@ class ImageRow:
 POSE_STALE_AFTER_S = 1.0
 """An image's position older than this (5 samples at the companion's 5 Hz) is stale: an
 autopilot outage, not the geotag of the place the image shows."""
-NEW_IMAGE_COLUMNS = (("pose_age_s", "REAL"), ("pose", "TEXT"))
+NEW_IMAGE_COLUMNS = (("pose_age_s", "REAL"), ("pose", "TEXT"), ("alt_amsl_m", "REAL"))
 
 
 def pose_quality(data: Mapping[str, Any]) -> tuple[float | None, str]:

@@ -190,7 +190,7 @@ function renderTile(d) {
   el.querySelector(".v-share").innerHTML = `${fmt.pct(d.goodput_share)}<span class="meter"><i style="width:${Math.round((d.goodput_share || 0) * 100)}%"></i></span>`;
   const b = d.battery;
   el.querySelector(".v-batt").innerHTML = b === null ? "–" : `${fmt.pct(b)}<span class="meter batt${b < 0.25 ? " low" : ""}"><i style="width:${Math.round(b * 100)}%"></i></span>`;
-  el.querySelector(".v-mode").textContent = (d.mode || "–") + (d.failsafe ? " · FAILSAFE" : "") + (d.autopilot_connected === false ? " · autopilot lost" : "");
+  el.querySelector(".v-mode").textContent = (d.mode || "–") + (d.failsafe ? " · FAILSAFE" : "") + (d.autopilot_connected === false ? " · autopilot lost" : "") + (d.mission && d.mission !== "running" ? " · mission " + d.mission : "");
   el.querySelector(".v-armed").textContent = d.armed === null ? "–" : d.armed ? "ARMED" : "disarmed";
   el.querySelector(".v-gps").textContent = fmt.fix(d.gps_fix);
   el.querySelector(".v-pos").textContent = d.no_position ? "no position (no fix)" : d.lat_deg === null ? "–" : `${fmt.num(d.lat_deg, 6)}, ${fmt.num(d.lon_deg, 6)}`;

@@ -23,6 +23,11 @@ class FleetError(RuntimeError):
     """The fleet could not be brought up (the text says which process and why)."""
 
 
+class Stopped(FleetError):
+    """The user stopped the fleet (Ctrl-C, SIGTERM) before its mission started: a clean
+    exit (0), not a failure."""
+
+
 def tool(script: str, module: str) -> list[str]:
     """The console script next to this interpreter, else ``python -m module``."""
     path = Path(sys.executable).parent / script
@@ -128,4 +133,4 @@ def wait(stop: Stop, what: str, timeout_s: float, ready: Callable[[], bool],
         if time.monotonic() > deadline:
             raise FleetError(f"timed out after {timeout_s:g} s waiting for {what}")
         if stop.sleep(0.2):
-            raise FleetError(f"stopped ({stop.reason}) while waiting for {what}")
+            raise Stopped(f"stopped ({stop.reason}) while waiting for {what}")

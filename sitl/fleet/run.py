@@ -17,8 +17,24 @@ from sitl.fleet.link import relay_argv, relay_description, relay_link
 from sitl.fleet.live import GroundStationApi, LogTail, StationTail, progress_line
 from sitl.fleet.netns import FleetNetns, Loopback
 from sitl.fleet.plan import make_plan
-from sitl.fleet.processes import Child, FleetError, Processes, Stop, signal_group, tool, wait
-from sitl.fleet.summary import evaluate_utility, finite, format_summary, summarize, write_report_png
+from sitl.fleet.processes import (
+    Child,
+    FleetError,
+    Processes,
+    Stop,
+    Stopped,
+    signal_group,
+    tool,
+    wait,
+)
+from sitl.fleet.summary import (
+    evaluate_utility,
+    finite,
+    format_summary,
+    summarize,
+    unused_note,
+    write_report_png,
+)
 from sitl.fleet.warmup import wait_for_warm_up
 from sitl.fleet_config import DroneSlot, mavlink_host, write_run_configs
 
@@ -51,6 +67,7 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
     vehicles: list[Child] = []
     station: list[Child] = []
     failure: str | None = None
+    stopped_early = False
     base_url = f"http://127.0.0.1:{plan.gs_http_port}"
     link_info: dict[str, Any] | None = None
     peers_known: dict[str, Any] | None = None
@@ -70,7 +87,8 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
             print(f"link:       {relay_description(args)}", file=out)
         elif netns is None:
             print("link:       loopback, unshaped (no relay: --relay-rate 0)", file=out)
-        print(f"constraint: {plan.constraint} {dict(plan.constraint_params)}", file=out)
+        print(f"constraint: {plan.constraint} {dict(plan.constraint_params)}"
+              f"{unused_note(args.policy)}", file=out)
         if netns is not None:
             print(f"link:       {netns.medium.describe()}", file=out)
             if netns.medium.netem is False:  # said on stderr too, where warnings go
@@ -172,6 +190,9 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
                                      else {s.drone_id: netns.medium.ns_drones[s.index]
                                            for s in plan.drones})
         _try(lambda: api.post("/api/mission/end", {"t_exec": t_end}))
+    except Stopped as exc:  # Ctrl-C while it came up: said, and a clean exit
+        failure = str(exc)
+        stopped_early = True
     except FleetError as exc:
         failure = str(exc)
     finally:
@@ -191,9 +212,9 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     if t_start is None or t_end is None or t_end <= t_start:
-        print(f"uav-sitl fleet: {failure or 'stopped before the mission started'}",
-              file=sys.stderr)
-        return 1
+        print(f"uav-sitl fleet: {failure or 'stopped before the mission started'}"
+              f"{'; no mission ran' if stopped_early else ''}", file=sys.stderr)
+        return 0 if stopped_early else 1
     utility = evaluate_utility([plan.gs_log_path, *(s.log_path for s in plan.drones)],
                                spec=plan.spec_path, t_start=t_start, t_end=t_end)
     summary = summarize(plan, t_start=t_start, t_end=t_end, policy=args.policy, utility=utility)

@@ -259,7 +259,7 @@ def format_summary(summary: dict[str, Any]) -> str:
         lines.extend(format_phases(summary["phases"]))
     constraint = summary.get("constraint")
     if constraint:
-        lines.append(f"constraint: {constraint.get('name')}")
+        lines.append(f"constraint: {constraint.get('name')}{unused_note(summary.get('policy'))}")
     link = summary.get("link")
     if link:
         lines.append(f"link: {link['description']}")
@@ -303,3 +303,9 @@ def finite(value: Any) -> Any:
     if isinstance(value, list | tuple):
         return [finite(v) for v in value]
     return value
+
+
+def unused_note(policy: object) -> str:
+    """The baselines decide without the goodput constraint: a header or summary that named
+    one for them (``constraint: adaptive`` for ``--policy send_all``) said otherwise."""
+    return "" if policy in (None, "mcts") else f" (not used: policy {policy} ignores it)"

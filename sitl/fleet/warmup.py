@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import IO, Any
 
-from sitl.fleet.processes import Child, FleetError, Stop
+from sitl.fleet.processes import Child, FleetError, Stop, Stopped
 
 PROGRESS_EVERY_S = 10.0
 """Without a change, the progress line is repeated this often (so a slow compile shows)."""
@@ -63,5 +63,5 @@ def wait_for_warm_up(fleet: Callable[[], Mapping[str, Any] | None], drone_ids: S
         if elapsed > timeout_s:
             return [d for d in wanted if d not in warm]
         if stop.sleep(poll_s):
-            raise FleetError(f"stopped ({stop.reason}) while waiting for the companions to "
+            raise Stopped(f"stopped ({stop.reason}) while waiting for the companions to "
                              "warm up")

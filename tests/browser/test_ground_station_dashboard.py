@@ -224,6 +224,14 @@ async def test_dashboard_live_tiles_and_start_mission(
                 timeout_s=15.0,
             )
             assert await page.locator(".tile").count() == 4
+            # a drone that says it runs no mission shows it (audit 12: a restarted
+            # companion sat idle for a whole mission, its tile looking like the others)
+            uav4 = next(d for d in fleet if d.drone_id == "uav4")
+            uav4.send_status("running", info={"mission": "idle"})
+            await wait_js(page, """() => document.querySelector(
+                '.tile[data-drone="uav4"] .v-mode').textContent.includes('· mission idle')""",
+                          timeout_s=10.0)
+            assert "mission" not in await page.inner_text('.tile[data-drone="uav1"] .v-mode')
             # the spec's scale (alpha 100): high from 1 + 0.1·100 = 11, sent in the snapshot;
             # uav2 sees red (1 + 100·0.45 = 46): red border; uav1 (1 + 100·0.02 = 3.0, high
             # under the old fixed 3.0) and uav3 (object flag, no weight under red_image) not

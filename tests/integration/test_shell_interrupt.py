@@ -1,0 +1,126 @@
+"""Operator checks (audit 12): Ctrl-C in ``uav-ground-station shell`` and ``uav-companion
+check``.
+
+Before: a Ctrl-C at the prompt printed a KeyboardInterrupt traceback and then the process
+hung (the thread waiting for the terminal kept it alive) until killed; during a scripted
+``sleep``/``wait`` it printed the traceback and exited -2. Now: one line, exit 0, at once.
+The shell is the installed console script on a real pseudo-terminal; it needs no station
+for this (it calls the API only for a command).
+"""
+
+from __future__ import annotations
+
+import os
+import pty
+import select
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from sitl.fleet_config import free_port
+from tests.keys import write_test_keys
+
+SCRIPT = Path(sys.executable).parent / "uav-ground-station"
+SHELL = [str(SCRIPT) if SCRIPT.exists() else sys.executable, *(
+    [] if SCRIPT.exists() else ["-m", "ground_station.cli"]),
+    "shell", "--url", "http://127.0.0.1:9", "--token", "operator-test-token"]
+
+
+def _read_until(fd: int, marker: bytes, timeout_s: float) -> bytes:
+    out = b""
+    deadline = time.monotonic() + timeout_s
+    while marker not in out:
+        assert time.monotonic() < deadline, out.decode(errors="replace")[-2000:]
+        ready, _, _ = select.select([fd], [], [], 0.1)
+        if ready:
+            try:
+                out += os.read(fd, 65536)
+            except OSError:  # the child closed the terminal
+                break
+    return out
+
+
+def test_ctrl_c_at_the_prompt_ends_the_shell_at_once() -> None:
+    pid, fd = pty.fork()
+    if pid == 0:  # the child: the shell on the terminal
+        os.execv(SHELL[0], SHELL)
+    status: int | None = None
+    try:
+        _read_until(fd, b"CMD >> ", 30)
+        os.write(fd, b"\x03")  # Ctrl-C typed on the terminal
+        t0 = time.monotonic()
+        out = b""
+        while True:
+            done, code = os.waitpid(pid, os.WNOHANG)
+            if done:
+                status = code
+                break
+            assert time.monotonic() - t0 < 5, "the shell hung after Ctrl-C"
+            out += _read_until(fd, b"interrupted", 0.5) if b"interrupted" not in out else b""
+            time.sleep(0.05)
+        out += _read_until(fd, b"\n", 1) if b"interrupted" not in out else b""
+    finally:
+        if status is None:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+        os.close(fd)
+    text = out.decode(errors="replace")
+    assert os.waitstatus_to_exitcode(status) == 0, text
+    assert "uav-ground-station shell: interrupted" in text
+    assert "Traceback" not in text
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_during_a_scripted_wait_is_one_line_and_exit_0(sig: int) -> None:
+    proc = subprocess.Popen([*SHELL, "-c", "help; sleep 30"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    assert proc.stdout is not None
+    for line in proc.stdout:  # the help is printed: the shell runs, now it sleeps
+        if line.startswith("Every wait gives up"):
+            break
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert err.strip().splitlines() == ["uav-ground-station shell: interrupted"], err
+
+
+COMPANION = Path(sys.executable).parent / "uav-companion"
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_ctrl_c_while_check_waits_for_the_autopilot(tmp_path: Path) -> None:
+    """Before: a KeyboardInterrupt traceback. Now one line and 130 (nothing was checked)."""
+    if not COMPANION.exists():
+        pytest.skip(f"{COMPANION} missing: install the project in this venv")
+    keys = write_test_keys(tmp_path / "keys")
+    text = (ROOT / "examples" / "companion.toml").read_text()
+    for old, new in {
+        'url = "udpin:0.0.0.0:14550"': f'url = "udpin:127.0.0.1:{free_port()}"',  # silent
+        '# fleet_key_file = "/etc/uav-companion/fleet.key"':
+            f'fleet_key_file = "{keys / "fleet.key"}"',
+        '# command_public_key_file = "/etc/uav-companion/command.pub"':
+            f'command_public_key_file = "{keys / "command.pub"}"',
+    }.items():
+        assert text.count(old) == 1, old
+        text = text.replace(old, new)
+    config = tmp_path / "companion.toml"
+    config.write_text(text)
+    proc = subprocess.Popen([str(COMPANION), "check", "--config", str(config), "--timeout",
+                             "60", "--skip-camera"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    assert proc.stdout is not None
+    for line in proc.stdout:  # the config is read: now it waits for a HEARTBEAT
+        if line.startswith("config:"):
+            break
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=15)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1] == "uav-companion check: interrupted"
