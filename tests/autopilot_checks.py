@@ -44,11 +44,16 @@ class Autopilot:
     sysid: int
     ardupilot: bool
     home: tuple[float, float, float] | None = None
+    compid: int = 1
+    """The autopilot's component: the companion shares its system id (``source_system`` 1,
+    component 191) and ArduPilot forwards the companion's HEARTBEAT to every other link."""
 
     @classmethod
     def connect(cls, url: str, timeout_s: float = 30.0) -> Autopilot:
+        # autoreconnect: a TCP link (ArduPilot SITL's serial ports) closes when the autopilot
+        # reboots; like MAVProxy, the test's link connects again.
         conn = mavutil.mavlink_connection(url, source_system=255, source_component=190,
-                                          dialect=DIALECT)
+                                          dialect=DIALECT, autoreconnect=True)
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             conn.mav.heartbeat_send(m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, 0)
@@ -57,11 +62,15 @@ class Autopilot:
                                                    m.MAV_AUTOPILOT_PX4):
                 conn.target_system = hb.get_srcSystem()
                 conn.target_component = hb.get_srcComponent()
-                return cls(conn=conn, sysid=hb.get_srcSystem(),
+                return cls(conn=conn, sysid=hb.get_srcSystem(), compid=hb.get_srcComponent(),
                            ardupilot=hb.autopilot == m.MAV_AUTOPILOT_ARDUPILOTMEGA)
         raise AssertionError(f"no autopilot HEARTBEAT on {url} within {timeout_s} s")
 
     # ------------------------------------------------------------------------ primitives
+
+    def sent_it(self, msg: Any) -> bool:
+        """From the autopilot itself, not another component of its system (the companion)."""
+        return bool(msg.get_srcSystem() == self.sysid and msg.get_srcComponent() == self.compid)
 
     def beat(self) -> None:
         self.conn.mav.heartbeat_send(m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, 0)
@@ -75,7 +84,7 @@ class Autopilot:
                 self.beat()
                 next_beat = time.monotonic() + 1.0
             msg = self.conn.recv_match(type=kind, blocking=True, timeout=0.3)
-            if msg is not None and msg.get_srcSystem() == self.sysid and cond(msg):
+            if msg is not None and self.sent_it(msg) and cond(msg):
                 return msg
         raise AssertionError(f"no {kind} within {timeout_s} s")
 
@@ -85,7 +94,7 @@ class Autopilot:
         deadline = time.monotonic() + seconds
         while time.monotonic() < deadline:
             msg = self.conn.recv_match(blocking=True, timeout=0.2)
-            if msg is not None and msg.get_srcSystem() == self.sysid:
+            if msg is not None and self.sent_it(msg):
                 seen[msg.get_type()] += 1
         return seen
 

@@ -365,7 +365,7 @@ def _silence(ap: Autopilot, gap_s: float = 1.5, timeout_s: float = 30.0) -> None
     while time.monotonic() - last < gap_s:
         assert time.monotonic() < deadline, "the autopilot did not go down"
         msg = ap.conn.recv_match(blocking=True, timeout=0.2)
-        if msg is not None and msg.get_srcSystem() == ap.sysid:
+        if msg is not None and ap.sent_it(msg):
             last = time.monotonic()
 
 
