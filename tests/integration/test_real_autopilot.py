@@ -364,7 +364,11 @@ def _silence(ap: Autopilot, gap_s: float = 1.5, timeout_s: float = 30.0) -> None
     last = time.monotonic()
     while time.monotonic() - last < gap_s:
         assert time.monotonic() < deadline, "the autopilot did not go down"
-        msg = ap.conn.recv_match(blocking=True, timeout=0.2)
+        try:
+            msg = ap.conn.recv_match(blocking=True, timeout=0.2)
+        except ConnectionRefusedError:  # TCP: the autopilot's port is closed, it is down
+            time.sleep(0.2)
+            continue
         if msg is not None and ap.sent_it(msg):
             last = time.monotonic()
 
