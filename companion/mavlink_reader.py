@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
+import errno
 import logging
 import queue
 import threading
@@ -397,8 +398,20 @@ def streams_for(autopilot: str | None, rates_hz: Mapping[str, float]) -> dict[st
 def _default_connect(settings: MavlinkSettings) -> Any:
     from pymavlink import mavutil
 
-    return mavutil.mavlink_connection(
+    # retries=0: one connect attempt; the thread retries every reconnect_delay_s (pymavlink's
+    # default blocks 3 s per attempt and prints "... sleeping" each second).
+    conn = mavutil.mavlink_connection(
         settings.url, baud=settings.baud, source_system=settings.source_system,
-        source_component=settings.source_component, autoreconnect=False,
+        source_component=settings.source_component, autoreconnect=False, retries=0,
     )
+    if isinstance(conn, mavutil.mavtcp):
+        # The peer closed the connection (ArduPilot SITL rebooting, mavlink-router restarting):
+        # pymavlink would print "EOF on TCP socket" on every read and spin until the
+        # heartbeat timeout; raise instead, so the link is lost (and reopened) at once.
+        conn.handle_eof = conn.handle_disconnect = _tcp_closed
+    return conn
+
+
+def _tcp_closed() -> None:
+    raise ConnectionResetError(errno.ECONNRESET, "the autopilot closed the TCP connection")
 
