@@ -239,7 +239,10 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
         reconnect_delay_s=mav.number("reconnect_delay_s", 1.0),
         stream_ack_timeout_s=mav.number("stream_ack_timeout_s", 1.5),
         baud=mav.integer("baud", 115200, low=1200, high=12_000_000),
-        stream_rates_hz={k: float(v) for k, v in rates.items()},
+        # A listed message overrides its default, 0 turns it off; the unlisted keep their
+        # defaults: a short table must not drop EKF_STATUS_REPORT / ESTIMATOR_STATUS, which
+        # tell whether a position may be used (the shipped example's table lacked them).
+        stream_rates_hz={**DEFAULT_STREAM_RATES_HZ, **{k: float(v) for k, v in rates.items()}},
     )
     mav.done()
 

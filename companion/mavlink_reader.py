@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
+import errno
 import logging
 import queue
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -120,6 +121,7 @@ class MavlinkReader:
         self._t_next_heartbeat = 0.0
         self._stream_deadline: float | None = None
         self._stream_acks = 0
+        self._streams_asked = 0
         self._pending: list[_Pending] = []
 
     def _main(self) -> None:
@@ -233,7 +235,7 @@ class MavlinkReader:
             return self._lose(conn, f"no HEARTBEAT for {now - last:.1f} s")
         if self._stream_deadline is not None and now >= self._stream_deadline:
             self._stream_deadline = None
-            if self._stream_acks < len(self.settings.stream_rates_hz):
+            if self._stream_acks < self._streams_asked:
                 self._request_data_stream(conn)
         for pending in [p for p in self._pending if now >= p.deadline]:
             self._pending.remove(pending)
@@ -268,13 +270,15 @@ class MavlinkReader:
 
         target = self._converter.target_system or 1
         component = self._converter.target_component or 1
-        for name, rate_hz in self.settings.stream_rates_hz.items():
+        wanted = streams_for(self._converter.autopilot, self.settings.stream_rates_hz)
+        for name, rate_hz in wanted.items():
             msg_id = getattr(dialect, f"MAVLINK_MSG_ID_{name}")
             interval_us = 1e6 / rate_hz if rate_hz > 0 else -1
             conn.mav.command_long_send(target, component, MAV_CMD_SET_MESSAGE_INTERVAL, 0,
                                        msg_id, interval_us, 0, 0, 0, 0, 0)
         self.counters["stream_requests"] += 1
         self._stream_acks = 0
+        self._streams_asked = len(wanted)
         self._stream_deadline = now + self.settings.stream_ack_timeout_s
 
     def _request_data_stream(self, conn: Any) -> None:
@@ -378,12 +382,36 @@ class MavlinkReader:
 
 _UNSET = object()
 
+FAMILY_ONLY_STREAMS = {"EKF_STATUS_REPORT": "ardupilot", "ESTIMATOR_STATUS": "px4"}
+"""Messages one autopilot family has and the other lacks. ArduCopter 4.5 answers a request
+for ESTIMATOR_STATUS DENIED with a STATUSTEXT ("No ap_message for mavlink id (230)") that
+would become the drone's latest status text on the dashboard at every connection."""
+
+
+def streams_for(autopilot: str | None, rates_hz: Mapping[str, float]) -> dict[str, float]:
+    """The streams worth asking ``autopilot`` for (an unknown family: all of them)."""
+    return {name: rate for name, rate in rates_hz.items()
+            if FAMILY_ONLY_STREAMS.get(name, autopilot) == autopilot
+            or autopilot not in ("ardupilot", "px4")}
+
 
 def _default_connect(settings: MavlinkSettings) -> Any:
     from pymavlink import mavutil
 
-    return mavutil.mavlink_connection(
+    # retries=0: one connect attempt; the thread retries every reconnect_delay_s (pymavlink's
+    # default blocks 3 s per attempt and prints "... sleeping" each second).
+    conn = mavutil.mavlink_connection(
         settings.url, baud=settings.baud, source_system=settings.source_system,
-        source_component=settings.source_component, autoreconnect=False,
+        source_component=settings.source_component, autoreconnect=False, retries=0,
     )
+    if isinstance(conn, mavutil.mavtcp):
+        # The peer closed the connection (ArduPilot SITL rebooting, mavlink-router restarting):
+        # pymavlink would print "EOF on TCP socket" on every read and spin until the
+        # heartbeat timeout; raise instead, so the link is lost (and reopened) at once.
+        conn.handle_eof = conn.handle_disconnect = _tcp_closed
+    return conn
+
+
+def _tcp_closed() -> None:
+    raise ConnectionResetError(errno.ECONNRESET, "the autopilot closed the TCP connection")
 

@@ -51,6 +51,10 @@ __all__ = [
     "wind_ned",
 ]
 
+ARDUPILOT_GPS_FIX_SHARE = 0.2
+"""ArduPilot: the GPS's own fix at this share of ``first_fix_s`` (when the EKF uses it);
+ArduCopter 4.5 SITL: 8.7 s of 41.5 s."""
+
 
 class FlightController(Guidance):
     """Modes and navigation of one simulated multicopter (see module docstring)."""
@@ -108,6 +112,14 @@ class FlightController(Guidance):
     def has_fix(self) -> bool:
         """A 3D fix and an estimator origin: positions are valid, arming is possible."""
         return self.state.t_s >= self.first_fix_s - 1e-9
+
+    @property
+    def gps_has_fix(self) -> bool:
+        """The GPS receiver's own 3D fix. ArduCopter's comes well before its EKF uses it
+        (4.5 SITL, measured: fix 8.7 s, origin 18.5 s, EKF using GPS 41.5 s after start),
+        and meanwhile it reports the GPS position in GLOBAL_POSITION_INT."""
+        share = ARDUPILOT_GPS_FIX_SHARE if self.flavour.name == "ardupilot" else 1.0
+        return self.state.t_s >= share * self.first_fix_s - 1e-9
 
     # ----------------------------------------------------------------- settings and events
 

@@ -133,6 +133,9 @@ class CommandHandlers:
             else:
                 ok = self.set_interval(msg_id, interval, now)
                 res = CommandResult(result=ACCEPTED if ok else UNSUPPORTED)
+                if not ok and self.flavour.name == "ardupilot":  # as ArduCopter 4.5 answers
+                    self.statustext(6, f"No ap_message for mavlink id ({msg_id})")
+                    res = CommandResult(result=DENIED)
         elif command == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
             msg_id = int_field(p[0], "message_id")
             if msg_id in self._builders:

@@ -120,6 +120,10 @@ class VehicleProtocol(asyncio.DatagramProtocol):
             for frame in frames:
                 for dest in dests:
                     self.transport.sendto(frame, dest)
+        for sender, frame in self.core.forwards_to_send():  # routed, never echoed
+            for dest in self.destinations():
+                if dest != sender:
+                    self.transport.sendto(frame, dest)
         self._timer.rearm()
 
 

@@ -154,8 +154,10 @@ class Telemetry:
     def sys_status(self, now: float) -> Any:
         st = self.fc.state
         health = _SENSORS
-        if not self.fc.has_fix:  # GPS present but unhealthy, pre-arm checks failing
-            health &= ~(_SENSOR_GPS | _SENSOR_PREARM)
+        if not self.fc.gps_has_fix:  # GPS present but unhealthy
+            health &= ~_SENSOR_GPS
+        if not self.fc.has_fix:  # no position estimate: pre-arm checks failing
+            health &= ~_SENSOR_PREARM
         return mavlink.MAVLink_sys_status_message(
             _SENSORS, _SENSORS, health, 250, int(st.battery_voltage_v * 1000),
             int(st.battery_current_a * 100), round(st.battery_remaining * 100),
@@ -166,7 +168,7 @@ class Telemetry:
             int((self.boot_unix_s + now) * 1e6), self.boot_ms(now))
 
     def gps_raw_int(self, now: float) -> Any:
-        if not self.fc.has_fix:
+        if not self.fc.gps_has_fix:
             # A receiver still searching: NO_FIX at 0/0, accuracies unknown (UINT16_MAX).
             return mavlink.MAVLink_gps_raw_int_message(
                 int((self.boot_unix_s + now) * 1e6), 1, 0, 0, 0, 65535, 65535, 0, 65535,
@@ -195,7 +197,7 @@ class Telemetry:
 
     def global_position_int(self, now: float) -> Any | None:
         st = self.fc.state
-        if not self.fc.has_fix:
+        if not self.fc.gps_has_fix:
             if self.flavour.name == "px4":
                 return None  # PX4 publishes no global position before the estimator has one
             # ArduPilot sends its (empty) location: lat/lon 0/0, altitude relative to boot.

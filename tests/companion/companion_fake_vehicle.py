@@ -199,6 +199,12 @@ class FakeVehicle:
                 self.ack(cmd, mav.MAV_RESULT_UNSUPPORTED)
                 return
             msg_id = int(msg.param1)
+            if self.autopilot == "ardupilot" and msg_id == mav.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
+                # ArduCopter 4.5 (measured on its SITL): a message it has no ap_message for
+                self.send(mav.MAVLink_statustext_message(
+                    mav.MAV_SEVERITY_INFO, f"No ap_message for mavlink id ({msg_id})".encode()))
+                self.ack(cmd, mav.MAV_RESULT_DENIED)
+                return
             if msg_id in STREAM_IDS:
                 interval_us = msg.param2
                 self.rates_hz[msg_id] = 1e6 / interval_us if interval_us > 0 else 0.0

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from companion.config import ConfigError, load_config, missing_keys, parse_config
+from companion.mavlink import DEFAULT_STREAM_RATES_HZ
 from tests.keys import TEST_COMMAND_PUB, write_test_keys
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "companion.toml"
@@ -134,3 +135,18 @@ def test_hog_people_settings_are_read_and_checked(tmp_path: Path) -> None:
     bad.write_text('[drone]\nid = "d1"\n[scoring.hog_people]\nwin_stride_px = 12\n')
     with pytest.raises(ConfigError, match="win_stride_px"):
         load_config(bad)
+
+
+def test_a_short_stream_table_keeps_the_estimator_streams(tmp_path: Path) -> None:
+    """Against ArduCopter 4.5 SITL, a table without EKF_STATUS_REPORT (the example's until
+    round 12) had the companion send and geotag GPS positions for ~30 s while the EKF had no
+    origin (CONST_POS_MODE): positions are judged by the estimator only if it is streamed."""
+    config = load_config(_write(tmp_path, '[drone]\nid = "d"\n[mavlink.stream_rates_hz]\n'
+                                          'GLOBAL_POSITION_INT = 2.0\nSYSTEM_TIME = 0\n'))
+    rates = config.mavlink.stream_rates_hz
+    assert rates["GLOBAL_POSITION_INT"] == 2.0
+    assert rates["SYSTEM_TIME"] == 0.0  # listed as 0: off
+    assert rates["EKF_STATUS_REPORT"] == 1.0 and rates["ESTIMATOR_STATUS"] == 1.0
+    assert rates["ATTITUDE"] == 10.0  # unlisted: the default
+    assert set(rates) == set(DEFAULT_STREAM_RATES_HZ)
+    assert load_config(EXAMPLE).mavlink.stream_rates_hz["EKF_STATUS_REPORT"] == 1.0

@@ -18,7 +18,13 @@ from companion.mavlink import (
     ParamReadCommand,
     SetModeCommand,
 )
-from companion.telemetry import HeartbeatSample, LinkStateSample, Sample, TelemetryState
+from companion.telemetry import (
+    HeartbeatSample,
+    LinkStateSample,
+    Sample,
+    StatusTextSample,
+    TelemetryState,
+)
 
 
 class Recorder:
@@ -78,6 +84,23 @@ def test_ardupilot_streams_only_after_set_message_interval(
     assert vehicle.data_stream_requests == 0  # SET_MESSAGE_INTERVAL was accepted
     assert reader.counters["stream_requests"] == 1 and reader.counters["stream_fallbacks"] == 0
     assert vehicle.rates_hz[mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT] == pytest.approx(5.0)
+
+
+def test_ardupilot_is_not_asked_for_a_message_it_lacks(
+        vehicle: FakeVehicle, recorder: Recorder, started: list[MavlinkReader]) -> None:
+    """ArduCopter 4.5 answers SET_MESSAGE_INTERVAL for ESTIMATOR_STATUS (PX4's) DENIED with
+    a STATUSTEXT, which the dashboard would show as the drone's latest status; the refusal
+    also set off REQUEST_DATA_STREAM, which sets every stream group to our highest rate."""
+    reader = _reader(vehicle.port, recorder)
+    started.append(reader)
+    reader.start()
+    assert recorder.wait(lambda: recorder.state.snapshot().lat_deg is not None)
+    time.sleep(3 * reader.settings.stream_ack_timeout_s)  # past the fallback's deadline
+    assert "ESTIMATOR_STATUS" in reader.settings.stream_rates_hz
+    assert reader.counters["stream_requests"] == 1
+    assert reader.counters["stream_fallbacks"] == 0
+    assert vehicle.data_stream_requests == 0
+    assert not [x for x in recorder.samples if isinstance(x, StatusTextSample)]
 
 
 def test_own_heartbeat_is_an_onboard_controller(

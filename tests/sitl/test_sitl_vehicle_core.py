@@ -73,6 +73,17 @@ def test_set_message_interval_minus_one_stops_and_zero_restores_default(make_gcs
         M.MAV_RESULT_UNSUPPORTED)
 
 
+def test_ardupilot_denies_an_interval_for_a_message_it_lacks(make_gcs):
+    """As ArduCopter 4.5 SITL answers (measured): DENIED and "No ap_message for mavlink id
+    (N)" for ESTIMATOR_STATUS (230, PX4's); PX4 here answers UNSUPPORTED."""
+    gcs = make_gcs(flavour=ARDUPILOT)
+    assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 230, 1_000_000).result == (
+        M.MAV_RESULT_DENIED)
+    assert "No ap_message for mavlink id (230)" in [t.text for t in gcs.of_type("STATUSTEXT")]
+    assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 193, 1_000_000).result == (
+        M.MAV_RESULT_ACCEPTED)  # EKF_STATUS_REPORT
+
+
 def test_streams_go_no_faster_than_the_autopilot_loop(make_gcs):
     """ArduPilot's cap_message_interval (0.8 x 400 Hz: 3 ms): a faster SET_MESSAGE_INTERVAL
     is TEMPORARILY_REJECTED, under 1 ms it is 0 ms, which stops the stream; REQUEST_DATA_STREAM

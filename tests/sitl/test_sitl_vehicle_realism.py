@@ -43,11 +43,20 @@ def test_default_first_fix_is_ardupilot_like():
 def test_ardupilot_before_its_fix_reports_no_position_and_refuses_to_arm(make_gcs):
     gcs = make_gcs(flavour=ARDUPILOT, first_fix_s=12.0)
     _ardupilot_streams(gcs)
-    gcs.run_until(11.0)
+    gcs.run_until(2.0)  # the GPS has no fix yet (it gets one at 0.2 x 12 s)
     gps = gcs.of_type("GPS_RAW_INT")
     assert gps and all(g.fix_type <= 1 and (g.lat, g.lon) == (0, 0) for g in gps)
     pos = gcs.of_type("GLOBAL_POSITION_INT")
     assert pos and all((p.lat, p.lon) == (0, 0) for p in pos)
+    status = gcs.of_type("SYS_STATUS")
+    assert all(not s.onboard_control_sensors_health & GPS_BIT for s in status)
+    early_texts = _texts(gcs)
+    gcs.clear()
+    gcs.run_until(11.0)
+    # As ArduCopter 4.5 SITL (measured): the GPS's 3D fix and its position in
+    # GLOBAL_POSITION_INT long before the EKF has an origin and uses it.
+    assert gcs.of_type("GPS_RAW_INT")[-1].fix_type == 3
+    assert abs(gcs.of_type("GLOBAL_POSITION_INT")[-1].lat / 1e7 - DEFAULT_HOME.lat_deg) < 1e-4
     ekf = gcs.of_type("EKF_STATUS_REPORT")
     assert ekf and all(not e.flags & EKF_POSITION for e in ekf)
     # 167: attitude, velocities, vertical position, constant-position mode (what a real
@@ -55,12 +64,13 @@ def test_ardupilot_before_its_fix_reports_no_position_and_refuses_to_arm(make_gc
     assert {e.flags for e in ekf} == {167}
     status = gcs.of_type("SYS_STATUS")
     assert status and all(s.onboard_control_sensors_present & GPS_BIT for s in status)
-    assert all(not s.onboard_control_sensors_health & (GPS_BIT | PREARM_BIT) for s in status)
+    assert all(s.onboard_control_sensors_health & GPS_BIT for s in status)
+    assert all(not s.onboard_control_sensors_health & PREARM_BIT for s in status)
     assert not gcs.of_type("HOME_POSITION") and not gcs.of_type("GPS_GLOBAL_ORIGIN")
     assert gcs.command(M.MAV_CMD_GET_HOME_POSITION).result == M.MAV_RESULT_FAILED
     assert gcs.command(M.MAV_CMD_REQUEST_MESSAGE, 242).result == M.MAV_RESULT_FAILED
     # Failing pre-arm checks are reported while disarmed (at 2 s, then every 30 s)...
-    assert _texts(gcs) == ["PreArm: AHRS: waiting for home"]
+    assert early_texts + _texts(gcs) == ["PreArm: AHRS: waiting for home"]
     # ...and an arm command runs them again, with ArduPilot's "Arm:" prefix.
     ack = gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
     assert ack.result == M.MAV_RESULT_FAILED
