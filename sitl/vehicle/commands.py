@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -30,16 +31,21 @@ from sitl.vehicle.params import ParamTable
 from sitl.vehicle.stream_tables import DEFAULT_INTERVALS_S, PX4_EXTRA_INTERVALS_S
 from sitl.vehicle.telemetry import Telemetry
 
+if TYPE_CHECKING:
+    from sitl.vehicle.core import VehicleConfig
+
 
 class CommandHandlers:
     """COMMAND_*, SET_MODE, PARAM_* and guided targets; mixed into VehicleCore."""
 
-    config: Any
+    config: VehicleConfig
     fc: FlightController
     flavour: Flavour
     params: ParamTable
     counters: Counter[str]
     telemetry: Telemetry
+    _intervals: dict[int, float]
+    _builders: Mapping[int, Callable[[float], Any]]  # pymavlink messages are untyped
 
     if TYPE_CHECKING:  # provided by VehicleCore
         def _send(self, msg: Any) -> None:

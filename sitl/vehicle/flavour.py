@@ -168,7 +168,7 @@ _ARDUPILOT_MODES = {
 _ARDUPILOT_ALIASES = {v: k for k, v in _ARDUPILOT_MODES.items() if k is not Mode.TAKEOFF}
 _ARDUPILOT_ALIASES.update({2: Mode.MANUAL, 1: Mode.MANUAL, 16: Mode.POSITION, 21: Mode.RTL})
 
-_PX4_PARAMS = (
+_PX4_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec(name="SYS_AUTOSTART", default=4001, param_type=PARAM_INT32),
     ParamSpec(name="SYS_HITL", default=0, param_type=PARAM_INT32),
     ParamSpec(name="MAV_SYS_ID", default=1, param_type=PARAM_INT32),
@@ -193,7 +193,7 @@ _PX4_PARAMS = (
     ParamSpec(name="SIM_WIND_DIR", default=0.0),
 )
 
-_ARDUPILOT_PARAMS = (
+_ARDUPILOT_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec(name="SYSID_THISMAV", default=1, param_type=PARAM_INT16),
     ParamSpec(name="FRAME_CLASS", default=1, param_type=PARAM_INT8),
     ParamSpec(name="ARMING_CHECK", default=1, param_type=PARAM_INT32),

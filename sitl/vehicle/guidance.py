@@ -8,20 +8,25 @@ the command half (arming, modes, takeoff, mission upload) stays there.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
+from sitl.geo import GeoPoint
 from sitl.vehicle.autopilot_events import (
     PREARM_REPORT_PERIOD_S,
     SEV_CRITICAL,
     SEV_INFO,
     SEV_WARNING,
+    AutopilotEvent,
+    CommandResult,
     CurrentItemChanged,
     FixAcquired,
     GuidedTarget,
     ItemReached,
     Vec3,
 )
-from sitl.vehicle.flavour import Mode
+from sitl.vehicle.flavour import Flavour, Mode
 from sitl.vehicle.mission import (
     CMD_CHANGE_SPEED,
     CMD_LAND,
@@ -33,9 +38,10 @@ from sitl.vehicle.mission import (
     CMD_SET_ROI_NONE,
     CMD_TAKEOFF,
     CMD_WAYPOINT,
+    MissionItem,
     is_nav_command,
 )
-from sitl.vehicle.physics import Setpoint, step
+from sitl.vehicle.physics import Setpoint, VehicleState, step
 
 
 def wind_ned(t_s: float, speed_m_s: float, from_deg: float, gust_fraction: float) -> Vec3:
@@ -54,6 +60,67 @@ def wind_ned(t_s: float, speed_m_s: float, from_deg: float, gust_fraction: float
 
 class Guidance:
     """Advance the vehicle in fixed physics steps; mixed into FlightController."""
+
+    # State that FlightController.__init__ sets; declared here so the mixin type-checks.
+    flavour: Flavour
+    home: GeoPoint
+    dt_s: float
+    gust_fraction: float
+    state: VehicleState
+    mode: Mode
+    mission: list[MissionItem]
+    mission_current: int
+    mission_finished: bool
+    home_ned_m: Vec3
+    roi_ned_m: Vec3 | None
+    _events: deque[AutopilotEvent]
+    _hold_ned: Vec3
+    _phase: str
+    _target: Vec3
+    _item_hold_until: float | None
+    _cruise_override_m_s: float | None
+    _guided: GuidedTarget | None
+    _landed_since: float | None
+    _armed_idle_since: float | None
+    _battery_warned: int
+    _was_airborne: bool
+    _fix_reported: bool
+    _next_prearm_report_s: float
+
+    if TYPE_CHECKING:  # provided by FlightController
+        @property
+        def has_fix(self) -> bool:
+            raise NotImplementedError
+
+        def setting(self, key: str) -> float:
+            raise NotImplementedError
+
+        def _text(self, severity: int, text: str) -> None:
+            raise NotImplementedError
+
+        def _set_mode(self, mode: Mode) -> None:
+            raise NotImplementedError
+
+        def _here_hold(self) -> Vec3:
+            raise NotImplementedError
+
+        def _min_takeoff_alt(self, alt: float) -> float:
+            raise NotImplementedError
+
+        def _no_position_text(self, prefix: str = "Arm") -> str:
+            raise NotImplementedError
+
+        def _disarm(self, text: str) -> None:
+            raise NotImplementedError
+
+        def set_mode(self, mode: Mode) -> CommandResult:
+            raise NotImplementedError
+
+        def set_speed(self, speed_m_s: float) -> CommandResult:
+            raise NotImplementedError
+
+        def land(self) -> CommandResult:
+            raise NotImplementedError
 
     def advance_to(self, now: float) -> None:
         """Run fixed physics steps until the simulated time reaches ``now``."""

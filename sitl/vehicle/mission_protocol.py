@@ -11,8 +11,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sitl.vehicle.autopilot import FlightController
 from sitl.vehicle.fields import mission_item_error
+from sitl.vehicle.flavour import Flavour
 from sitl.vehicle.mission import MissionItem
 from sitl.vehicle.telemetry import Telemetry
+
+if TYPE_CHECKING:
+    from sitl.vehicle.core import VehicleConfig
 
 # MAV_MISSION_RESULT
 MISSION_ACCEPTED = 0
@@ -35,7 +39,9 @@ class _Upload:
 class MissionProtocol:
     """MISSION_* handlers; mixed into VehicleCore, which owns ``_stored`` and ``_upload``."""
 
+    config: VehicleConfig
     fc: FlightController
+    flavour: Flavour
     counters: Counter[str]
     telemetry: Telemetry
     _stored: dict[int, list[MissionItem]]
