@@ -37,6 +37,10 @@ __all__ = [
 GPS_FIX_3D = 3
 """GPS_FIX_TYPE_3D_FIX: the least fix a position may be reported with."""
 NULL_ISLAND_DEG = 1e-6
+ESTIMATOR_GRACE_S = 5.0
+"""After the link comes up, a position waits this long for the estimator's first report; a
+stack that sends none by then is judged by its GPS alone. The GPS fix and position come
+first on a connection (ArduCopter 4.5 SITL streams both 33 s before its EKF uses the GPS)."""
 """|lat| and |lon| below this (about 0.1 m) are the 0/0 of an estimator without an origin."""
 
 
@@ -191,8 +195,11 @@ class TelemetrySnapshot:
     satellites: int | None = None
     t_gps: float | None = None
     estimator_position_ok: bool | None = None
-    """None while no estimator report came (a stack that sends none is judged by GPS alone)."""
+    """None while no estimator report came on this connection (a stack that sends none is
+    judged by GPS alone once :data:`ESTIMATOR_GRACE_S` has passed)."""
     t_estimator: float | None = None
+    t_link_up: float | None = None
+    """When the current connection's first HEARTBEAT came."""
     autopilot_unix_time_s: float | None = None
     last_statustext: str | None = None
     params: Mapping[str, int | float] = field(default_factory=dict)
@@ -216,6 +223,9 @@ class TelemetrySnapshot:
             return f"no 3-D GPS fix (fix_type {self.gps_fix_type})"
         if self.estimator_position_ok is False:
             return "the estimator has no absolute position (no origin yet)"
+        if self.estimator_position_ok is None and self.t_link_up is not None \
+                and self.t_gps is not None and self.t_gps - self.t_link_up < ESTIMATOR_GRACE_S:
+            return "waiting for the estimator's first report"
         if abs(self.lat_deg) < NULL_ISLAND_DEG and abs(self.lon_deg) < NULL_ISLAND_DEG:
             return "position is 0/0 (no origin)"
         return None
@@ -304,6 +314,10 @@ class TelemetryState:
                     if self._ever_connected:
                         self._reconnects += 1
                     self._ever_connected = True
+                    # a rebooted autopilot has no fix and no origin: the last connection's
+                    # say nothing about this one's (their position stays, as the last known)
+                    f.update(t_link_up=sample.t, gps_fix_type=None, satellites=None,
+                             t_gps=None, estimator_position_ok=None, t_estimator=None)
                 self._connected = sample.connected
         self._snap = TelemetrySnapshot(
             connected=self._connected,

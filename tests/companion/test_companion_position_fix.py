@@ -113,3 +113,56 @@ def test_the_fix_is_lost_again() -> None:
     state.apply(GpsSample(t=T0 + 1, fix_type=0, satellites=0, lat_deg=0.0, lon_deg=0.0,
                           alt_m=0.0, eph_m=None))
     assert state.snapshot().position_problem == "no 3-D GPS fix (fix_type 0)"
+
+
+def _gps_position(state: TelemetryState, t: float) -> None:
+    state.apply(GpsSample(t=t, fix_type=3, satellites=10, lat_deg=50.06, lon_deg=19.93,
+                          alt_m=250.0, eph_m=0.8))
+    state.apply(PositionSample(t=t, lat_deg=50.06, lon_deg=19.93, alt_amsl_m=280.0,
+                               alt_rel_m=30.0, vn_m_s=0, ve_m_s=0, vd_m_s=0, heading_deg=90.0))
+
+
+def test_a_new_link_waits_for_the_estimator_before_trusting_the_gps() -> None:
+    """ArduCopter streams a 3D fix and its position before the first EKF_STATUS_REPORT of a
+    connection arrives (and 33 s before the EKF uses the GPS): in between, the position was
+    taken as usable. It waits for the estimator, up to ESTIMATOR_GRACE_S of GPS reports."""
+    from companion.telemetry import ESTIMATOR_GRACE_S, LinkStateSample
+
+    state = TelemetryState()
+    state.apply(LinkStateSample(t=T0, connected=True, reason="heartbeat from system 1"))
+    _gps_position(state, T0 + 0.2)
+    assert state.snapshot().position_problem == "waiting for the estimator's first report"
+    state.apply(EstimatorSample(t=T0 + 0.5, source="EKF_STATUS_REPORT", flags=0,
+                                position_ok=False))
+    assert state.snapshot().position_problem == \
+        "the estimator has no absolute position (no origin yet)"
+    state.apply(EstimatorSample(t=T0 + 0.9, source="EKF_STATUS_REPORT", flags=READY,
+                                position_ok=True))
+    assert state.snapshot().position_problem is None
+
+    silent = TelemetryState()  # a stack that sends no estimator report at all
+    silent.apply(LinkStateSample(t=T0, connected=True, reason="heartbeat from system 1"))
+    _gps_position(silent, T0 + ESTIMATOR_GRACE_S - 0.1)
+    assert silent.snapshot().position_problem == "waiting for the estimator's first report"
+    _gps_position(silent, T0 + ESTIMATOR_GRACE_S)
+    assert silent.snapshot().position_problem is None
+
+
+def test_a_reconnect_forgets_the_last_connections_fix_and_estimator() -> None:
+    """After a reboot the autopilot has neither: the previous connection's 3D fix and EKF
+    origin must not vouch for the first positions of the new one."""
+    from companion.telemetry import LinkStateSample
+
+    state = TelemetryState()
+    state.apply(LinkStateSample(t=T0, connected=True, reason="heartbeat from system 1"))
+    state.apply(EstimatorSample(t=T0 + 0.1, source="EKF_STATUS_REPORT", flags=READY,
+                                position_ok=True))
+    _gps_position(state, T0 + 0.2)
+    assert state.snapshot().position_problem is None
+    state.apply(LinkStateSample(t=T0 + 10, connected=False, reason="no heartbeat for 3 s"))
+    state.apply(LinkStateSample(t=T0 + 30, connected=True, reason="heartbeat from system 1"))
+    snap = state.snapshot()
+    assert snap.position_problem == "no GPS report received"
+    assert snap.lat_deg == 50.06  # the last known position stays (not as a usable one)
+    _gps_position(state, T0 + 30.5)
+    assert state.snapshot().position_problem == "waiting for the estimator's first report"

@@ -13,6 +13,7 @@ from pymavlink.generator.mavcrc import x25crc
 from companion.mavlink import MavlinkConverter, decode_param_value
 from companion.telemetry import (
     BatterySample,
+    EstimatorSample,
     GpsSample,
     HeartbeatSample,
     LinkStateSample,
@@ -149,6 +150,8 @@ def test_state_snapshot_and_reconnect_count() -> None:
     state.apply(LinkStateSample(t=T0, connected=True, reason="hb"))
     state.apply(GpsSample(t=T0, fix_type=3, satellites=9, lat_deg=1.0, lon_deg=2.0, alt_m=3.0,
                           eph_m=1.0))  # a position counts with a 3-D fix only
+    state.apply(EstimatorSample(t=T0, source="EKF_STATUS_REPORT", flags=0,
+                                position_ok=True))  # ... and the estimator's word on a new link
     state.apply(PositionSample(t=T0, lat_deg=1.0, lon_deg=2.0, alt_amsl_m=3.0, alt_rel_m=4.0,
                                vn_m_s=0, ve_m_s=0, vd_m_s=0, heading_deg=None))
     snap = state.snapshot()
@@ -158,7 +161,7 @@ def test_state_snapshot_and_reconnect_count() -> None:
     state.apply(LinkStateSample(t=T0 + 9, connected=True, reason="hb"))
     assert state.snapshot().reconnects == 1
     assert snap.connected is True  # snapshots are immutable copies
-    assert len(seen) == 5
+    assert len(seen) == 6  # every applied sample reached the listener
 
 
 def test_battery_sample_keeps_previous_known_fields() -> None:
