@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 
@@ -26,3 +27,20 @@ def warm_up_progress(stdout: str, n: int) -> list[str]:
 def summary_drones(run_dir: Path) -> list[str]:
     """The drones of a run, from the companions' log files."""
     return sorted(p.stem for p in (run_dir / "logs").glob("drone*.log"))
+
+
+def processes_of(run_dir: Path) -> list[str]:
+    """Command lines of live processes that mention the run folder (the fleet's children)."""
+    found = []
+    needle = str(run_dir).encode()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes()
+            state = (entry / "stat").read_text().split(") ")[-1][:1]
+        except OSError:
+            continue
+        if needle in cmdline and state != "Z":
+            found.append(cmdline.replace(b"\0", b" ").decode(errors="replace"))
+    return found

@@ -15,7 +15,6 @@ launcher also runs over network namespaces and a shaped link.
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -25,7 +24,12 @@ from typing import Any
 
 import pytest
 
-from tests.fleet_checks import summary_drones, warm_before_start, warm_up_progress
+from tests.fleet_checks import (
+    processes_of,
+    summary_drones,
+    warm_before_start,
+    warm_up_progress,
+)
 
 FLEET = [sys.executable, "-m", "sitl.cli", "fleet"]
 LIGHT = ["--rate", "3", "--mcts-iterations", "150"]
@@ -63,26 +67,9 @@ length_m = 70.0
 """
 
 
-def _processes_of(run_dir: Path) -> list[str]:
-    """Command lines of live processes that mention the run folder (the fleet's children)."""
-    found = []
-    needle = str(run_dir).encode()
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit() or int(entry.name) == os.getpid():
-            continue
-        try:
-            cmdline = (entry / "cmdline").read_bytes()
-            state = (entry / "stat").read_text().split(") ")[-1][:1]
-        except OSError:
-            continue
-        if needle in cmdline and state != "Z":
-            found.append(cmdline.replace(b"\0", b" ").decode(errors="replace"))
-    return found
-
-
 def _no_orphans(run_dir: Path, timeout_s: float = 10.0) -> None:
     deadline = time.monotonic() + timeout_s
-    while (left := _processes_of(run_dir)) and time.monotonic() < deadline:
+    while (left := processes_of(run_dir)) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not left, f"processes left behind: {left}"
 
@@ -200,7 +187,7 @@ def test_killed_launcher_leaves_no_processes(tmp_path: Path) -> None:
     proc, out, _ = _start(tmp_path, "--out", str(run_dir), "--drones", "1", *LIGHT)
     try:
         _wait_for_line(proc, out, "waiting for 1 drone", 60)
-        assert len(_processes_of(run_dir)) >= 3  # station, vehicles, companion
+        assert len(processes_of(run_dir)) >= 3  # station, vehicles, companion
     finally:
         proc.kill()
         proc.wait()

@@ -17,23 +17,9 @@ from pathlib import Path
 
 import pytest
 
+from tests.fleet_checks import processes_of
+
 FLEET = Path(sys.executable).parent / "uav-sitl"
-
-
-def _processes_of(run_dir: Path) -> list[str]:
-    needle = str(run_dir).encode()
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit() or int(entry.name) == os.getpid():
-            continue
-        try:
-            cmdline = (entry / "cmdline").read_bytes()
-            state = (entry / "stat").read_text().split(") ")[-1][:1]
-        except OSError:
-            continue
-        if needle in cmdline and state != "Z":
-            found.append(cmdline.replace(b"\0", b" ").decode(errors="replace"))
-    return found
 
 
 @pytest.mark.timeout(120)
@@ -63,6 +49,6 @@ def test_ctrl_c_while_the_fleet_comes_up_is_a_clean_stop(tmp_path: Path) -> None
                                                      "waiting for "), err
     assert errors[0].endswith("; no mission ran")
     deadline = time.monotonic() + 10
-    while _processes_of(run_dir):
-        assert time.monotonic() < deadline, _processes_of(run_dir)
+    while processes_of(run_dir):
+        assert time.monotonic() < deadline, processes_of(run_dir)
         time.sleep(0.2)
