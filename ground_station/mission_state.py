@@ -12,18 +12,15 @@ anything changed, and at shutdown.
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import json
 import logging
 import math
-import os
-import tempfile
 import threading
 from collections import Counter
 from pathlib import Path
 from typing import Any
 
 from companion.protocol.records import Command
+from ground_station.json_state import load_json_state, save_json_state
 from ground_station.missions import IssuedCommand, MissionManager
 
 __all__ = ["MissionStateFile", "MissionStateKeeper", "restore_missions", "snapshot_missions"]
@@ -119,39 +116,15 @@ class MissionStateFile:
 
     def load(self) -> dict[str, Any]:
         """The saved snapshot, or {} (first start; a damaged file is logged, never fatal)."""
-        try:
-            raw = self.path.read_bytes()
-        except FileNotFoundError:
-            return {}
-        except OSError as exc:
-            log.warning("mission state %s not readable: %s", self.path, exc)
-            return {}
-        try:
-            state = json.loads(raw)
-        except (ValueError, RecursionError) as exc:
-            log.warning("mission state %s is damaged (%s); starting without it", self.path, exc)
-            return {}
-        return state if isinstance(state, dict) else {}
+        return load_json_state(self.path, "mission state")
 
     def save(self, snapshot: dict[str, Any], changes: int) -> None:
         """Write ``snapshot`` (taken at ``changes``) unless a newer one is on disk already.
         Blocking (fsync): call it off the event loop, or at shutdown."""
-        data = json.dumps(snapshot, separators=(",", ":")).encode()
         with self._lock:
             if changes <= self._written:
                 return
-            fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=self.path.name + ".",
-                                       suffix=".tmp")
-            try:
-                with os.fdopen(fd, "wb") as file:
-                    file.write(data)
-                    file.flush()
-                    os.fsync(file.fileno())
-                os.replace(tmp, self.path)
-            except BaseException:
-                with contextlib.suppress(OSError):
-                    os.unlink(tmp)
-                raise
+            save_json_state(self.path, snapshot)
             self._written = changes
 
 
