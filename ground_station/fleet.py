@@ -73,6 +73,7 @@ class FleetView:
         self.forgotten = 0
         """Tiles dropped so far (silent too long, or evicted by newer drones)."""
         self._forgotten_ids: list[str] = []
+        self._back_ids: list[str] = []
         self.drones: dict[str, DroneState] = {}
         self.alerts: deque[Alert] = deque(maxlen=alerts_len)
         self.series: deque[dict[str, Any]] = deque(maxlen=series_len)
@@ -100,6 +101,7 @@ class FleetView:
             state.addr = addr
         if state.link_lost:
             state.link_lost = False
+            self._back_ids.append(drone)
             if state.restored:
                 state.restored = False
             else:
@@ -286,6 +288,12 @@ class FleetView:
     def take_forgotten(self) -> list[str]:
         """Drones forgotten since the last call (the shell forgets them elsewhere too)."""
         out, self._forgotten_ids = self._forgotten_ids, []
+        return out
+
+    def take_back(self) -> list[str]:
+        """Drones heard again since the last call after a link loss (or, restored from
+        storage, for the first time since the station started)."""
+        out, self._back_ids = self._back_ids, []
         return out
 
     def take_new_alerts(self) -> list[Alert]:

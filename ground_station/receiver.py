@@ -232,6 +232,7 @@ class GroundLink(LinkOutput):
             else:
                 # REPORT/COMMAND packets are for drones; a ground station ignores them.
                 self.counters["ignored_" + type(event).__name__] += 1
+        self._catch_up(now)
         self._flush_alerts()
 
     def _on_message(self, event: MessageReassembled, now: float) -> None:
@@ -247,10 +248,7 @@ class GroundLink(LinkOutput):
             self.fleet.alert(
                 Alert(t=now, level="info", kind="fleet", drone=message.sender, text="drone joined")
             )
-        was_lost = self._link_lost(message.sender)
         self.fleet.on_message(message, now=now, addr=addr, utility=utility)
-        if was_lost:
-            self._catch_up(message.sender, now)
         for listener in self.data_listeners:
             listener(message.sender, message.data)
         report = message.data.get("report")
@@ -300,10 +298,7 @@ class GroundLink(LinkOutput):
             self.fleet.alert(
                 Alert(t=now, level="info", kind="fleet", drone=event.sender, text="drone joined")
             )
-        was_lost = self._link_lost(event.sender)
         state = self.fleet.heard(event.sender, now=now, addr=addr)
-        if was_lost:
-            self._catch_up(event.sender, now)
         self.fleet.apply_data(state, status.info, now=now)
         for listener in self.data_listeners:
             listener(event.sender, status.info)
@@ -334,15 +329,14 @@ class GroundLink(LinkOutput):
             },
         )
 
-    def _link_lost(self, drone: str) -> bool:
-        state = self.fleet.drones.get(drone)
-        return state is not None and state.link_lost
-
-    def _catch_up(self, drone: str, now: float) -> None:
-        """Heard again after a link loss (or for the first time since a restart)."""
-        if self.missions.catch_up(drone, now=now):
+    def _catch_up(self, now: float) -> None:
+        """Drones heard again after a link loss (or for the first time since a restart) get
+        the mission's commands they have not answered."""
+        back = [d for d in self.fleet.take_back() if self.missions.catch_up(d, now=now)]
+        for drone in back:
             log.info("%s is back: sending it the mission's commands it has not answered",
                      drone)
+        if back:
             self.send_commands(now)
 
     def _on_epoch(self, event: StatusReceived, addr: Address, now: float) -> None:
@@ -355,10 +349,7 @@ class GroundLink(LinkOutput):
             self.fleet.alert(
                 Alert(t=now, level="info", kind="fleet", drone=event.sender, text="drone joined")
             )
-        was_lost = self._link_lost(event.sender)
         self.fleet.heard(event.sender, now=now, addr=addr)
-        if was_lost:
-            self._catch_up(event.sender, now)
         previous = self.command_epochs.get(event.sender)
         if previous != epoch:
             self.command_epochs.pop(event.sender, None)
