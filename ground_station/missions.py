@@ -284,29 +284,25 @@ class MissionManager:
         restart answers a repeat with its result; a restarted one executes it at once, its
         ``t_exec`` being past). One on its way to the drone is left alone. Returns how many
         were armed again."""
-        armed = 0
-        for issued in self.state_commands():
-            if self._on_its_way(issued, drone, now):
-                continue
-            for table in (issued.acked, issued.states, issued.results, issued.first_sent,
-                          issued.last_sent):
-                table.pop(drone, None)
-            issued.rejoined[drone] = now
-            issued.targets.add(drone)
-            armed += 1
-        if armed:
-            self.changes += 1
-        return armed
+        return self._arm_again(drone, now=now, forget_answers=True)
 
     def catch_up(self, drone: str, *, now: float) -> int:
         """``drone`` is heard again after a link loss: the commands of
         :meth:`state_commands` it has no result for are sent to it again, even those
         expired meanwhile (a set_params issued during a 40 s outage never reached the drones,
         which showed ``no reply`` for good). Returns how many were armed again."""
+        return self._arm_again(drone, now=now, forget_answers=False)
+
+    def _arm_again(self, drone: str, *, now: float, forget_answers: bool) -> int:
         armed = 0
         for issued in self.state_commands():
-            if drone in issued.results or self._on_its_way(issued, drone, now):
+            if self._on_its_way(issued, drone, now) or (
+                    not forget_answers and drone in issued.results):
                 continue
+            if forget_answers:
+                for table in (issued.acked, issued.states, issued.results, issued.first_sent,
+                              issued.last_sent):
+                    table.pop(drone, None)
             issued.rejoined[drone] = now
             issued.targets.add(drone)
             armed += 1
