@@ -21,6 +21,15 @@ import pytest
 
 from tests.keys import TEST_COMMAND_PUB
 
+
+def console_script(name: str) -> str:
+    """The path of this venv's console script ``name`` (the test skips when it is missing)."""
+    path = Path(sys.executable).parent / name
+    if not path.exists():
+        pytest.skip(f"{path} missing: install the project in this venv (make .venv/.installed)")
+    return str(path)
+
+
 SCRIPT = Path(sys.executable).parent / "uav-companion"
 COMPANION = [str(SCRIPT)] if SCRIPT.exists() else [sys.executable, "-m", "companion.cli"]
 

@@ -18,7 +18,6 @@ import os
 import signal
 import socket
 import subprocess
-import sys
 import time
 import urllib.request
 from collections.abc import Callable, Iterator
@@ -29,16 +28,9 @@ from typing import Any
 import pytest
 
 from sitl.fleet_config import free_port
+from tests.companion_process import console_script
 
 ROOT = Path(__file__).resolve().parents[2]
-BIN = Path(sys.executable).parent
-
-
-def _script(name: str) -> str:
-    path = BIN / name
-    if not path.exists():
-        pytest.skip(f"{path} missing: install the project in this venv (make .venv/.installed)")
-    return str(path)
 
 
 @dataclass
@@ -58,12 +50,12 @@ class Fleet:
         log.close()
 
     def start_station(self) -> None:
-        self.start("station", [_script("uav-ground-station"), "run", "--config",
+        self.start("station", [console_script("uav-ground-station"), "run", "--config",
                                str(self.gs_config)])
         self.until("the station's API", lambda: _try(lambda: self.api("GET", "/api/stats")), 30)
 
     def start_companion(self) -> None:
-        self.start("drone1", [_script("uav-companion"), "run", "--config",
+        self.start("drone1", [console_script("uav-companion"), "run", "--config",
                               str(self.companion_config)])
 
     def stop(self, name: str, sig: int = signal.SIGINT) -> int:
@@ -159,7 +151,7 @@ def fleet(tmp_path: Path) -> Iterator[Fleet]:
         f'[ground_station]\ndata_dir = "{tmp_path / "gs"}"\nmission = "ops"\n'
         f'udp_host = "127.0.0.1"\nudp_port = {gs_udp}\n'
         f'http_host = "127.0.0.1"\nhttp_port = {http_port}\n')
-    keygen = subprocess.run([_script("uav-ground-station"), "keygen", "--config",
+    keygen = subprocess.run([console_script("uav-ground-station"), "keygen", "--config",
                              str(gs_config)], capture_output=True, text=True, timeout=60,
                             check=False)
     assert keygen.returncode == 0, keygen.stderr
@@ -169,7 +161,7 @@ def fleet(tmp_path: Path) -> Iterator[Fleet]:
                   base_url=f"http://127.0.0.1:{http_port}", log=tmp_path / "station.log")
     try:
         fleet.start_station()
-        fleet.start("vehicle", [_script("uav-sitl"), "vehicle", "--port", "0", "--scene",
+        fleet.start("vehicle", [console_script("uav-sitl"), "vehicle", "--port", "0", "--scene",
                                 "demo", "--first-fix", "0", "--out", f"127.0.0.1:{mavlink}"])
         fleet.start_companion()
         fleet.until("drone1's optimiser ready at the station", lambda: any(

@@ -37,13 +37,13 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 
 ROOT = Path(__file__).resolve().parents[2]
-BIN = Path(sys.executable).parent
 KEY = "truth-e2e-fleet-key-0123456789"
 FLEET = 9
 
 sys.path.insert(0, str(ROOT / "tests" / "companion"))
 from companion_fake_vehicle import FakeVehicle  # noqa: E402
 
+from tests.companion_process import console_script  # noqa: E402
 from tests.keys import write_test_keys  # noqa: E402
 
 
@@ -51,13 +51,6 @@ def _free_port(kind: int) -> int:
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def _script(name: str) -> list[str]:
-    path = BIN / name
-    if not path.exists():
-        pytest.skip(f"{name} is not installed in this environment (make .venv/.installed-test)")
-    return [str(path)]
 
 
 def _frames(folder: Path, n: int = 8, *, noisy: bool = True) -> Path:
@@ -90,7 +83,7 @@ class Station:
             f"http_port = {self.http_port}\npublic_read = true\nfsync = false\n")
         self.log = tmp / "gs.log"  # a file, not a pipe nobody reads while it runs
         with open(self.log, "w") as log:
-            self.proc = subprocess.Popen([*_script("uav-ground-station"), "run", "--config",
+            self.proc = subprocess.Popen([console_script("uav-ground-station"), "run", "--config",
                                           str(self.config)], stdout=subprocess.DEVNULL,
                                          stderr=log, text=True)
         self.url = f"http://127.0.0.1:{self.http_port}"
@@ -153,7 +146,7 @@ name = "constant"
 params = {{ limit_bytes_per_s = {limit_bytes_per_s} }}
 """)
     with open(tmp / f"{drone}.log", "w") as log:
-        return subprocess.Popen([*_script("uav-companion"), "run", "--config", str(config)],
+        return subprocess.Popen([console_script("uav-companion"), "run", "--config", str(config)],
                                 stdout=subprocess.DEVNULL, stderr=log, text=True,
                                 env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
@@ -244,7 +237,7 @@ class Gcs:
 @pytest.fixture
 def vehicle() -> Iterator[int]:
     # a fix at boot: this test is about mode and arming, not the wait for a GPS fix
-    proc = subprocess.Popen([*_script("uav-sitl"), "vehicle", "--port", "0", "--flavour",
+    proc = subprocess.Popen([console_script("uav-sitl"), "vehicle", "--port", "0", "--flavour",
                              "ardupilot", "--first-fix", "0"], stdout=subprocess.PIPE,
                             stderr=subprocess.DEVNULL, text=True)
     try:
@@ -384,7 +377,7 @@ async def test_no_fix_gives_no_position_and_an_outage_gives_stale_geotags(
     assert all(lat is None for lat, _, _, p in rows if p == "none")
     assert all(age > 1.0 for _, _, age, p in rows if p == "stale")
     out = tmp_path / "export"
-    result = subprocess.run([*_script("uav-ground-station"), "export", "truth", "--out",
+    result = subprocess.run([console_script("uav-ground-station"), "export", "truth", "--out",
                              str(out), "--config", str(station.config)],
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr

@@ -17,7 +17,6 @@ import json
 import os
 import socket
 import subprocess
-import sys
 import time
 import urllib.request
 from collections.abc import Callable, Iterator
@@ -28,18 +27,11 @@ from typing import Any
 import pytest
 
 from sitl.fleet_config import free_port
+from tests.companion_process import console_script
 
 ROOT = Path(__file__).resolve().parents[2]
-BIN = Path(sys.executable).parent
 DRONES = ("drone1", "drone2")
 STARTUP_S = 120.0  # companions warm up the optimiser (numba) before they stream
-
-
-def _script(name: str) -> str:
-    path = BIN / name
-    if not path.exists():
-        pytest.skip(f"{path} missing: install the project in this venv (make .venv/.installed)")
-    return str(path)
 
 
 @dataclass
@@ -145,8 +137,8 @@ def _stop(procs: dict[str, subprocess.Popen[bytes]]) -> None:
 
 @pytest.fixture(scope="module")
 def product(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Product]:
-    gs_bin, companion_bin, sitl_bin = (_script("uav-ground-station"), _script("uav-companion"),
-                                       _script("uav-sitl"))
+    gs_bin, companion_bin, sitl_bin = (console_script(name) for name in (
+        "uav-ground-station", "uav-companion", "uav-sitl"))
     run_dir = tmp_path_factory.mktemp("product")
     gs_udp, http_port = free_port(), free_port(kind=socket.SOCK_STREAM)
     gs_config = run_dir / "gs.toml"
@@ -205,7 +197,7 @@ def _decisions(path: Path) -> list[dict[str, Any]]:
 def test_shell_commands_reach_done_on_every_drone(product: Product) -> None:
     """The shell as an operator types it: names a newcomer guesses, results per drone."""
     out = subprocess.run(
-        [_script("uav-ground-station"), "shell", "--config", str(product.gs_config),
+        [console_script("uav-ground-station"), "shell", "--config", str(product.gs_config),
          "-c", "drones 2; start; report; status"],
         capture_output=True, text=True, timeout=90, check=False)
     assert out.returncode == 0, out.stderr
