@@ -9,13 +9,16 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import json
 import os
 import signal
 import subprocess
 import sys
 import time
+import urllib.request
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -28,6 +31,16 @@ def console_script(name: str) -> str:
     if not path.exists():
         pytest.skip(f"{path} missing: install the project in this venv (make .venv/.installed)")
     return str(path)
+
+
+def station_api(base_url: str, token: str, method: str, path: str, body: Any = None) -> Any:
+    """One call of a running ``uav-ground-station``'s JSON API with its control token."""
+    data = None if body is None else json.dumps(body).encode()
+    request = urllib.request.Request(
+        base_url + path, data=data, method=method,
+        headers={"Authorization": f"Bearer {token}", "Content-Type": "application/json"})
+    with urllib.request.urlopen(request, timeout=10) as resp:
+        return json.loads(resp.read())
 
 
 SCRIPT = Path(sys.executable).parent / "uav-companion"

@@ -19,7 +19,6 @@ import signal
 import socket
 import subprocess
 import time
-import urllib.request
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +27,7 @@ from typing import Any
 import pytest
 
 from sitl.fleet_config import free_port
-from tests.companion_process import console_script
+from tests.companion_process import console_script, station_api
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -73,13 +72,7 @@ class Fleet:
         return (self.run_dir / "gs" / "token").read_text().strip()
 
     def api(self, method: str, path: str, body: Any = None) -> Any:
-        data = None if body is None else json.dumps(body).encode()
-        request = urllib.request.Request(
-            self.base_url + path, data=data, method=method,
-            headers={"Authorization": f"Bearer {self.token}",
-                     "Content-Type": "application/json"})
-        with urllib.request.urlopen(request, timeout=10) as resp:
-            return json.loads(resp.read())
+        return station_api(self.base_url, self.token, method, path, body)
 
     def until(self, what: str, predicate: Callable[[], Any], timeout_s: float) -> Any:
         deadline = time.monotonic() + timeout_s
