@@ -4,7 +4,8 @@ Before this a restart mid-mission showed the phase ``idle``, and the start, the 
 and every command's results the drones had acknowledged were gone (the drones kept
 running): the operator saw no mission, and a drone that restarted later was never told to
 start. ``DATA_DIR/mission_state.json`` holds the phase's times, the parameters, the report
-counts and the commands with their per-drone acks and results. It is rewritten (atomically)
+counts, the commands with their per-drone acks and results, and the drones heard (not
+"joined" again after a restart). It is rewritten (atomically)
 after every command the API accepts, before the API answers, then once a second while
 anything changed, and at shutdown.
 """
@@ -28,6 +29,8 @@ __all__ = ["MissionStateFile", "MissionStateKeeper", "restore_missions", "snapsh
 log = logging.getLogger(__name__)
 
 VERSION = 1
+MAX_DRONES = 1024
+"""Drones remembered across restarts (the receiver's reports forget beyond as many)."""
 PER_DRONE = ("first_sent", "last_sent", "acked", "states", "results", "rejoined")
 
 
@@ -49,6 +52,7 @@ def snapshot_missions(missions: MissionManager, mission: str) -> dict[str, Any]:
         "reports": dict(missions.report_counts),
         "report_drones": {k: sorted(v) for k, v in missions.report_drones.items()},
         "commands": commands,
+        "drones": sorted(set(missions.drones) | missions.heard_before)[-MAX_DRONES:],
     }
 
 
@@ -80,6 +84,8 @@ def restore_missions(missions: MissionManager, saved: dict[str, Any], mission: s
         missions.report_drones = {str(k): {str(d) for d in v}
                                   for k, v in saved["report_drones"].items()
                                   if isinstance(v, list)}
+    if isinstance(saved.get("drones"), list):
+        missions.heard_before = {d for d in saved["drones"][:MAX_DRONES] if isinstance(d, str)}
     restored = 0
     for entry in saved.get("commands") or ():
         try:

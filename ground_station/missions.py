@@ -163,6 +163,9 @@ class MissionManager:
         self._next_id = max(1, first_command_id % (2**32 - 1))
         self.drones: dict[str, float] = {}
         """Known drones -> when first heard."""
+        self.heard_before: set[str] = set()
+        """Drones of this mission an earlier run of the station heard (its mission state):
+        not new when heard again, and not sent commands until heard."""
         self.commands: dict[int, IssuedCommand] = {}
         self.report_counts: Counter[str] = Counter()
         self.report_drones: dict[str, set[str]] = {}
@@ -176,16 +179,20 @@ class MissionManager:
 
     # -- inputs -------------------------------------------------------------------------
     def on_drone_heard(self, drone: str, *, now: float) -> bool:
-        """Register a drone; returns True when it is new."""
+        """Register a drone; returns True when it is new to the mission."""
         if drone in self.drones:
             return False
         self.drones[drone] = now
-        return True
+        self.changes += 1
+        known = drone in self.heard_before
+        self.heard_before.discard(drone)
+        return not known
 
     def forget(self, drone: str) -> None:
         """Drop a drone the fleet view forgot (silent for long): no more commands to it;
         heard again, it is a new drone."""
         self.drones.pop(drone, None)
+        self.heard_before.discard(drone)
         self.last_state.pop(drone, None)
 
     def issue(

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import threading
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
@@ -40,7 +41,7 @@ from ground_station.link_output import (
 )
 from ground_station.mission_state import MissionStateKeeper
 from ground_station.missions import MissionManager
-from ground_station.replay_state import load_replay_state, save_replay_state
+from ground_station.replay_state import read_replay_state, save_replay_state
 from ground_station.reports import ReportScheduler
 from ground_station.storage import StoreItem
 from ground_station.store_service import StorageService
@@ -107,6 +108,8 @@ class GroundLink(LinkOutput):
         """Boot epoch each drone announced; its commands must carry it (docs/protocol.md)."""
         self.replay_path = config.data_dir / "replay_state.json"
         self._replay_saving = False
+        self._replay_lock = threading.Lock()
+        self._replay_closed = False
         self.reports = ReportScheduler(interval_s=config.report_interval_s, now=now)
         self.transport: GroundTransport[Address] = (
             transport if transport is not None else udp_transport(config)
@@ -130,11 +133,12 @@ class GroundLink(LinkOutput):
     async def open(self) -> Address:
         """Open the transport and start receiving from it.
 
-        First the previous run's replay state is restored: whatever a sender sent before this
-        start is refused, so datagrams captured earlier cannot be replayed into this run.
+        First the previous run's replay state is restored: whatever the previous run may have
+        accepted is refused, so datagrams captured earlier cannot be replayed into this run.
         """
-        saved = await asyncio.to_thread(load_replay_state, self.replay_path)
-        restored = self.decoder.restore_replay_state(saved, self.clock())
+        saved = await asyncio.to_thread(read_replay_state, self.replay_path)
+        restored = self.decoder.restore_replay_state(saved.senders, self.clock(),
+                                                     closed=saved.closed)
         if restored:
             log.info("replay protection restored for %d sender(s)", restored)
         if await self.mission_state.restore():
@@ -151,12 +155,17 @@ class GroundLink(LinkOutput):
         return self.transport.local_addr
 
     def save_replay_state(self) -> None:
-        """Write the replay state now (blocking: at shutdown)."""
-        self._write_replay_state(self.decoder.replay_state(self.clock()))
+        """Write the replay state now, as the last one (blocking: at shutdown, once nothing
+        more is received)."""
+        self._write_replay_state(self.decoder.replay_state(self.clock()), closed=True)
 
-    def _write_replay_state(self, state: dict[str, list[float]]) -> None:
+    def _write_replay_state(self, state: dict[str, list[float]], closed: bool = False) -> None:
         try:
-            save_replay_state(self.replay_path, state)
+            with self._replay_lock:
+                if self._replay_closed:  # a periodic save finishing late: not over the last
+                    return
+                save_replay_state(self.replay_path, state, closed=closed)
+                self._replay_closed = closed
         except OSError as exc:
             self.counters["replay_state_errors"] += 1
             if self.counters["replay_state_errors"] % 60 == 1:  # once a minute, not a flood
@@ -244,10 +253,7 @@ class GroundLink(LinkOutput):
             if image
             else None
         )
-        if self.missions.on_drone_heard(message.sender, now=now):
-            self.fleet.alert(
-                Alert(t=now, level="info", kind="fleet", drone=message.sender, text="drone joined")
-            )
+        self._joined(message.sender, now)
         self.fleet.on_message(message, now=now, addr=addr, utility=utility)
         for listener in self.data_listeners:
             listener(message.sender, message.data)
@@ -294,10 +300,7 @@ class GroundLink(LinkOutput):
         if status.state == EPOCH_STATUS:
             self._on_epoch(event, addr, now)
             return
-        if self.missions.on_drone_heard(event.sender, now=now):
-            self.fleet.alert(
-                Alert(t=now, level="info", kind="fleet", drone=event.sender, text="drone joined")
-            )
+        self._joined(event.sender, now)
         state = self.fleet.heard(event.sender, now=now, addr=addr)
         self.fleet.apply_data(state, status.info, now=now)
         for listener in self.data_listeners:
@@ -329,6 +332,13 @@ class GroundLink(LinkOutput):
             },
         )
 
+    def _joined(self, drone: str, now: float) -> None:
+        """A drone new to the mission (not heard by this run nor, per the mission state, by
+        an earlier one: a restart re-raised "drone joined" for the whole fleet) is shown."""
+        if self.missions.on_drone_heard(drone, now=now):
+            self.fleet.alert(Alert(t=now, level="info", kind="fleet", drone=drone,
+                                   text="drone joined"))
+
     def _catch_up(self, now: float) -> None:
         """Drones heard again after a link loss (or for the first time since a restart) get
         the mission's commands they have not answered."""
@@ -345,10 +355,7 @@ class GroundLink(LinkOutput):
         if isinstance(epoch, bool) or not isinstance(epoch, int) or not 0 < epoch < 2**64:
             self.counters["bad_epoch_status"] += 1
             return
-        if self.missions.on_drone_heard(event.sender, now=now):
-            self.fleet.alert(
-                Alert(t=now, level="info", kind="fleet", drone=event.sender, text="drone joined")
-            )
+        self._joined(event.sender, now)
         self.fleet.heard(event.sender, now=now, addr=addr)
         previous = self.command_epochs.get(event.sender)
         if previous != epoch:

@@ -507,12 +507,19 @@ class Decoder:
         return {sender: [pn, now + offset, now] for sender, (pn, offset) in known.items()}
 
     def restore_replay_state(
-        self, state: Mapping[str, Any], now: float, *, slack_s: float = 1.0
+        self, state: Mapping[str, Any], now: float, *, slack_s: float = 1.0,
+        closed: bool = False,
     ) -> int:
         """Refuse, per sender of ``state`` (from :meth:`replay_state` of the previous
         process), every datagram sent before ``now`` on that sender's clock, plus ``slack_s``
         for delay jitter. The clock offset comes from the saved ``t_sent`` and acceptance
         time, so the rule holds however long ago the state was saved. Returns the count.
+
+        ``closed``: the state was taken when the previous process stopped accepting (a clean
+        shutdown, not a crash between two saves), so its highest packet numbers are exact and
+        they alone are refused: what a drone sent while the receiver was down, or in its
+        first second back, was never accepted, and refusing it lost real data and raised
+        ``replayed`` alerts after every ordinary restart.
         """
         skew = self.limits.max_clock_skew_s
         lifetime = math.inf if skew is None else 2 * skew + slack_s
@@ -527,7 +534,8 @@ class Decoder:
                 continue  # everything it sent then is stale now
             offset = t_sent - accepted_at
             self._floors[sender] = _Floor(packet_number=int(pn),
-                                          t_sent=now + offset + slack_s, offset=offset,
+                                          t_sent=-math.inf if closed
+                                          else now + offset + slack_s, offset=offset,
                                           expires=now + lifetime)
             restored += 1
         return restored

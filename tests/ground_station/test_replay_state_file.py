@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from ground_station.replay_state import load_replay_state, save_replay_state
+from ground_station.replay_state import load_replay_state, read_replay_state, save_replay_state
 
 
 def test_round_trip_and_mode(tmp_path: Path) -> None:
@@ -21,6 +21,10 @@ def test_round_trip_and_mode(tmp_path: Path) -> None:
     save_replay_state(path, {})
     assert load_replay_state(path) == {}
     assert [p.name for p in tmp_path.iterdir()] == ["replay_state.json"]  # no temp left
+    assert read_replay_state(path).closed is False  # the periodic save
+    save_replay_state(path, state, closed=True)  # the last one, at shutdown
+    assert read_replay_state(path).closed is True
+    assert read_replay_state(path).senders == state
 
 
 @pytest.mark.parametrize("text", [b"", b"{", b"[1, 2]", b'{"senders": 3}', b"\xff\xfe"])

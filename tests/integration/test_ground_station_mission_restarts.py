@@ -195,3 +195,40 @@ async def _done(station: Station, commands: int) -> bool:
     state = await station.api("GET", "/api/mission")
     return len(state["commands"]) == commands and all(
         c["summary"]["done"] == 1 for c in state["commands"])
+
+
+@pytest.mark.timeout(60)
+async def test_a_station_restart_raises_no_old_alert_again(tmp_path: Path) -> None:
+    """Before: after a clean restart (Ctrl-C, same data dir) every drone's first second of
+    datagrams was refused and alerted as ``replayed`` (22 in one operator run), and every
+    drone "joined" again. A restart is not news: the drone streams on through it, nothing it
+    sends after the stop is refused, and no alert of the first run comes back."""
+    station = Station(tmp_path)
+    await station.start()
+    fake = await drone(station)
+    streaming = True
+
+    async def stream() -> None:  # statuses at 20 Hz, through the station's downtime
+        while streaming:
+            fake.send_telemetry("status", {"mode": "MISSION", "mission": "running"})
+            await asyncio.sleep(0.05)
+
+    sender = asyncio.create_task(stream())
+    try:
+        await until(lambda: _heard(station))
+        await station.api("POST", "/api/mission/start", {})
+        await until(lambda: _done(station, 1))
+        station.stop()
+        await station.start()
+        t_back = (await station.api("GET", "/api/stats"))["decoder"]
+        await asyncio.sleep(2.5)
+        stats = (await station.api("GET", "/api/stats"))["decoder"]
+        alerts = (await station.api("GET", "/api/fleet"))["alerts"]
+    finally:
+        streaming = False
+        await sender
+        fake.close()
+        station.stop()
+    assert stats["accepted"] > t_back["accepted"] + 30  # it was heard all along
+    assert stats.get("replayed", 0) == 0, stats
+    assert [a["text"] for a in alerts] == [], alerts

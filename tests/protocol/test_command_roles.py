@@ -158,6 +158,28 @@ def test_a_restarted_receiver_refuses_everything_sent_before_it(
     assert all(_accepts(after, fresh))
 
 
+def test_after_a_clean_shutdown_only_what_was_accepted_is_refused() -> None:
+    """A state saved as the receiver stopped (``closed``) is exact: every capture of what it
+    accepted is still refused, and what the drone sent while it was down, or in its first
+    second back, is accepted (the crash rule refused that second: real data lost and
+    ``replayed`` alerts after every ordinary restart)."""
+    encoder = Encoder(FLEET, "drone1", KEY)
+    offset = -3.0
+    before = Decoder(FLEET, KEY, local_id="ground")
+    captured = _telemetry_stream(encoder, T0, 5.0, 10.0, offset)
+    assert all(_accepts(before, captured))
+    saved = json.loads(json.dumps(before.replay_state(T0 + 5.0)))
+    after = Decoder(FLEET, KEY, local_id="ground")
+    assert after.restore_replay_state(saved, T0 + 5.2, closed=True) == 1
+    assert not any(_accepts(after, captured, now=T0 + 5.3))
+    assert after.counters["replayed"] == len(captured)
+    down_and_back = _telemetry_stream(encoder, T0 + 5.1, 1.0, 10.0, offset)  # from 5.11 s
+    assert all(_accepts(after, down_and_back))
+    crashed = Decoder(FLEET, KEY, local_id="ground")  # the same file, not closed: refused
+    crashed.restore_replay_state(saved, T0 + 5.2)
+    assert not any(_accepts(crashed, down_and_back))
+
+
 def test_a_second_restart_after_a_quiet_spell_still_refuses_the_last_burst() -> None:
     """Restart, the drone is heard, goes quiet for 40 s, the state is saved, the drone sends
     a burst, the station crashes before the next save: the burst is refused after the
