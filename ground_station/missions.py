@@ -33,6 +33,7 @@ from ground_station.mission_input import (
     parse_shell_line,
     parse_when,
 )
+from ground_station.mission_params import fleet_params
 
 __all__ = [
     "IssuedCommand",
@@ -416,12 +417,17 @@ class MissionManager:
         return "scheduled" if now < self.t_start else "running"
 
     def state(self, *, now: float, last_commands: int = 20) -> dict[str, Any]:
-        """Phase, times, parameters, drones, reports and the last commands with results."""
+        """Phase, times, parameters (in effect, and those every drone rejected), drones,
+        reports and the last commands with results."""
+        params = fleet_params(
+            (dict(i.command.args), [e["result"] for e in i.outcome(now)["results"].values()])
+            for i in self.commands.values() if i.command.name == "set_params")
         return {
             "phase": self.phase(now=now),
             "t_start": self.t_start,
             "t_end": self.t_end,
-            "params": dict(self.params),
+            "params": params.in_effect,
+            "params_rejected": params.rejected,
             "drones": sorted(self.drones),
             "reports": dict(self.report_counts),
             "report_drones": {k: sorted(v) for k, v in self.report_drones.items()},

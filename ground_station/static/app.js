@@ -463,9 +463,12 @@ function renderMission() {
   $("mission-times").textContent = (m.t_start ? "start " + fmt.time(m.t_start) : "") + (m.t_end ? " · end " + fmt.time(m.t_end) : "");
   const cmds = (m.commands || []).slice(-5).reverse().map((c) => commandLine(c, m.drones.length)).join("");
   const reports = Object.entries(m.reports || {}).map(([k, v]) => `${esc(k)}: ${v}`).join(", ");
-  const params = Object.entries(m.params || {}).map(([k, v]) => `${esc(k)}=${esc(v)}`).join(", ");
+  const kv = (o) => Object.entries(o || {}).map(([k, v]) => `${esc(k)}=${esc(v)}`).join(", ");
+  const params = kv(m.params), rejected = kv(m.params_rejected);
   $("mission-info").innerHTML = `<div>drones known: <b>${m.drones.length}</b></div>` +
-    `<div>reports: ${reports || "–"}</div><div title="what was asked; each command below says which drones applied it">params requested: ${params || "–"}</div>` + (cmds || "<div class='muted'>no commands yet</div>");
+    `<div>reports: ${reports || "–"}</div><div id="mission-params" title="set by a command some drone applied (or has not answered yet); each command below says which">params: ${params || "–"}</div>` +
+    (rejected ? `<div id="mission-params-rejected" class="err" title="every drone that answered rejected these; nothing of those commands changed">rejected: ${rejected}</div>` : "") +
+    (cmds || "<div class='muted'>no commands yet</div>");
 }
 
 // -- gallery ------------------------------------------------------------------------------------

@@ -101,3 +101,26 @@ def test_names_a_newcomer_guesses_and_the_old_letters() -> None:
     assert parse_shell_line("report").verb == "report"  # type: ignore[union-attr]
     assert parse_shell_line("status").verb == "status"  # type: ignore[union-attr]
     assert parse_shell_line("?").verb == "help"  # type: ignore[union-attr]
+
+
+def test_a_parameter_every_drone_rejected_is_not_shown_in_effect() -> None:
+    """Before: ``params`` was every key ever asked, so ``warp_speed=2`` after ``error 2/2``
+    looked applied, and so did ``x=9`` of that same all-or-nothing command."""
+    mm = _fleet("a", "b")
+
+    def answer(verb_args: dict[str, int], states: dict[str, str], t: float) -> None:
+        cid = mm.issue("params", t_exec=t, now=t, args=verb_args).command.command_id
+        for drone, state in states.items():
+            mm.on_status(drone, state=state, command_id=cid, now=t + 0.1,
+                         info={"error": "unknown parameter"} if state == "error" else {})
+
+    answer({"x": 5}, {"a": "done", "b": "done"}, T0)
+    answer({"x": 9, "warp_speed": 2}, {"a": "error", "b": "error"}, T0 + 1)
+    state = mm.state(now=T0 + 2)
+    assert state["params"] == {"x": 5}
+    assert state["params_rejected"] == {"x": 9, "warp_speed": 2}
+    answer({"y": 1}, {"a": "done", "b": "error"}, T0 + 3)  # applied on one drone: in effect
+    mm.issue("params", t_exec=T0 + 4, now=T0 + 4, args={"warp_speed": 3})  # not answered yet
+    state = mm.state(now=T0 + 4.5)
+    assert state["params"] == {"x": 5, "y": 1, "warp_speed": 3}
+    assert state["params_rejected"] == {"x": 9}

@@ -224,6 +224,11 @@ def test_a_rejected_parameter_is_an_error_with_the_reason(product: Product) -> N
                                   "total": 2}
     for entry in command["results"].values():
         assert "unknown parameter 'warp_speed'" in entry["reason"]
+    # all or nothing: the station shows neither key in effect (before: both were listed
+    # under "params requested" like the applied mcts_iterations=5)
+    mission = product.api("GET", "/api/mission")
+    assert mission["params"] == {"mcts_iterations": 5}
+    assert mission["params_rejected"] == {"mcts_iterations": 9, "warp_speed": 2}
 
 
 def test_a_vehicle_change_shows_at_the_ground_station(product: Product) -> None:
