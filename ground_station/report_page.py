@@ -19,6 +19,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import io
+import itertools
+import math
 import os
 import sqlite3
 import threading
@@ -30,10 +32,14 @@ from typing import Any, TypeVar
 from aiohttp import web
 
 from ground_station.storage_records import safe_name
+from utility_specs.intervals import intervals_of
 
-__all__ = ["RenderGate", "add_report_routes", "render_png", "utility_series", "write_png"]
+__all__ = ["RenderGate", "add_report_routes", "mission_runs", "render_png", "utility_series",
+           "write_png"]
 
 BIN_S = 5.0
+MAX_BINS = 2000
+"""Bins of one report: a mission of more than about 3 h gets bins wider than BIN_S."""
 RENDERS = 2
 """PNGs drawn at once (each takes a thread and most of a core for ~0.1-0.5 s)."""
 WAITING = 4
@@ -55,25 +61,69 @@ def color(drone: str) -> str:
     return PALETTE[h % len(PALETTE)]
 
 
+def mission_runs(db: sqlite3.Connection, mission: str) -> list[tuple[float, float | None]]:
+    """The mission's runs, sorted and merged: every start to its end (or open), as its log
+    marks them (a station restart closes and reopens the same run; an end and a new start
+    make two). A database without the bounds table's rows (older version) has one: its row's
+    latest start to its end."""
+    bounds = db.execute("SELECT t_start, t_end FROM mission_bounds WHERE mission = ? "
+                        "ORDER BY rowid", (mission,)).fetchall()
+    if bounds:
+        spans = [(i.t_start, i.t_end) for i in intervals_of([tuple(b) for b in bounds], "gs")
+                 if i.t_start is not None]
+    else:
+        row = db.execute("SELECT t_start, t_end FROM missions WHERE name = ?",
+                         (mission,)).fetchone()
+        spans = [(row[0], row[1] if row[1] is not None and row[1] >= row[0] else None)
+                 ] if row and row[0] is not None else []
+    runs: list[tuple[float, float | None]] = []
+    for a, b in sorted(spans, key=lambda r: r[0]):
+        if runs and (runs[-1][1] is None or a <= runs[-1][1]):
+            end = runs[-1][1]
+            runs[-1] = (runs[-1][0], None if end is None or b is None else max(end, b))
+        else:
+            runs.append((a, b))
+    return runs
+
+
 def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S
                    ) -> dict[str, Any]:
-    """Per drone, the utility received per ``bin_s`` from the mission's first image on."""
+    """Per drone, the utility received per ``bin_s`` over every run of the mission (from its
+    first start; before, only the latest start counted: an ``end`` and a new ``start`` left
+    5 of 81 stored images in the report), and what it covers: the runs, the images counted
+    and those stored outside every run (before the first start, between runs). Without a
+    start, from the first image. At most :data:`MAX_BINS` bins: longer missions get wider
+    ones."""
     rows = db.execute("SELECT sender, t_rcv, utility FROM images WHERE mission = ? "
                       "AND type = 'image' ORDER BY t_rcv", (mission,)).fetchall()
-    window = db.execute("SELECT t_start, t_end FROM missions WHERE name = ?",
-                        (mission,)).fetchone()
-    t0 = window[0] if window and window[0] is not None else (rows[0][1] if rows else 0.0)
-    t_last = max((r[1] for r in rows), default=t0)
-    n = max(1, int((t_last - t0) // bin_s) + 1) if rows else 0
+    runs = mission_runs(db, mission)
+    if runs:
+        rows_in = [r for r in rows if any(a <= r[1] and (b is None or r[1] <= b)
+                                          for a, b in runs)]
+    else:
+        rows_in = rows
+    t0 = runs[0][0] if runs else (rows[0][1] if rows else 0.0)
+    t_last = max((r[1] for r in rows_in), default=t0)
+    bin_s = max(bin_s, math.ceil((t_last - t0) / MAX_BINS))
+    n = max(1, int((t_last - t0) // bin_s) + 1) if rows_in else 0
     drones: dict[str, list[float]] = {}
-    for sender, t_rcv, utility in rows:
+    for sender, t_rcv, utility in rows_in:
         i = int((t_rcv - t0) // bin_s)
         if 0 <= i < n:
             drones.setdefault(str(sender), [0.0] * n)[i] += float(utility)
     return {"mission": mission, "t_start": t0, "bin_s": bin_s,
+            "runs": [[a, b] for a, b in runs], "images": len(rows_in),
+            "images_outside": len(rows) - len(rows_in),
             "t": [i * bin_s for i in range(n)],
             "drones": {d: {"utility": v, "total": sum(v), "color": color(d)}
                        for d, v in sorted(drones.items())}}
+
+
+def _gaps(series: dict[str, Any]) -> list[tuple[float, float]]:
+    """Between two runs (an end, then a new start), in seconds of the report's axis."""
+    runs, t0 = series.get("runs", []), series["t_start"]
+    return [(end - t0, start - t0) for (_, end), (start, _) in itertools.pairwise(runs)
+            if end is not None]
 
 
 def render_png(series: dict[str, Any], path: Path | None) -> bytes:
@@ -88,6 +138,8 @@ def render_png(series: dict[str, Any], path: Path | None) -> bytes:
     for drone, d in series["drones"].items():
         ax.plot(series["t"], d["utility"], color=d["color"], lw=1.8, marker="o", ms=3,
                 label=f"{drone} (total {d['total']:.0f})")
+    for gap_start, gap_end in _gaps(series):
+        ax.axvspan(gap_start, gap_end, color="#8b949e", alpha=0.2, lw=0)
     ax.set_xlabel("mission time (s)")
     ax.set_ylabel(f"utility received per {series['bin_s']:g} s")
     name = "".join(c if c.isprintable() else "?" for c in str(series["mission"]))[:80]

@@ -381,6 +381,10 @@ class Storage(StorageReads):
             self._ended.add(mission)
         if t_start is not None or t_end is not None:
             bounds = {"t_start": t_start} if t_start is not None else {"t_end": t_end}
+            # every start and end, as the mission log has them (the row keeps the latest)
+            self.db.execute("INSERT INTO mission_bounds (mission, t_start, t_end) "
+                            "VALUES (?, ?, ?)", (mission, bounds.get("t_start"),
+                                                 bounds.get("t_end")))
             handle = self._log(mission)
             handle.write(json.dumps({"mission": bounds}) + "\n")
             handle.flush()

@@ -39,6 +39,12 @@ CREATE TABLE IF NOT EXISTS missions (
     t_start REAL,
     t_end REAL
 );
+CREATE TABLE IF NOT EXISTS mission_bounds (
+    mission TEXT NOT NULL,
+    t_start REAL,
+    t_end REAL
+);
+CREATE INDEX IF NOT EXISTS mission_bounds_by_mission ON mission_bounds (mission);
 CREATE TABLE IF NOT EXISTS messages (
     id INTEGER PRIMARY KEY,
     mission TEXT NOT NULL,

@@ -39,13 +39,25 @@ function draw(series) {
   $("r-empty").classList.toggle("hidden", drones.length > 0);
 }
 
+// What the report counts, said on the page: every run of the mission (start to end), and
+// how many stored images fell outside them (before the first start, between runs).
+function covers(series) {
+  const t = (x) => new Date(x * 1000).toLocaleTimeString();
+  const runs = (series.runs || []).map(([a, b]) => t(a) + "–" + (b == null ? "now" : t(b)));
+  let text = runs.length ? (runs.length === 1 ? "run " : runs.length + " runs: ") + runs.join(", ")
+    : series.t_start ? "from " + t(series.t_start) + " (no start command)" : "";
+  text += ` · ${series.images || 0} image(s)`;
+  if (series.images_outside) text += `, ${series.images_outside} stored outside the runs not counted`;
+  return text;
+}
+
 async function load() {
   const res = await fetch("/api/report", { credentials: "same-origin" });
   if (!res.ok) { $("r-empty").textContent = "not logged in: open the dashboard's login link first"; $("r-empty").classList.remove("hidden"); return; }
   const series = await res.json();
   $("r-mission").textContent = series.mission;
   $("r-bin").textContent = series.bin_s;
-  if (series.t_start) $("r-times").textContent = "from " + new Date(series.t_start * 1000).toLocaleTimeString();
+  $("r-times").textContent = covers(series);
   draw(series);
   $("r-png").src = "/api/report.png?t=" + Date.now();
   document.body.dataset.loaded = "1";
