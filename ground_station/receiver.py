@@ -144,7 +144,7 @@ class GroundLink(LinkOutput):
         if await self.mission_state.restore():
             log.info("mission state restored: phase %s, %d command(s)",
                      self.missions.phase(now=self.clock()), len(self.missions.commands))
-            await self._reopen_mission()
+        await self._reopen_mission()
         addr = await self.transport.open(self)
         self._open = True
         self._arm()
@@ -187,15 +187,14 @@ class GroundLink(LinkOutput):
         future.add_done_callback(done)
 
     async def _reopen_mission(self) -> None:
-        """A restored mission not ended goes on in the mission log: its start again, so the
-        interval ``uav-utility evaluate`` takes spans the restart (the shutdown wrote a
-        ``t_end``; what came after was outside every interval, not counted)."""
+        """A mission not ended goes on in the mission log (``Storage.reopen_mission``): the
+        restored start command's, or the one the station opened with its first message."""
         t_start, mission = self.missions.t_start, self.config.mission
-        if t_start is None or self.missions.phase(now=self.clock()) == "ended":
+        if t_start is not None and self.missions.phase(now=self.clock()) == "ended":
             return
         try:
             await self.storage.call_writer(
-                lambda s: s.mark_mission(mission, now=self.clock(), t_start=t_start))
+                lambda s: s.reopen_mission(mission, now=self.clock(), t_start=t_start))
         except Exception as exc:  # full disk, SQLite: shown, the station still runs
             log.warning("mission %s not reopened in its log: %s", mission, exc)
 

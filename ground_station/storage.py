@@ -112,7 +112,7 @@ class Storage(StorageReads):
                     "SELECT t_start FROM missions WHERE name = ?", (mission,)
                 ).fetchone()
                 t_end = max(t_rcv, now or t_rcv, row[0] if row and row[0] is not None else t_rcv)
-                self.mark_mission(mission, now=t_end, t_end=t_end)
+                self.mark_mission(mission, now=t_end, t_end=t_end, stop=True)
         self._last_rcv.clear()
         for handle in self._logs.values():
             with contextlib.suppress(OSError):
@@ -357,6 +357,27 @@ class Storage(StorageReads):
         cur.execute("COMMIT")
         return ids
 
+    def reopen_mission(self, mission: str, *, now: float, t_start: float | None) -> bool:
+        """A restarted station goes on with ``mission``: its start again in the log, so the
+        interval ``uav-utility evaluate`` takes spans the restart (the shutdown wrote a
+        ``t_end``), and a ``t_end`` at this process's stop. ``t_start``: the operator's start
+        the mission state restored; None: the start recorded here, unless an operator's end
+        came after it (a mission the station opened itself, with its first message, ended
+        for good at the first restart). Returns whether it was reopened."""
+        if t_start is None:
+            kinds = [r[0] for r in self.db.execute(
+                "SELECT kind FROM mission_bounds WHERE mission = ? ORDER BY rowid", (mission,))]
+            row = self.db.execute("SELECT t_start FROM missions WHERE name = ?",
+                                  (mission,)).fetchone()
+            after_start = kinds[len(kinds) - kinds[::-1].index("start"):] \
+                if "start" in kinds else []
+            if "end" in after_start or not after_start or row is None or row[0] is None:
+                return False  # ended by an operator, still open (a crash), or never opened
+            t_start = float(row[0])
+        self.mark_mission(mission, now=now, t_start=t_start)
+        self._last_rcv.setdefault(mission, now)
+        return True
+
     def write_alerts(self, rows: Sequence[tuple[str, float, str, str, str | None, str]]) -> None:
         """Store alerts: (mission, t, level, kind, drone, text) rows."""
         self.db.executemany(
@@ -365,9 +386,11 @@ class Storage(StorageReads):
         )
 
     def mark_mission(
-        self, mission: str, *, now: float, t_start: float | None = None, t_end: float | None = None
+        self, mission: str, *, now: float, t_start: float | None = None,
+        t_end: float | None = None, stop: bool = False,
     ) -> None:
-        """Record a mission's start/end; an end also goes to the mission log as ``t_end``."""
+        """Record a mission's start/end; an end also goes to the mission log as ``t_end``.
+        ``stop``: the end is the station's shutdown, not an operator's end."""
         self.db.execute(
             "INSERT OR IGNORE INTO missions (name, t_created) VALUES (?, ?)", (mission, now)
         )
@@ -382,9 +405,10 @@ class Storage(StorageReads):
         if t_start is not None or t_end is not None:
             bounds = {"t_start": t_start} if t_start is not None else {"t_end": t_end}
             # every start and end, as the mission log has them (the row keeps the latest)
-            self.db.execute("INSERT INTO mission_bounds (mission, t_start, t_end) "
-                            "VALUES (?, ?, ?)", (mission, bounds.get("t_start"),
-                                                 bounds.get("t_end")))
+            kind = "start" if t_start is not None else "stop" if stop else "end"
+            self.db.execute("INSERT INTO mission_bounds (mission, t_start, t_end, kind) "
+                            "VALUES (?, ?, ?, ?)", (mission, bounds.get("t_start"),
+                                                    bounds.get("t_end"), kind))
             handle = self._log(mission)
             handle.write(json.dumps({"mission": bounds}) + "\n")
             handle.flush()

@@ -42,7 +42,8 @@ CREATE TABLE IF NOT EXISTS missions (
 CREATE TABLE IF NOT EXISTS mission_bounds (
     mission TEXT NOT NULL,
     t_start REAL,
-    t_end REAL
+    t_end REAL,
+    kind TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS mission_bounds_by_mission ON mission_bounds (mission);
 CREATE TABLE IF NOT EXISTS messages (

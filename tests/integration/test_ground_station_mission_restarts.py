@@ -232,3 +232,41 @@ async def test_a_station_restart_raises_no_old_alert_again(tmp_path: Path) -> No
     assert stats["accepted"] > t_back["accepted"] + 30  # it was heard all along
     assert stats.get("replayed", 0) == 0, stats
     assert [a["text"] for a in alerts] == [], alerts
+
+
+@pytest.mark.timeout(60)
+async def test_a_mission_the_station_opened_itself_survives_a_restart(tmp_path: Path) -> None:
+    """No start command: the station opens the mission with the first message. Before, the
+    stop's ``t_end`` closed it for good (the restarted station wrote no start), so
+    ``uav-utility evaluate`` took [first message, first stop] and what came after counted
+    nowhere; started with a command, a mission survived (above)."""
+    station = Station(tmp_path)
+    await station.start()
+    fake = await drone(station)
+    try:
+        for stored in (6, 5):  # two station runs (the first also has the drone's status)
+            for _ in range(5):
+                fake.send_telemetry("battery", {"level": 0.5})
+                await asyncio.sleep(0.05)
+            await until(lambda n=stored: _stored(station, n))  # type: ignore[misc]
+            station.stop()
+            await station.start()
+        fake.send_telemetry("battery", {"level": 0.5})
+        await until(lambda: _stored(station, 1))
+    finally:
+        fake.close()
+        station.stop()
+    log = tmp_path / "data" / "missions" / "ops" / "mission_log.jsonl"
+    records = [json.loads(x) for x in log.read_text().splitlines() if x.strip()]
+    bounds = [(r["mission"].get("t_start"), r["mission"].get("t_end"))
+              for r in records if "mission" in r]
+    received = [r["t_rcv"] for r in records if "sender" in r]
+    assert len(received) == 6 + 5 + 1
+    [chosen] = select_intervals([intervals_of(bounds, "gs")], [], None).chosen
+    assert chosen.t_start == bounds[0][0] and chosen.t_end == bounds[-1][1]
+    assert all(chosen.t_start <= t <= chosen.t_end for t in received)
+
+
+async def _stored(station: Station, n: int) -> bool:
+    stats = await station.api("GET", "/api/stats")
+    return bool(stats["storage"]["written"] - stats["storage"]["not_stored"] >= n)
