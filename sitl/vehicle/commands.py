@@ -45,6 +45,7 @@ class CommandHandlers:
     counters: Counter[str]
     telemetry: Telemetry
     _intervals: dict[int, float]
+    _reboot_requested: bool
     _builders: Mapping[int, Callable[[float], Any]]  # pymavlink messages are untyped
 
     if TYPE_CHECKING:  # provided by VehicleCore
@@ -159,6 +160,8 @@ class CommandHandlers:
         elif command == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             res = CommandResult(result=ACCEPTED)
             follow_up = self.telemetry.autopilot_version(now)
+        elif command == mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN:
+            res = self._reboot(p[0])
         elif command == mavlink.MAV_CMD_GET_HOME_POSITION:
             follow_up = self.telemetry.home_position(now)
             res = CommandResult(result=FAILED if follow_up is None else ACCEPTED)
@@ -170,6 +173,21 @@ class CommandHandlers:
         self._ack(msg, command, res)
         if follow_up is not None:
             self._send(follow_up)
+
+    def _reboot(self, action: float) -> CommandResult:
+        """param1 1 (reboot) or 3 (to the bootloader: here a reboot too) when disarmed: ACK
+        ACCEPTED, then silent for ``reboot_s`` and a fresh boot (the core). ArduPilot's
+        handle_preflight_reboot answers FAILED while armed and UNSUPPORTED for other param1;
+        PX4's Commander accepts 0 (nothing to do) and DENIES the rest."""
+        ardupilot = self.flavour.name == "ardupilot"
+        if not ardupilot and action == 0.0:
+            return CommandResult(result=ACCEPTED)
+        if self.fc.state.armed:
+            return CommandResult(result=FAILED if ardupilot else DENIED)
+        if action not in (1.0, 3.0):
+            return CommandResult(result=UNSUPPORTED if ardupilot else DENIED)
+        self._reboot_requested = True
+        return CommandResult(result=ACCEPTED)
 
     def _peripheral_command(self, command: int, p: list[float], frame: int | None
                             ) -> CommandResult:

@@ -95,7 +95,10 @@ class VehicleConfig:
     "Arm:"/"PreArm: ...", PX4 "Navigation error: ...") and on ArduPilot GLOBAL_POSITION_INT
     at 0/0 (PX4 sends none). 0 for tests that fly at once."""
     autostart: bool = False
-    """Arm and start the preloaded mission as soon as the vehicle can arm (after the fix)."""
+    """Arm and start the preloaded mission as soon as the vehicle can arm (after the fix);
+    at the first boot only (a rebooted autopilot waits on the ground)."""
+    reboot_s: float = 4.0
+    """Wall seconds a reboot (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN) keeps the vehicle silent."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.system_id <= 255:
@@ -104,6 +107,8 @@ class VehicleConfig:
             raise ValueError(f"speedup must be > 0, got {self.speedup}")
         if not (math.isfinite(self.first_fix_s) and self.first_fix_s >= 0.0):
             raise ValueError(f"first_fix_s must be >= 0, got {self.first_fix_s}")
+        if not (math.isfinite(self.reboot_s) and self.reboot_s >= 0.0):
+            raise ValueError(f"reboot_s must be >= 0, got {self.reboot_s}")
 
 
 
@@ -119,27 +124,9 @@ class VehicleCore(CommandHandlers, MissionProtocol):
             "SYSID_THISMAV")
         overrides.setdefault(id_param, sysid)
         self.params = ParamTable(self.flavour.params, overrides)
-        self.fc = FlightController(flavour=self.flavour, params=self.params, home=config.home,
-                                   airframe=config.airframe, dt_s=config.physics_dt_s,
-                                   gust_fraction=config.gust_fraction,
-                                   first_fix_s=config.first_fix_s)
-        self.fc.advance_to(now)
-        self._tx = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
-        self._rx = self._new_parser()
-        self._out: list[bytes] = []
-        self._forward: deque[tuple[object, bytes]] = deque(maxlen=64)
         self.counters: Counter[str] = Counter()
-        self._intervals: dict[int, float] = (
-            {**DEFAULT_INTERVALS_S, **PX4_EXTRA_INTERVALS_S} if self.flavour.streams_unrequested
-            else {MSG_HEARTBEAT: 1.0}
-        )
-        self._next_due: dict[int, float] = dict.fromkeys(self._intervals, now)
+        self._forward: deque[tuple[object, bytes]] = deque(maxlen=64)
         self._stored: dict[int, list[MissionItem]] = {0: list(config.mission), 1: [], 2: []}
-        self.telemetry = Telemetry(
-            self.fc, flavour=self.flavour, system_id=sysid, home=config.home,
-            boot_unix_s=config.boot_unix_s, gps_sigma_h_m=config.gps_sigma_h_m,
-            rng=np.random.default_rng(config.seed), mission_total=lambda: len(self._stored[0]))
-        self._builders = self.telemetry.builders
         self._handlers: dict[str, Callable[[Any, float], None]] = {
             "HEARTBEAT": self._on_heartbeat,
             "COMMAND_LONG": self._on_command_long,
@@ -164,15 +151,51 @@ class VehicleCore(CommandHandlers, MissionProtocol):
             "PING": self._on_ping,
             "ADSB_VEHICLE": self._on_adsb_vehicle,  # sitl.vehicle.traffic
         }
+        self.boots = 0
+        self._boot_at = 0.0
+        """Caller time of the last boot: the vehicle's own clock (``now`` inside) counts from
+        it, as an autopilot's time since boot does."""
+        self.rebooting_until: float | None = None
+        """Caller time the vehicle is back from a reboot (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN);
+        until then it is silent and deaf."""
+        self._reboot_requested = False
+        self._boot(now, autostart=config.autostart)
+
+    def _boot(self, now: float, *, autostart: bool) -> None:
+        """Everything a boot starts from scratch: the flight controller (no fix, no EKF
+        origin, disarmed, at home), the message streams (their defaults), the MAVLink
+        sequence and parser, the traffic list. Parameters and stored missions persist, as
+        in an autopilot's EEPROM/flash."""
+        config = self.config
+        sysid = config.system_id
+        self.fc = FlightController(flavour=self.flavour, params=self.params, home=config.home,
+                                   airframe=config.airframe, dt_s=config.physics_dt_s,
+                                   gust_fraction=config.gust_fraction,
+                                   first_fix_s=config.first_fix_s)
+        self.fc.advance_to(now)
+        self._tx = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
+        self._rx = self._new_parser()
+        self._out: list[bytes] = []
+        self._intervals: dict[int, float] = (
+            {**DEFAULT_INTERVALS_S, **PX4_EXTRA_INTERVALS_S} if self.flavour.streams_unrequested
+            else {MSG_HEARTBEAT: 1.0}
+        )
+        self._next_due: dict[int, float] = dict.fromkeys(self._intervals, now)
+        self.telemetry = Telemetry(
+            self.fc, flavour=self.flavour, system_id=sysid, home=config.home,
+            boot_unix_s=config.boot_unix_s + self._boot_at, gps_sigma_h_m=config.gps_sigma_h_m,
+            rng=np.random.default_rng(config.seed + self.boots),
+            mission_total=lambda: len(self._stored[0]))
+        self._builders = self.telemetry.builders
         self.awareness = TrafficAwareness(flavour=self.flavour.name, params=self.params,
                                           fc=self.fc, home=config.home)
         self._next_traffic = now
-        if config.mission:
-            self.fc.set_mission(list(config.mission))
+        if self._stored[0]:
+            self.fc.set_mission(list(self._stored[0]))
         self._upload: _Upload | None = None
         self._last_control = now
         self.gcs_heard = False
-        self._autostart_pending = config.autostart and bool(config.mission)
+        self._autostart_pending = autostart and bool(self._stored[0])
         self._drain_events(now)
         self._try_autostart()
 
@@ -202,15 +225,20 @@ class VehicleCore(CommandHandlers, MissionProtocol):
         return out
 
     def get_timer(self) -> float:
-        """The next deadline (vehicle seconds) at which ``handle_timer`` must run."""
+        """The next deadline (caller seconds) at which ``handle_timer`` must run."""
+        if self.rebooting_until is not None:
+            return self.rebooting_until
         deadline = min(self._last_control + CONTROL_PERIOD_S, self._next_traffic)
         if self._next_due:
             deadline = min(deadline, min(self._next_due.values()))
         if self._upload is not None:
             deadline = min(deadline, self._upload.deadline)
-        return deadline
+        return deadline + self._boot_at
 
     def handle_timer(self, now: float) -> None:
+        if not self._running(now):
+            return
+        now -= self._boot_at
         self._advance(now)
         if now >= self._next_traffic:  # age the list, stream it as the stacks do
             self._next_traffic = now + TRAFFIC_PERIOD_S * self.config.speedup
@@ -236,6 +264,26 @@ class VehicleCore(CommandHandlers, MissionProtocol):
 
     def receive_datagram(self, data: bytes, addr: object, now: float) -> None:
         """Decode and act on one datagram; bad bytes are counted, never raised."""
+        if not self._running(now):
+            self.counters["received_while_rebooting"] += 1  # nobody listens yet
+            return
+        self._receive(data, addr, now - self._boot_at)
+        if self._reboot_requested:  # the ACK is out first, as ArduPilot sends it
+            self._reboot_requested = False
+            self.rebooting_until = now + self.config.reboot_s * self.config.speedup
+
+    def _running(self, now: float) -> bool:
+        """False while rebooting; at its end, the vehicle boots again."""
+        if self.rebooting_until is None:
+            return True
+        if now < self.rebooting_until:
+            return False
+        self._boot_at, self.rebooting_until = self.rebooting_until, None
+        self.boots += 1
+        self._boot(now - self._boot_at, autostart=False)
+        return True
+
+    def _receive(self, data: bytes, addr: object, now: float) -> None:
         self._advance(now)
         try:
             msgs = self._rx.parse_buffer(data) or []
