@@ -142,13 +142,17 @@ class TelemetryPublisher:
 
     def _status(self, snap: TelemetrySnapshot) -> dict[str, Any]:
         """Mission status; field names are the ones the ground station's fleet view reads."""
-        data: dict[str, Any] = {"mode": snap.mode, "armed": snap.armed,
+        # Not heard, the autopilot's mode, arming and fix are unknown (null), not the last
+        # ones heard: across a reboot the station showed the old "armed, 3D fix" as current.
+        # After it, a fix not reported yet is null too (a rebooted autopilot has none).
+        heard = snap.connected
+        data: dict[str, Any] = {"mode": snap.mode if heard else None,
+                                "armed": snap.armed if heard else None,
                                 "connected": snap.connected, "since": self._since,
-                                "failsafe": snap.system_status in FAILSAFE_STATES,
+                                "failsafe": snap.system_status in FAILSAFE_STATES and heard,
                                 "mission": self._mission.state, "autopilot": snap.autopilot,
-                                "optimiser_ready": self._dispatcher.optimiser_ready}
-        if snap.gps_fix_type is not None:
-            data["fix_type"] = snap.gps_fix_type
+                                "optimiser_ready": self._dispatcher.optimiser_ready,
+                                "fix_type": snap.gps_fix_type if heard else None}
         xi = self._dispatcher.constraint_limit()
         if xi is not None:
             data["xi_bytes_per_s"] = xi

@@ -176,11 +176,13 @@ class FleetView:
         battery = first_number(data, "level", "battery", "battery_level", "battery_remaining")
         if battery is not None and newer("battery"):
             state.battery = battery / 100.0 if battery > 1.0 else battery
-        mode = data.get("mode")
-        if isinstance(mode, str) and newer("mode"):
+        # A null says unknown (the companion does not hear its autopilot, or it rebooted
+        # and has not said yet): the tile shows "–", not the last value as current.
+        mode = data.get("mode", ...)
+        if (mode is None or isinstance(mode, str)) and newer("mode"):
             state.mode = mode
-        armed = data.get("armed")
-        if isinstance(armed, bool) and newer("armed"):
+        armed = data.get("armed", ...)
+        if (armed is None or isinstance(armed, bool)) and newer("armed"):
             state.armed = armed
         failsafe = data.get("failsafe")
         if isinstance(failsafe, bool) and newer("failsafe"):
@@ -197,6 +199,8 @@ class FleetView:
         fix = first_number(data, "gps_fix", "fix_type", "fix")
         if fix is not None and newer("gps_fix"):
             state.gps_fix = int(fix)
+        elif fix is None and data.get("fix_type", ...) is None and newer("gps_fix"):
+            state.gps_fix = None
         t_pose = t - max(0.0, first_number(data, "pose_age_s") or 0.0)
         lat, lon = first_number(data, "lat_deg", "lat"), first_number(data, "lon_deg", "lon")
         if data.get("position") == "none":

@@ -255,6 +255,40 @@ def test_a_vehicle_change_shows_at_the_ground_station(product: Product) -> None:
     assert armed()["drone1"] is False
 
 
+def test_an_autopilot_reboot_shows_no_stale_state(product: Product) -> None:
+    """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN to vehicle 1 (disarmed): ACCEPTED, 4 s of silence, a
+    boot from scratch. While the companion does not hear its autopilot the station shows its
+    mode, arming and fix as unknown (it showed the last ones, as fresh as any), and after the
+    reboot what the new boot says, the fix only once the new boot reports one."""
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink import mavutil
+
+    link = mavutil.mavlink_connection(f"udpout:127.0.0.1:{product.vehicle_ports[0]}",
+                                      source_system=250)
+    try:
+        link.mav.heartbeat_send(6, 8, 0, 0, 0)
+        assert link.wait_heartbeat(timeout=10) is not None
+        link.mav.command_long_send(link.target_system, 1, 246, 0, 1, 0, 0, 0, 0, 0, 0)
+        ack = link.recv_match(type="COMMAND_ACK", blocking=True, timeout=10)
+        assert ack is not None and ack.result == 0  # the fake answered UNSUPPORTED before
+    finally:
+        link.close()
+    seen: list[tuple[Any, ...]] = []
+
+    def back() -> bool:
+        tile = next(t for t in product.api("GET", "/api/fleet")["drones"]
+                    if t["drone"] == "drone1")
+        seen.append((tile["autopilot_connected"], tile["mode"], tile["armed"], tile["gps_fix"]))
+        lost = [s for s in seen if s[0] is False]
+        return bool(lost) and seen[-1][0] is True and seen[-1][3] == 3
+
+    product.until("drone1's autopilot lost, then back with a fix", back, 45)
+    lost = [s for s in seen if s[0] is False]
+    assert lost and all(s[1:] == (None, None, None) for s in lost), seen
+    after = seen[seen.index(lost[-1]) + 1:]
+    assert after[-1][1:] == ("POSCTL", False, 3), after
+
+
 def test_after_end_no_new_image_is_stored(product: Product) -> None:
     command = product.command("end", {})
     assert command["summary"]["done"] == 2, command
