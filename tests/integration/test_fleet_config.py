@@ -182,9 +182,10 @@ def test_summary_counts_the_mission_window(tmp_path: Path) -> None:
 
 def test_progress_line_shows_each_drone(tmp_path: Path) -> None:
     plan = _plan(tmp_path)
-    tails = {d.drone_id: LogTail(d.log_path, generated=10 * d.index, sent=d.index)
-             for d in plan.drones}
     t0 = 1_700_000_000.0
+    tails = {d.drone_id: LogTail(d.log_path, generated=10 * d.index, sent=d.index,
+                                 sent_keys={(i, t0 + i) for i in range(d.index)})
+             for d in plan.drones}
     gs_log = tmp_path / "gs.jsonl"
     got = [_record("drone2", i, t0 + i, sent=True, rcv=t0 + i + 0.042) for i in range(10)]
     got.append({**_record("drone2", 99, t0, sent=True, rcv=t0 + 9.5), "type": "position"})
@@ -192,9 +193,15 @@ def test_progress_line_shows_each_drone(tmp_path: Path) -> None:
     station = StationTail(gs_log, window_s=5.0)
     station.poll()
     line = progress_line(12.0, plan.drones, tails, station, now=t0 + 9.5)
-    # drone2: 10 images received, those of t_rcv in [t0 + 4.5, t0 + 9.5]: 5 in 5 s.
+    # drone2: 10 images received, those of t_rcv in [t0 + 4.5, t0 + 9.5]: 5 in 5 s; of the
+    # 10 its companion's log shows one sent so far, so one counts as received (it said r10
+    # next to s1: more received than sent, audit 13)
     assert line.startswith("[   12 s] drone1 g0 s0 r0 0.0/s -")
-    assert "drone2 g10 s1 r10 1.0/s 42ms" in line and "drone3 g20 s2 r0" in line
+    assert "drone2 g10 s1 r1 1.0/s 42ms" in line and "drone3 g20 s2 r0" in line
+    tails["drone2"].sent = 10  # its log catches up
+    tails["drone2"].sent_keys |= {(i, t0 + i) for i in range(10)}
+    assert "drone2 g10 s10 r10 " in progress_line(12.0, plan.drones, tails, station,
+                                                  now=t0 + 9.5)
 
 
 def test_random_baseline_drops_at_its_rate_and_picks_any_version(tmp_path: Path) -> None:
