@@ -66,8 +66,11 @@ def mission_runs(db: sqlite3.Connection, mission: str) -> list[tuple[float, floa
     marks them (a station restart closes and reopens the same run; an end and a new start
     make two). A database without the bounds table's rows (older version) has one: its row's
     latest start to its end."""
-    bounds = db.execute("SELECT t_start, t_end FROM mission_bounds WHERE mission = ? "
-                        "ORDER BY rowid", (mission,)).fetchall()
+    try:
+        bounds = db.execute("SELECT t_start, t_end FROM mission_bounds WHERE mission = ? "
+                            "ORDER BY rowid", (mission,)).fetchall()
+    except sqlite3.OperationalError:  # a database of an older version, opened read-only
+        bounds = []
     if bounds:
         spans = [(i.t_start, i.t_end) for i in intervals_of([tuple(b) for b in bounds], "gs")
                  if i.t_start is not None]

@@ -67,3 +67,15 @@ async def test_report_routes_serve_page_numbers_and_png(
     assert png.status == 200 and png.content_type == "image/png"
     assert (tmp_path / "gs" / "missions" / "demo" / "utility.png").read_bytes() == \
         await png.read()
+
+
+def test_a_database_without_the_bounds_table_reports_from_its_start(tmp_path: Path) -> None:
+    """An older station's database, read read-only (``write_png`` after a run): the mission
+    row's start, as before."""
+    path = _fill(tmp_path)
+    db = sqlite3.connect(path)
+    db.execute("DROP TABLE mission_bounds")
+    db.commit()
+    series = utility_series(db, "m", bin_s=5.0)
+    assert series["runs"] == [[100.0, None]] and series["images"] == 5
+    assert series["drones"]["uav3"]["utility"] == [0.0, 11.0, 0.5]
