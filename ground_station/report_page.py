@@ -19,6 +19,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import io
+import math
 import os
 import sqlite3
 import threading
@@ -34,6 +35,10 @@ from ground_station.storage_records import safe_name
 __all__ = ["RenderGate", "add_report_routes", "render_png", "utility_series", "write_png"]
 
 BIN_S = 5.0
+MAX_BINS = 2000
+"""Most bins a series has: a longer span widens the bins (whole multiples of ``bin_s``).
+The span runs from the mission's stored start, which nothing bounded before 2026-11-24: a
+start in 1970 made ``GET /api/report`` build 3.6e8 bins per drone (gigabytes, on a read)."""
 RENDERS = 2
 """PNGs drawn at once (each takes a thread and most of a core for ~0.1-0.5 s)."""
 WAITING = 4
@@ -64,6 +69,8 @@ def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S
                         (mission,)).fetchone()
     t0 = window[0] if window and window[0] is not None else (rows[0][1] if rows else 0.0)
     t_last = max((r[1] for r in rows), default=t0)
+    if rows and (t_last - t0) // bin_s >= MAX_BINS:  # a long span: wider bins, not more
+        bin_s *= math.ceil((t_last - t0) / bin_s / MAX_BINS * (1 + 1e-9))
     n = max(1, int((t_last - t0) // bin_s) + 1) if rows else 0
     drones: dict[str, list[float]] = {}
     for sender, t_rcv, utility in rows:
