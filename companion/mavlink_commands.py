@@ -76,7 +76,8 @@ class SendCommand(Command):
 
 DEFAULT_MAVLINK_URL = "udpin:127.0.0.1:14550"
 """Loopback, like the ground station's ports: MAVLink here is unsigned, and pymavlink's
-``udpin`` answers whoever sent last. On ``0.0.0.0`` (the default before 2026-11-24) any host
+``udpin`` (2.4.50) sends what the companion writes to every address it has heard from. On
+``0.0.0.0`` (the default before 2026-11-24) any host
 on the drone's networks, the radio link among them, could speak for the autopilot (its
 HEARTBEAT and positions taken as the vehicle's) and take the companion's stream requests,
 commands and ADSB_VEHICLE reports of its peers away from the real one."""

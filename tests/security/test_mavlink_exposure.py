@@ -60,9 +60,13 @@ def test_an_address_is_not_warned_about(url: str) -> None:
     assert wildcard_mavlink_warning(url) is None
 
 
-def _check(tmp_path: Path, send_to: str) -> str:
+TORN = bytes([0xFD, 255, 0, 0, 0, 1, 1, 0, 0, 0])  # a MAVLink 2 header promising 255 bytes
+
+
+def _check(tmp_path: Path, send_to: str, *, torn_first: bool = False) -> str:
     """``uav-companion check`` on the example (port changed) while HEARTBEATs of an ArduPilot
-    arrive at ``send_to``; its stdout."""
+    arrive at ``send_to`` (each after a torn frame from another socket: ``torn_first``); its
+    stdout."""
     if not COMPANION.exists():
         pytest.skip(f"{COMPANION} missing: install the project in this venv")
     port = free_port()
@@ -85,8 +89,11 @@ def _check(tmp_path: Path, send_to: str) -> str:
                                  mav.MAV_STATE_STANDBY).pack(link)
 
     def speak() -> None:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s, \
+                socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger:
             while not stop.wait(0.1):
+                if torn_first:
+                    stranger.sendto(TORN, (send_to, port))
                 s.sendto(beat, (send_to, port))
 
     talker = threading.Thread(target=speak, daemon=True)
@@ -110,3 +117,37 @@ def test_a_host_on_another_interface_is_not_taken_for_the_autopilot(tmp_path: Pa
 def test_the_autopilot_on_this_computer_still_is(tmp_path: Path) -> None:
     out = _check(tmp_path, "127.0.0.1")
     assert "ardupilot autopilot" in out, out
+
+
+def test_a_torn_frame_from_another_sender_does_not_hide_the_autopilot(tmp_path: Path) -> None:
+    """pymavlink parses one stream for every sender of a ``udpin`` port: before the fix
+    "no autopilot HEARTBEAT within 2 s" (each HEARTBEAT was read as the torn frame's
+    payload); a local process, or anyone where the port listens wider, could do that."""
+    out = _check(tmp_path, "127.0.0.1", torn_first=True)
+    assert "ardupilot autopilot" in out, out
+
+
+def test_frames_sharing_a_datagram_all_arrive() -> None:
+    """The torn-frame reset keeps complete frames already in the buffer."""
+    from companion.mavlink_commands import MavlinkSettings
+    from companion.mavlink_reader import _default_connect
+
+    port = free_port()
+    conn = _default_connect(MavlinkSettings(url=f"udpin:127.0.0.1:{port}"))
+    link = mav.MAVLink(None, srcSystem=1, srcComponent=1)
+    two = (link.heartbeat_encode(2, 3, 1, 4, 3).pack(link)
+           + link.attitude_encode(0, 0.1, 0.2, 0.3, 0, 0, 0).pack(link))
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.sendto(two, ("127.0.0.1", port))
+            s.sendto(TORN, ("127.0.0.1", port))
+            s.sendto(two, ("127.0.0.1", port))
+        kinds = []
+        for _ in range(10):
+            msg = conn.recv_match(blocking=True, timeout=0.5)
+            if msg is None:
+                break
+            kinds.append(msg.get_type())
+    finally:
+        conn.close()
+    assert [k for k in kinds if k != "BAD_DATA"] == ["HEARTBEAT", "ATTITUDE"] * 2, kinds
