@@ -31,6 +31,7 @@ from companion.commands import CommandExecutor
 from companion.config import CompanionConfig, missing_keys
 from companion.dispatch import COUNTERS, Dispatcher
 from companion.mavlink import MavlinkService, MavlinkSettings
+from companion.mavlink_commands import wildcard_mavlink_warning
 from companion.mission import MissionWindow
 from companion.mission_log import MissionLogWriter
 from companion.peers import PeerServices, peer_types_of
@@ -173,6 +174,9 @@ class CompanionApp:
         """Run every service until :meth:`stop` (or one of them fails)."""
         drone = self.config.drone_id
         log.info("companion %s starting", drone, extra={"event": "start", "drone": drone})
+        exposed = wildcard_mavlink_warning(self.config.mavlink.url)
+        if exposed is not None:
+            log.warning(exposed)
         self.mission_log.write({"mission": {"t_start": self.clock()}})
         self.dispatcher.bind(self._stopping)
         try:

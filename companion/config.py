@@ -17,6 +17,7 @@ from typing import Any
 
 from companion.config_table import ConfigError, Table, is_mavlink_url, is_number, is_sender_id
 from companion.mavlink import DEFAULT_STREAM_RATES_HZ, MavlinkSettings
+from companion.mavlink_commands import DEFAULT_MAVLINK_URL
 from companion.peers import PeersSettings, parse_peers_settings
 from companion.protocol.errors import LocalProtocolError
 from companion.protocol.signing import decode_key_text
@@ -223,7 +224,7 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
     drone.done()
 
     mav = root.table("mavlink")
-    url = mav.get("url", "udpin:0.0.0.0:14550", "a pymavlink URL: udpin:HOST:PORT, "
+    url = mav.get("url", DEFAULT_MAVLINK_URL, "a pymavlink URL: udpin:HOST:PORT, "
                   "udpout:HOST:PORT, tcp:HOST:PORT (port 1..65535) or a serial device "
                   "path like /dev/serial0", is_mavlink_url)
     rates = mav.get("stream_rates_hz", dict(DEFAULT_STREAM_RATES_HZ),

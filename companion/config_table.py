@@ -11,11 +11,25 @@ from typing import Any
 from companion.protocol.wire import MAX_ID_BYTES
 from utility_specs.data_fields import is_number
 
-__all__ = ["ConfigError", "Table", "is_mavlink_url", "is_number", "is_sender_id"]
+__all__ = ["SECRET_KEYS", "ConfigError", "Table", "described", "is_mavlink_url", "is_number",
+           "is_sender_id"]
 
 
 class ConfigError(ValueError):
     """A configuration that cannot be used; the text names file, key and expected value."""
+
+
+SECRET_KEYS = frozenset({"fleet_key"})
+"""Keys whose value an error names by its type only: a key written as a list or a table
+was echoed whole to stderr (a service's journal), where other users may read it."""
+
+
+def described(name: str, got: Any) -> str:
+    """``got`` as an error shows it: ``repr``, or only its type for a secret key (a string
+    there is the caller's description, like ``"12 bytes"``, never the key)."""
+    if name.rpartition(".")[2] in SECRET_KEYS and got is not None and not isinstance(got, str):
+        return f"a {type(got).__name__} (value not shown: a secret)"
+    return repr(got)
 
 
 class Table:
@@ -33,7 +47,8 @@ class Table:
         return f"{self.prefix}.{name}" if self.prefix and name else (self.prefix or name)
 
     def fail(self, name: str, expected: str, got: Any) -> None:
-        raise ConfigError(f"{self.source}: {self.key(name)}: expected {expected}, got {got!r}")
+        raise ConfigError(f"{self.source}: {self.key(name)}: expected {expected}, "
+                          f"got {described(name, got)}")
 
     def get(self, name: str, default: Any, expected: str, ok: Callable[[Any], bool]) -> Any:
         self.used.add(name)

@@ -74,10 +74,31 @@ class SendCommand(Command):
     message: Any
 
 
+DEFAULT_MAVLINK_URL = "udpin:127.0.0.1:14550"
+"""Loopback, like the ground station's ports: MAVLink here is unsigned, and pymavlink's
+``udpin`` (2.4.50) sends what the companion writes to every address it has heard from. On
+``0.0.0.0`` (the default before 2026-11-24) any host
+on the drone's networks, the radio link among them, could speak for the autopilot (its
+HEARTBEAT and positions taken as the vehicle's) and take the companion's stream requests,
+commands and ADSB_VEHICLE reports of its peers away from the real one."""
+
+
+def wildcard_mavlink_warning(url: str) -> str | None:
+    """The warning for a ``udpin``/``udp`` URL that listens on every interface, else None."""
+    scheme, _, rest = url.partition(":")
+    host = rest.rpartition(":")[0].strip("[]")
+    if scheme not in ("udpin", "udp") or host not in ("0.0.0.0", "::", ""):
+        return None
+    return (f"mavlink.url {url} listens on every network interface: any host that reaches "
+            "this port speaks for the autopilot (MAVLink is unsigned) and gets what the "
+            "companion sends it; use the address the autopilot sends to (127.0.0.1 for "
+            "mavlink-router or a SITL on this computer)")
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class MavlinkSettings:
     url: str
-    """pymavlink connection string: ``udpin:0.0.0.0:14550``, ``tcp:host:5760``,
+    """pymavlink connection string: ``udpin:127.0.0.1:14550``, ``tcp:host:5760``,
     ``/dev/serial0,921600``..."""
     source_system: int = 1
     source_component: int = MAV_COMP_ID_ONBOARD_COMPUTER

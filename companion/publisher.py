@@ -16,7 +16,8 @@ from companion.dispatch import Dispatcher
 from companion.mission import MissionWindow
 from companion.telemetry import Sample, StatusTextSample, TelemetrySnapshot, TelemetryState
 
-__all__ = ["FAILSAFE_STATES", "IDLE_STATUS_PERIOD_S", "TelemetryPublisher"]
+__all__ = ["FAILSAFE_STATES", "IDLE_STATUS_PERIOD_S", "MAX_PENDING_TEXTS", "STATUSTEXT_GAP_S",
+           "TelemetryPublisher", "statustext_field"]
 
 Clock = Callable[[], float]
 
@@ -26,6 +27,25 @@ that the ground station (``link_lost_s`` 3 s) does not take an ended mission for
 
 FAILSAFE_STATES = (5, 6)
 """MAV_STATE_CRITICAL and MAV_STATE_EMERGENCY: the autopilot is in a failsafe."""
+
+STATUSTEXT_GAP_S = 0.5
+"""Autopilot texts ride on a status at most this often (a state change still goes at once).
+Each STATUSTEXT used to trigger a status: a chatty or hostile autopilot link made a status
+per optimiser decision, dozens a second on a radio link meant for about one."""
+MAX_PENDING_TEXTS = 20
+"""Texts kept between two statuses; beyond that the least severe (oldest first) are dropped
+and counted in the text (``+N more``)."""
+STATUSTEXT_CHARS = 200
+
+
+def statustext_field(texts: list[StatusTextSample], dropped: int = 0) -> str:
+    """The status's ``statustext``: most severe first (arrival order within a severity), so
+    the text cut at :data:`STATUSTEXT_CHARS` always begins with the one whose ``severity``
+    the status reports. Oldest first, a flood of INFO texts once pushed an EMERGENCY out of
+    the text while its severity stayed: the station showed chatter as an error."""
+    ordered = sorted(texts, key=lambda s: s.severity)  # stable: arrival order kept
+    suffix = f" (+{dropped} more)" if dropped else ""
+    return " | ".join(s.text for s in ordered)[:STATUSTEXT_CHARS - len(suffix)] + suffix
 
 
 class TelemetryPublisher:
@@ -57,6 +77,9 @@ class TelemetryPublisher:
         """More fields for every status message (set by the app)."""
         self._wake = asyncio.Event()
         self._statustexts: list[StatusTextSample] = []
+        self._texts_dropped = 0
+        self._t_status_sent = -math.inf
+        """Loop time of the last status sent (texts wait for ``STATUSTEXT_GAP_S`` after it)."""
         self._since: float | None = None
         """When the current status key began (fleet clock)."""
         self._announced: float | None = None
@@ -66,7 +89,11 @@ class TelemetryPublisher:
 
     def on_sample(self, sample: Sample) -> None:
         if isinstance(sample, StatusTextSample):  # autopilot messages ride on the status
-            self._statustexts.append(sample)
+            texts = self._statustexts
+            texts.append(sample)
+            if len(texts) > MAX_PENDING_TEXTS:  # the least severe goes, oldest first
+                del texts[max(range(len(texts)), key=lambda i: (texts[i].severity, -i))]
+                self._texts_dropped += 1
             self._wake.set()
             return
         snap = self._telemetry.snapshot()
@@ -95,8 +122,14 @@ class TelemetryPublisher:
                     t_bat = now_mono + cfg.battery_period_s
                     if snap.battery_remaining is not None and snap.battery_remaining > 0:
                         await self._dispatcher.submit_telemetry("battery", self._battery(snap))
-                if now_mono >= t_status or self._wake.is_set():
+                if self._wake.is_set():
                     self._wake.clear()
+                    if self._status_key is not None and self._key(snap) != self._status_key:
+                        t_status = now_mono  # a new state goes at once
+                    elif self._statustexts:
+                        t_status = min(t_status, self._t_status_sent + STATUSTEXT_GAP_S)
+                if now_mono >= t_status:
+                    self._t_status_sent = now_mono
                     t_status = now_mono + (cfg.status_period_s
                                            if self._mission.running
                                            else min(cfg.status_period_s, IDLE_STATUS_PERIOD_S))
@@ -163,8 +196,8 @@ class TelemetryPublisher:
         if self.status_extra is not None:  # e.g. the peers' ages (companion.peers)
             data.update(self.status_extra())
         if self._statustexts:
-            worst = min(self._statustexts, key=lambda s: s.severity)
-            data["statustext"] = " | ".join(s.text for s in self._statustexts)[:200]
-            data["severity"] = worst.severity
+            data["statustext"] = statustext_field(self._statustexts, self._texts_dropped)
+            data["severity"] = min(s.severity for s in self._statustexts)
             self._statustexts.clear()
+            self._texts_dropped = 0
         return data

@@ -7,11 +7,12 @@ on the file as opened (no race between the check and the read).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import stat
 from pathlib import Path
 
-__all__ = ["UnsafeKeyFile", "read_secret"]
+__all__ = ["UnsafeKeyFile", "make_private_dir", "read_secret"]
 
 
 class UnsafeKeyFile(OSError):
@@ -34,3 +35,17 @@ def read_secret(path: Path) -> bytes:
             return handle.read()
     finally:
         os.close(fd)
+
+
+def make_private_dir(path: Path) -> None:
+    """Create ``path`` and its missing parents readable by their owner alone (0700). A
+    station's data folder holds every image and position of the fleet: made with the
+    default umask it was readable by every local user (docs/security.md, 2026-11-24). A
+    folder that exists keeps its mode (the operator chose it)."""
+    missing: list[Path] = []
+    while not path.exists() and path != path.parent:
+        missing.append(path)
+        path = path.parent
+    for folder in reversed(missing):
+        with contextlib.suppress(FileExistsError):  # made meanwhile by another process
+            folder.mkdir(mode=0o700)

@@ -228,6 +228,10 @@ class TelemetrySnapshot:
             return "waiting for the estimator's first report"
         if abs(self.lat_deg) < NULL_ISLAND_DEG and abs(self.lon_deg) < NULL_ISLAND_DEG:
             return "position is 0/0 (no origin)"
+        if not (abs(self.lat_deg) <= 90.0 and abs(self.lon_deg) <= 180.0):
+            # GLOBAL_POSITION_INT's int32 holds 214.7 deg: a broken or hostile autopilot's
+            # "position" the station drew as a place (and took as its map's origin)
+            return f"position {self.lat_deg:.7g}/{self.lon_deg:.7g} is not on Earth"
         return None
 
     def geotag(self, at: float | None = None) -> dict[str, Any]:

@@ -11,6 +11,7 @@ import signal
 import sys
 from pathlib import Path
 
+from companion.secret_files import make_private_dir
 from ground_station.config import ConfigError, GroundConfig, load_config, missing_keys
 from ground_station.mission_input import HELP
 from ground_station.token import ensure_token
@@ -44,7 +45,7 @@ def data_dir_problem(data_dir: Path) -> str | None:
     if data_dir.exists() and not data_dir.is_dir():
         return f"data dir {data_dir}: is a file, not a folder (--data-dir or data_dir)"
     try:
-        data_dir.mkdir(parents=True, exist_ok=True)
+        make_private_dir(data_dir)
         probe = data_dir / f".write-test-{os.getpid()}"
         probe.write_bytes(b"")
         probe.unlink()

@@ -12,6 +12,7 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
+from companion.config_table import described
 from companion.protocol.errors import LocalProtocolError
 from companion.protocol.signing import KEY_BYTES, decode_key_text
 from companion.protocol.wire import MIN_KEY_BYTES
@@ -34,7 +35,7 @@ class ConfigError(ValueError):
         self.got = got
         message = f"{file}: key {key!r}: expected {expected}"
         if got is not None:
-            message += f", got {got!r}"
+            message += f", got {described(key, got)}"
         super().__init__(message)
 
 

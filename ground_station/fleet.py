@@ -203,6 +203,8 @@ class FleetView:
             state.gps_fix = None
         t_pose = t - max(0.0, first_number(data, "pose_age_s") or 0.0)
         lat, lon = first_number(data, "lat_deg", "lat"), first_number(data, "lon_deg", "lon")
+        if lat is not None and lon is not None and not (abs(lat) <= 90 and abs(lon) <= 180):
+            lat = lon = None  # not a place: never drawn, never the map's origin
         if data.get("position") == "none":
             if newer("position", t_pose):
                 state.no_position = True

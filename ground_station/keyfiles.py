@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from companion.protocol.signing import KEY_BYTES, public_key_of
+from companion.secret_files import make_private_dir
 
 __all__ = ["COMMAND_KEY", "COMMAND_PUB", "FLEET_KEY", "KeyFiles", "generate_keys"]
 
@@ -63,7 +64,7 @@ def generate_keys(folder: Path, *, replace: bool = False) -> KeyFiles:
     overrides); OSError when the folder is not writable.
     """
     files = KeyFiles(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    make_private_dir(folder)
     if not replace:
         for path in (files.fleet_key, files.command_key, files.command_pub):
             if path.exists():

@@ -17,7 +17,11 @@ unique for the life of the process. 251..255 stay free for ground stations (MAVP
 QGC use 255).
 
 **Read-only.** Nothing received on this endpoint reaches a drone. A client's HEARTBEAT
-makes it a destination (like a vehicle's link, at most ``max_clients``); MISSION_REQUEST_LIST
+makes it a destination (like a vehicle's link) until it is silent for ``CLIENT_TIMEOUT_S``;
+at most ``max_clients`` at once, and a newcomer beyond that is refused, never put in the
+place of a client still sending (anyone who can reach the port can send a HEARTBEAT). Each
+datagram is parsed on its own, as MAVLink over UDP is sent: one client's torn frame never
+swallows another's. MISSION_REQUEST_LIST
 is answered with an empty mission (MISSION_COUNT 0) and every COMMAND_LONG/COMMAND_INT with
 COMMAND_ACK ``MAV_RESULT_DENIED``, so a GCS finishes loading and gets an explicit refusal
 instead of timeouts; everything else (mode changes, mission uploads, parameter writes,
@@ -54,6 +58,8 @@ Addr = tuple[str, int]
 MAX_SYSTEM_ID = 250
 """Drones get 1..250; 251..255 are left to ground stations."""
 PERIOD_S = 1.0
+CLIENT_TIMEOUT_S = 10.0
+"""A client silent this long (a GCS sends a HEARTBEAT every second) is no destination."""
 MAV_RESULT_DENIED = 2
 MAV_TYPE_QUADROTOR = 2
 MAV_AUTOPILOT_GENERIC = 0
@@ -140,7 +146,6 @@ class MavlinkMirror:
         """Addresses that sent us a HEARTBEAT -> when (most recent last)."""
         self.counters: Counter[str] = Counter()
         self._out: list[tuple[bytes, Addr | None]] = []
-        self._parser = self._new_parser()
         self._now = now
 
     @staticmethod
@@ -181,22 +186,19 @@ class MavlinkMirror:
 
     # -- input from GCS clients ---------------------------------------------------------
     def receive_datagram(self, data: bytes, addr: Addr, now: float) -> None:
+        # A parser of its own per datagram: a shared one kept a torn frame's bytes (10 from
+        # anyone) and read the next client's datagram as that frame's payload.
         try:
-            msgs = self._parser.parse_buffer(data) or []
+            msgs = self._new_parser().parse_buffer(data) or []
         except mavlink.MAVError:
             self.counters["malformed"] += 1
-            self._parser = self._new_parser()
             return
         for msg in msgs:
             kind = msg.get_type()
             if kind == "BAD_DATA":
                 self.counters["bad_data"] += 1
             elif kind == "HEARTBEAT":
-                self.clients.pop(addr, None)
-                self.clients[addr] = now
-                while len(self.clients) > self.max_clients:
-                    self.clients.pop(next(iter(self.clients)))
-                self.counters["client_heartbeats"] += 1
+                self._client_heartbeat(addr, now)
             elif kind == "MISSION_REQUEST_LIST":
                 target = self._target(msg)
                 if target is not None:
@@ -211,8 +213,23 @@ class MavlinkMirror:
                         msg.command, MAV_RESULT_DENIED, 0, 0, msg.get_srcSystem(),
                         msg.get_srcComponent()), addr)
                     self.counters["denied_" + kind.lower()] += 1
-            else:
-                self.counters["ignored_" + kind] += 1
+            else:  # message ids are 24 bits: unknown ones share one counter
+                self.counters["ignored_unknown" if kind.startswith("UNKNOWN")
+                              else "ignored_" + kind] += 1
+
+    def _client_heartbeat(self, addr: Addr, now: float) -> None:
+        live = self.live_clients(now)
+        if addr not in self.clients and len(live) >= self.max_clients:
+            self.counters["clients_refused"] += 1  # the live ones keep their place
+            return
+        self.clients[addr] = now
+        self.counters["client_heartbeats"] += 1
+
+    def live_clients(self, now: float) -> list[Addr]:
+        """The destinations now: clients heard within ``CLIENT_TIMEOUT_S`` (others dropped)."""
+        for addr in [a for a, t in self.clients.items() if now - t > CLIENT_TIMEOUT_S]:
+            del self.clients[addr]
+        return list(self.clients)
 
     def _target(self, msg: Any) -> _Drone | None:
         sysid = getattr(msg, "target_system", 0)

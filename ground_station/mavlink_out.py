@@ -111,7 +111,7 @@ class MavlinkOut:
         transport = self.transport
         if transport is None:
             return
-        dests = list(self.mirror.clients)
+        dests = self.mirror.live_clients(self.clock())
         if self.out is not None and self.out not in dests:
             dests.append(self.out)
         for frame, addr in self.mirror.datagrams_to_send():

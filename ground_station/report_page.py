@@ -39,7 +39,9 @@ __all__ = ["RenderGate", "add_report_routes", "mission_runs", "render_png", "uti
 
 BIN_S = 5.0
 MAX_BINS = 2000
-"""Bins of one report: a mission of more than about 3 h gets bins wider than BIN_S."""
+"""Most bins a series has: a longer span widens the bins (whole multiples of ``bin_s``).
+The span runs from the mission's stored start, which nothing bounded before 2026-11-24: a
+start in 1970 made ``GET /api/report`` build 3.6e8 bins per drone (gigabytes, on a read)."""
 RENDERS = 2
 """PNGs drawn at once (each takes a thread and most of a core for ~0.1-0.5 s)."""
 WAITING = 4
@@ -107,7 +109,8 @@ def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S
         rows_in = rows
     t0 = runs[0][0] if runs else (rows[0][1] if rows else 0.0)
     t_last = max((r[1] for r in rows_in), default=t0)
-    bin_s = max(bin_s, math.ceil((t_last - t0) / MAX_BINS))
+    if rows_in and (t_last - t0) // bin_s >= MAX_BINS:  # a long span: wider bins, not more
+        bin_s *= math.ceil((t_last - t0) / bin_s / MAX_BINS * (1 + 1e-9))
     n = max(1, int((t_last - t0) // bin_s) + 1) if rows_in else 0
     drones: dict[str, list[float]] = {}
     for sender, t_rcv, utility in rows_in:

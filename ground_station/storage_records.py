@@ -196,8 +196,8 @@ def pose_quality(data: Mapping[str, Any]) -> tuple[float | None, str]:
     age = geo_number(data, "pose_age_s")
     lat, lon = geo_number(data, "lat_deg", "lat"), geo_number(data, "lon_deg", "lon")
     if data.get("position") == "none" or lat is None or lon is None \
-            or (abs(lat) < 1e-6 and abs(lon) < 1e-6):
-        return age, "none"
+            or (abs(lat) < 1e-6 and abs(lon) < 1e-6) or not (abs(lat) <= 90 and abs(lon) <= 180):
+        return age, "none"  # no position, 0/0 (no origin), or not a place on Earth
     if age is not None and age > POSE_STALE_AFTER_S:
         return age, "stale"
     return age, "ok"

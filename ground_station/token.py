@@ -8,6 +8,8 @@ import os
 import secrets
 from pathlib import Path
 
+from companion.secret_files import make_private_dir
+
 __all__ = [
     "SESSION_COOKIE",
     "LoginCodes",
@@ -25,7 +27,7 @@ def read_token(path: Path) -> str:
 
 def ensure_token(path: Path) -> tuple[str, bool]:
     """Return ``(token, created)``; creates the file (mode 0600, never readable by others)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    make_private_dir(path.parent)
     token = secrets.token_urlsafe(24)
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)

@@ -22,7 +22,7 @@ def _write(tmp_path: Path, text: str) -> Path:
 def test_example_config_is_valid_and_complete() -> None:
     config = load_config(EXAMPLE)
     assert config.drone_id == "drone1"
-    assert config.mavlink.url == "udpin:0.0.0.0:14550"
+    assert config.mavlink.url == "udpin:127.0.0.1:14550"  # loopback (docs/security.md #20)
     assert config.mavlink.stream_rates_hz["ATTITUDE"] == 10.0
     assert config.camera.width == 640 and config.camera.rate_hz == 5.0
     assert config.camera.versions == ("full", "half", "quarter")

@@ -290,8 +290,8 @@ def test_readme_companion_recipe(tmp_path: Path) -> None:
     shutil.copytree(ROOT / "examples", tmp_path / "examples")
     listen, vehicle_port = _free_port(), _free_port()
     example = tmp_path / "examples" / "companion.toml"
-    example.write_text(_sub(example.read_text(), ('url = "udpin:0.0.0.0:14550"',
-                                                  f'url = "udpin:0.0.0.0:{listen}"')))
+    example.write_text(_sub(example.read_text(), ('url = "udpin:127.0.0.1:14550"',
+                                                  f'url = "udpin:127.0.0.1:{listen}"')))
     keygen = _bash(_recipe("uav-ground-station keygen --out keys"), tmp_path)
     assert keygen.returncode == 0, keygen.stdout + keygen.stderr
     assert sorted(p.name for p in (tmp_path / "keys").iterdir()) == [
@@ -312,7 +312,7 @@ def test_readme_companion_recipe(tmp_path: Path) -> None:
         _end(vehicle)
     assert result.returncode == 0, result.stdout + result.stderr[-3000:]
     assert "keys: fleet key and the ground station's command key loaded" in result.stdout
-    assert f"mavlink: udpin:0.0.0.0:{listen}: px4 autopilot" in result.stdout
+    assert f"mavlink: udpin:127.0.0.1:{listen}: px4 autopilot" in result.stdout
     assert "camera: synthetic" in result.stdout
     assert result.stdout.rstrip().endswith("check: ok")
 

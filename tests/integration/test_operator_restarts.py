@@ -118,7 +118,7 @@ def _companion_config(run_dir: Path, mavlink_port: int, gs_port: int) -> Path:
     text = (ROOT / "examples" / "companion.toml").read_text()
     keys = run_dir / "gs" / "keys"
     for old, new in {
-        'url = "udpin:0.0.0.0:14550"': f'url = "udpin:127.0.0.1:{mavlink_port}"',
+        'url = "udpin:127.0.0.1:14550"': f'url = "udpin:127.0.0.1:{mavlink_port}"',
         "width = 640": "width = 320", "height = 480": "height = 240",
         "rate_hz = 5.0": "rate_hz = 2.0",
         "wait_for_start = false": "wait_for_start = true",

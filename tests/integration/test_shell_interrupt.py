@@ -100,7 +100,7 @@ def test_ctrl_c_while_check_waits_for_the_autopilot(tmp_path: Path) -> None:
     keys = write_test_keys(tmp_path / "keys")
     text = (ROOT / "examples" / "companion.toml").read_text()
     for old, new in {
-        'url = "udpin:0.0.0.0:14550"': f'url = "udpin:127.0.0.1:{free_port()}"',  # silent
+        'url = "udpin:127.0.0.1:14550"': f'url = "udpin:127.0.0.1:{free_port()}"',  # silent
         '# fleet_key_file = "/etc/uav-companion/fleet.key"':
             f'fleet_key_file = "{keys / "fleet.key"}"',
         '# command_public_key_file = "/etc/uav-companion/command.pub"':

@@ -87,7 +87,7 @@ def _companion_config(run_dir: Path, drone: str, mavlink_port: int, gs_port: int
     text = (ROOT / "examples" / "companion.toml").read_text()
     replacements = {
         'id = "drone1"': f'id = "{drone}"',
-        'url = "udpin:0.0.0.0:14550"': f'url = "udpin:127.0.0.1:{mavlink_port}"',
+        'url = "udpin:127.0.0.1:14550"': f'url = "udpin:127.0.0.1:{mavlink_port}"',
         "width = 640": "width = 320",
         "height = 480": "height = 240",
         "rate_hz = 5.0": "rate_hz = 2.0",
