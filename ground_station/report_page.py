@@ -22,6 +22,7 @@ import io
 import os
 import sqlite3
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -55,9 +56,13 @@ def color(drone: str) -> str:
     return PALETTE[h % len(PALETTE)]
 
 
-def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S
-                   ) -> dict[str, Any]:
-    """Per drone, the utility received per ``bin_s`` from the mission's first image on."""
+def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S,
+                   now: float | None = None) -> dict[str, Any]:
+    """Per drone, the utility received per ``bin_s`` from the mission's first image on.
+
+    While the mission runs (no end recorded) and ``now`` is given, only the bins that are
+    over by ``now`` (at least the first): the bin still filling would draw every drone
+    dropping towards 0 at the right edge of a live report, a fall that is only the clock."""
     rows = db.execute("SELECT sender, t_rcv, utility FROM images WHERE mission = ? "
                       "AND type = 'image' ORDER BY t_rcv", (mission,)).fetchall()
     window = db.execute("SELECT t_start, t_end FROM missions WHERE name = ?",
@@ -65,6 +70,8 @@ def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S
     t0 = window[0] if window and window[0] is not None else (rows[0][1] if rows else 0.0)
     t_last = max((r[1] for r in rows), default=t0)
     n = max(1, int((t_last - t0) // bin_s) + 1) if rows else 0
+    if now is not None and not (window and window[1] is not None):
+        n = min(n, max(1, int((now - t0) // bin_s)))
     drones: dict[str, list[float]] = {}
     for sender, t_rcv, utility in rows:
         i = int((t_rcv - t0) // bin_s)
@@ -183,7 +190,9 @@ def add_report_routes(app: web.Application, *, static_dir: Path) -> None:
 
     async def series_of(request: web.Request) -> dict[str, Any]:
         mission = request.query.get("mission", request.app[CONFIG].mission)
-        return await request.app[STORAGE].read(lambda s: utility_series(s.db, mission))
+        now = time.time()  # the fleet clock is wall time
+        return await request.app[STORAGE].read(
+            lambda s: utility_series(s.db, mission, now=now))
 
     async def api(request: web.Request) -> web.Response:
         return web.json_response(await series_of(request))

@@ -42,6 +42,22 @@ def test_utility_is_summed_per_drone_and_bin_from_the_mission_start(tmp_path: Pa
     assert utility_series(db, "nothing")["drones"] == {}
 
 
+def test_a_running_mission_shows_only_the_bins_that_are_over(tmp_path: Path) -> None:
+    """A live report at 113 s: the bin 110-115 s still fills (uav1 1.0 and uav3 0.5 so far);
+    drawn, every drone would seem to drop at the right edge (seen in `make demo`)."""
+    db = sqlite3.connect(_fill(tmp_path))
+    running = utility_series(db, "m", bin_s=5.0, now=113.0)
+    assert running["t"] == [0.0, 5.0]
+    assert running["drones"]["uav1"]["utility"] == [3.0, 0.0]
+    assert running["drones"]["uav3"] == {"utility": [0.0, 11.0], "total": 11.0,
+                                         "color": "#3fb950"}
+    assert utility_series(db, "m", bin_s=5.0, now=115.0)["t"] == [0.0, 5.0, 10.0]
+    assert utility_series(db, "m", bin_s=5.0, now=101.0)["t"] == [0.0]  # the first, filling
+    db.execute("UPDATE missions SET t_end = 113.0 WHERE name = 'm'")
+    ended = utility_series(db, "m", bin_s=5.0, now=113.0)  # over: its last bin is all there is
+    assert ended["drones"]["uav1"]["utility"] == [3.0, 0.0, 1.0]
+
+
 def test_png_is_written(tmp_path: Path) -> None:
     out = write_png(_fill(tmp_path / "gs"), "m", tmp_path / "run" / "utility.png")
     assert out is not None and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
