@@ -63,7 +63,9 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--log-level", default="info",
                         choices=["debug", "info", "warning", "error"])
-    parser.add_argument("--log-format", default="json", choices=["json", "text"])
+    parser.add_argument("--log-format", default=None, choices=["json", "text"],
+                        help="default: json for run (journald keeps it), text for the "
+                             "commands a person reads (check, install-service)")
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run the companion until SIGTERM or Ctrl-C")
@@ -92,7 +94,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     # pymavlink picks its wire version from the environment at import: set it before.
     os.environ.setdefault("MAVLINK20", "1")
     args = _parser().parse_args(list(argv) if argv is not None else None)
-    configure_logging(args.log_level, args.log_format)
+    # A JSON object between check's lines read as noise to a person at a terminal.
+    configure_logging(args.log_level,
+                      args.log_format or ("json" if args.command == "run" else "text"))
     if args.command == "run":
         return _run(args)
     if args.command == "check":

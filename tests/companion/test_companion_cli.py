@@ -87,6 +87,20 @@ def test_check_without_vehicle_fails_with_reason(tmp_path: Path, frames: Path) -
     assert "no autopilot HEARTBEAT within 1 s" in result.stdout
 
 
+def test_check_logs_lines_a_person_reads_by_default(tmp_path: Path, frames: Path) -> None:
+    """`check` is read at a terminal: its log lines are text, not the JSON objects `run`
+    writes for journald (a newcomer's README walk saw one between check's lines)."""
+    config = _config(tmp_path, "udpout:127.0.0.1:9", str(frames))
+    result = subprocess.run([*COMMAND, "check", "--config", str(config), "--timeout", "1",
+                             "--skip-camera"], capture_output=True, text=True, timeout=60,
+                            check=False)
+    assert result.returncode == 1 and "no autopilot HEARTBEAT within 1 s" in result.stdout
+    log = result.stderr.splitlines()
+    assert any(" INFO companion.mavlink: mavlink connection opened: udpout:127.0.0.1:9" in line
+               for line in log), result.stderr
+    assert not any(line.startswith("{") for line in log), result.stderr
+
+
 def test_bad_config_exits_2_naming_file_and_key(tmp_path: Path) -> None:
     path = tmp_path / "bad.toml"
     path.write_text('[drone]\nid = "d1"\n[camera]\nrate_hz = 0\n')
