@@ -22,7 +22,8 @@ function draw(series) {
   ctx.clearRect(0, 0, w, h);
   const drones = Object.entries(series.drones);
   const tMax = Math.max(series.bin_s, ...series.t);  // one bin: an axis one bin wide
-  const yTicks = niceTicks(Math.max(0, ...drones.flatMap(([, d]) => d.utility)), 4);
+  const most = Math.max(0, ...drones.flatMap(([, d]) => d.utility));
+  const yTicks = niceTicks(most, 4);
   const uMax = yTicks[yTicks.length - 1];
   ctx.strokeStyle = "#30363d"; ctx.fillStyle = "#8b949e"; ctx.font = "12px sans-serif";
   for (const u of yTicks) {
@@ -35,8 +36,9 @@ function draw(series) {
     ctx.fillText(String(t), pad + (w - pad - 10) * t / tMax - 4, h - pad + 16);
   }
   ctx.fillText("mission time (s)", w - 110, h - 8);
-  canvas.dataset.yTicks = yTicks.join(" ");  // what the axes say, for tests
-  canvas.dataset.xTicks = xTicks.join(" ");
+  // what the axes say and the numbers they were drawn for (tests read them)
+  Object.assign(canvas.dataset, { yTicks: yTicks.join(" "), xTicks: xTicks.join(" "),
+                                  most: String(most), tMax: String(tMax) });
   for (const [drone, d] of drones) {
     ctx.strokeStyle = d.color; ctx.lineWidth = 2; ctx.beginPath();
     d.utility.forEach((u, i) => {
