@@ -75,8 +75,10 @@ def _parser() -> argparse.ArgumentParser:
     check.add_argument("--config", default=DEFAULT_CONFIG, help=CONFIG_HELP)
     check.add_argument("--timeout", type=_seconds, default=5.0,
                        help="seconds to wait for the autopilot (default 5)")
-    check.add_argument("--skip-mavlink", action="store_true")
-    check.add_argument("--skip-camera", action="store_true")
+    check.add_argument("--skip-mavlink", action="store_true",
+                       help="do not wait for the autopilot (config and camera only)")
+    check.add_argument("--skip-camera", action="store_true",
+                       help="do not grab a camera frame")
 
     inst = sub.add_parser("install-service", help="write and enable the systemd unit")
     inst.add_argument("--config", default=DEFAULT_CONFIG, help=CONFIG_HELP)
