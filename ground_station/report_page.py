@@ -32,7 +32,8 @@ from aiohttp import web
 
 from ground_station.storage_records import safe_name
 
-__all__ = ["RenderGate", "add_report_routes", "render_png", "utility_series", "write_png"]
+__all__ = ["RenderGate", "add_report_routes", "figure", "render_png", "utility_series",
+           "write_png"]
 
 BIN_S = 5.0
 RENDERS = 2
@@ -83,9 +84,9 @@ def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S
                        for d, v in sorted(drones.items())}}
 
 
-def render_png(series: dict[str, Any], path: Path | None) -> bytes:
-    """Draw the series (matplotlib's OO API on a figure of its own, no pyplot, no display:
-    safe on any thread); also written atomically to ``path`` unless None."""
+def figure(series: dict[str, Any]) -> Any:
+    """The report's matplotlib ``Figure`` (OO API, a canvas of its own, no pyplot). The legend
+    sits right of the plot: inside, it hid the red drone's peak in `make demo`'s report."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -101,8 +102,15 @@ def render_png(series: dict[str, Any], path: Path | None) -> bytes:
     ax.set_title(f"mission {name}: utility over time per drone")
     ax.grid(alpha=0.3)
     if series["drones"]:
-        ax.legend(loc="upper right", fontsize=8)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     fig.tight_layout()
+    return fig
+
+
+def render_png(series: dict[str, Any], path: Path | None) -> bytes:
+    """Draw the series (no pyplot, no display: safe on any thread); also written atomically
+    to ``path`` unless None."""
+    fig = figure(series)
     out = io.BytesIO()
     fig.savefig(out, format="png")
     body = out.getvalue()
