@@ -105,8 +105,9 @@ class StationTail:
         return len(q) / self.window_s, latency
 
 
-PROGRESS_LEGEND = ("per drone: images generated (g), sent (s) and received (r) so far, "
-                   "received images/s and their latency over the last 5 s")
+PROGRESS_LEGEND = ("per drone: images generated (g) and sent (s) by its log (written each "
+                   "second, so r may lead s), received (r), received images/s and their "
+                   "latency over the last 5 s")
 """Printed once above the progress lines: ``drone3 g144 s8 r8 0.2/s 120ms`` is opaque to
 someone who has not read docs/fleet.md."""
 
