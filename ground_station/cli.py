@@ -56,7 +56,8 @@ def data_dir_problem(data_dir: Path) -> str | None:
 
 def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--config", type=Path, help=f"TOML file (default {DEFAULT_CONFIG} if it exists)"
+        "--config", type=Path, help=f"TOML file (default {DEFAULT_CONFIG} if it exists; "
+                                    "examples/ground_station.toml is the commented template)"
     )
     parser.add_argument("--data-dir", type=Path, help="override data_dir")
 
