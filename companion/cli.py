@@ -234,11 +234,36 @@ def _silence_hint(url: str) -> str:
     """What usually explains an open link that stays silent."""
     scheme, _, rest = url.partition(":")
     if scheme == "udpin":
+        port = rest.rpartition(":")[2]
+        listeners = _udp_listeners(int(port)) if port.isdigit() else []
+        others = [a for a in listeners if a != rest]  # ours, were it still open, is no other
+        if others:  # pymavlink binds with SO_REUSEADDR: it shares the port, silently
+            return (f"another program also listens on {', '.join(others)} and gets the "
+                    f"datagrams sent there: stop it (mavlink-router, MAVProxy, another "
+                    f"companion?) or pick another port")
         return (f"nothing sent MAVLink to {rest}: point the autopilot's telemetry output, "
                 f"mavlink-router or the SITL's --out at this port")
     if scheme in ("udpout", "udp", "tcp"):
         return f"nothing answered at {rest}: is the autopilot or SITL running there?"
     return "the line is open but silent: check the wiring, the baud rate and SERIALn_PROTOCOL"
+
+
+def _udp_listeners(port: int) -> list[str]:
+    """IPv4 ``HOST:PORT``s bound to ``port`` on this machine (Linux ``/proc/net/udp``), once
+    our own socket is closed: a program bound to 127.0.0.1:14550 takes the autopilot's
+    datagrams from our 0.0.0.0:14550, and both binds succeed (SO_REUSEADDR)."""
+    try:
+        lines = Path("/proc/net/udp").read_text().splitlines()[1:]
+    except OSError:  # not Linux: no hint
+        return []
+    found = []
+    for line in lines:
+        local = line.split()[1] if len(line.split()) > 1 else ""
+        host_hex, _, port_hex = local.partition(":")
+        if len(host_hex) == 8 and port_hex and int(port_hex, 16) == port:
+            host = ".".join(str(b) for b in reversed(bytes.fromhex(host_hex)))
+            found.append(f"{host}:{port}")
+    return sorted(set(found))
 
 
 def _probe_camera(config: Any, snapshot: Any) -> tuple[list[str], bool]:
