@@ -27,7 +27,7 @@ $(VENV)/bin/python:
 	  else echo "python3 -m venv failed: install python3-venv (Debian: apt-get install python3-venv)"; exit 1; fi; }
 	@$(PIP) install -q --upgrade pip
 
-# After installing, the optimiser's numba kernels are compiled once into their disk cache (28-66 s
+# After installing, the optimiser's numba kernels are compiled once into their disk cache (7-66 s
 # on two busy cores), so the first demo's companions load them instead of all compiling them
 # at the same time; a failure here only costs the first run that time.
 WARM_CACHE := $(PY) -m companion.warm_cache || true

@@ -63,7 +63,9 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--log-level", default="info",
                         choices=["debug", "info", "warning", "error"])
-    parser.add_argument("--log-format", default="json", choices=["json", "text"])
+    parser.add_argument("--log-format", default=None, choices=["json", "text"],
+                        help="default: json for run (journald keeps it), text for the "
+                             "commands a person reads (check, install-service)")
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run the companion until SIGTERM or Ctrl-C")
@@ -73,8 +75,10 @@ def _parser() -> argparse.ArgumentParser:
     check.add_argument("--config", default=DEFAULT_CONFIG, help=CONFIG_HELP)
     check.add_argument("--timeout", type=_seconds, default=5.0,
                        help="seconds to wait for the autopilot (default 5)")
-    check.add_argument("--skip-mavlink", action="store_true")
-    check.add_argument("--skip-camera", action="store_true")
+    check.add_argument("--skip-mavlink", action="store_true",
+                       help="do not wait for the autopilot (config and camera only)")
+    check.add_argument("--skip-camera", action="store_true",
+                       help="do not grab a camera frame")
 
     inst = sub.add_parser("install-service", help="write and enable the systemd unit")
     inst.add_argument("--config", default=DEFAULT_CONFIG, help=CONFIG_HELP)
@@ -92,7 +96,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     # pymavlink picks its wire version from the environment at import: set it before.
     os.environ.setdefault("MAVLINK20", "1")
     args = _parser().parse_args(list(argv) if argv is not None else None)
-    configure_logging(args.log_level, args.log_format)
+    # A JSON object between check's lines read as noise to a person at a terminal.
+    configure_logging(args.log_level,
+                      args.log_format or ("json" if args.command == "run" else "text"))
     if args.command == "run":
         return _run(args)
     if args.command == "check":
@@ -228,11 +234,36 @@ def _silence_hint(url: str) -> str:
     """What usually explains an open link that stays silent."""
     scheme, _, rest = url.partition(":")
     if scheme == "udpin":
+        port = rest.rpartition(":")[2]
+        listeners = _udp_listeners(int(port)) if port.isdigit() else []
+        others = [a for a in listeners if a != rest]  # ours, were it still open, is no other
+        if others:  # pymavlink binds with SO_REUSEADDR: it shares the port, silently
+            return (f"another program also listens on {', '.join(others)} and gets the "
+                    f"datagrams sent there: stop it (mavlink-router, MAVProxy, another "
+                    f"companion?) or pick another port")
         return (f"nothing sent MAVLink to {rest}: point the autopilot's telemetry output, "
                 f"mavlink-router or the SITL's --out at this port")
     if scheme in ("udpout", "udp", "tcp"):
         return f"nothing answered at {rest}: is the autopilot or SITL running there?"
     return "the line is open but silent: check the wiring, the baud rate and SERIALn_PROTOCOL"
+
+
+def _udp_listeners(port: int) -> list[str]:
+    """IPv4 ``HOST:PORT``s bound to ``port`` on this machine (Linux ``/proc/net/udp``), once
+    our own socket is closed: a program bound to 127.0.0.1:14550 takes the autopilot's
+    datagrams from our 0.0.0.0:14550, and both binds succeed (SO_REUSEADDR)."""
+    try:
+        lines = Path("/proc/net/udp").read_text().splitlines()[1:]
+    except OSError:  # not Linux: no hint
+        return []
+    found = []
+    for line in lines:
+        local = line.split()[1] if len(line.split()) > 1 else ""
+        host_hex, _, port_hex = local.partition(":")
+        if len(host_hex) == 8 and port_hex and int(port_hex, 16) == port:
+            host = ".".join(str(b) for b in reversed(bytes.fromhex(host_hex)))
+            found.append(f"{host}:{port}")
+    return sorted(set(found))
 
 
 def _probe_camera(config: Any, snapshot: Any) -> tuple[list[str], bool]:

@@ -7,6 +7,7 @@ import asyncio
 import logging
 import math
 import os
+import shlex
 import signal
 import sys
 from pathlib import Path
@@ -56,7 +57,8 @@ def data_dir_problem(data_dir: Path) -> str | None:
 
 def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--config", type=Path, help=f"TOML file (default {DEFAULT_CONFIG} if it exists)"
+        "--config", type=Path, help=f"TOML file (default {DEFAULT_CONFIG} if it exists; "
+                                    "examples/ground_station.toml is the commented template)"
     )
     parser.add_argument("--data-dir", type=Path, help="override data_dir")
 
@@ -101,6 +103,11 @@ def _parser() -> argparse.ArgumentParser:
     _common(token)
     token.add_argument("--url", action="store_true",
                        help="print a one-time dashboard login URL instead (valid 10 min)")
+    token.add_argument("--http-host", help="with --url: the dashboard's address, when `run` "
+                                           "got one on its command line")
+    token.add_argument("--http-port", type=int,
+                       help="with --url: the dashboard's port, when `run` got one on its "
+                            "command line")
     keygen = sub.add_parser(
         "keygen", help="make the fleet key and the command key pair (default DATA_DIR/keys)"
     )
@@ -144,6 +151,21 @@ def _login_url(config: GroundConfig, token: str, port: int | None = None) -> str
     host = "127.0.0.1" if config.http_host in ("0.0.0.0", "::", "") else config.http_host
     code = login_code(token, now=time.time())
     return f"http://{host}:{config.http_port if port is None else port}/?login={code}"
+
+
+def _token_url_command(args: argparse.Namespace, config: GroundConfig, port: int) -> str:
+    """The ``token --url`` line that makes a login link for this very station: its config,
+    data dir and any address given on `run`'s command line (a hint without ``--http-port``
+    sent a station started with ``--http-port 18091`` to 8080)."""
+    words = ["uav-ground-station", "token", "--url"]
+    if args.config is not None:
+        words += ["--config", str(args.config)]
+    words += ["--data-dir", str(config.data_dir)]
+    if args.http_host is not None:
+        words += ["--http-host", args.http_host]
+    if args.http_port is not None or port != config.http_port:
+        words += ["--http-port", str(port)]
+    return shlex.join(words)
 
 
 def _run(args: argparse.Namespace, config: GroundConfig) -> int:
@@ -192,8 +214,7 @@ def _run(args: argparse.Namespace, config: GroundConfig) -> int:
     def announce(port: int) -> None:  # once listening: a login code never goes to a port
         # another program holds, and --http-port 0 shows the port it got
         print(f"dashboard: {_login_url(config, token, port)} (one-time login link, valid "
-              f"10 min; another: uav-ground-station token --url --data-dir {config.data_dir})",
-              flush=True)
+              f"10 min; another: {_token_url_command(args, config, port)})", flush=True)
 
     try:
         serve(app, host=config.http_host, port=config.http_port,

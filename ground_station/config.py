@@ -33,7 +33,9 @@ class ConfigError(ValueError):
         self.key = key
         self.expected = expected
         self.got = got
-        message = f"{file}: key {key!r}: expected {expected}"
+        # "<file>"/"<syntax>": the whole file, not a key in it ("key '<file>'" read as noise)
+        where = "" if key.startswith("<") else f" key {key!r}:"
+        message = f"{file}:{where} expected {expected}"
         if got is not None:
             message += f", got {described(key, got)}"
         super().__init__(message)

@@ -5,7 +5,6 @@ every drone through the mission manager, stored, announced as an alert and broad
 from __future__ import annotations
 
 import json
-import time
 from typing import Any
 
 from aiohttp import web
@@ -89,6 +88,16 @@ def _fits_one_datagram(app: web.Application, verb: str, t_exec: float,
         raise MissionError(f"{verb}: {exc}") from None
 
 
+def _when(t_exec: float, now: float) -> str:
+    """When a command runs, relative to its alert's own time: a clock time in the station's
+    zone and 24-hour format sat next to the dashboard's browser-formatted times (21:58:33
+    beside 9:58:32 PM)."""
+    ahead = t_exec - now
+    if abs(ahead) < 0.5:
+        return "now"
+    return f"in {ahead:.0f} s" if ahead > 0 else f"{-ahead:.0f} s ago"
+
+
 async def _issue(request: web.Request, verb: str) -> web.Response:
     app = request.app
     now = app[CLOCK]()
@@ -126,8 +135,8 @@ async def _issue(request: web.Request, verb: str) -> web.Response:
             t=now,
             level="info",
             kind="mission",
-            text=f"{issued.command.name} at {time.strftime('%H:%M:%S', time.localtime(t_exec))}"
-            f" sent to {len(app[MISSIONS].drones)} drone(s)",
+            text=f"{issued.command.name} {_when(t_exec, now)}: sent to "
+            f"{len(app[MISSIONS].drones)} drone(s)",
         )
     )
     link = app[LINK]

@@ -24,6 +24,7 @@ import math
 import os
 import sqlite3
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -34,8 +35,8 @@ from aiohttp import web
 from ground_station.storage_records import safe_name
 from utility_specs.intervals import intervals_of
 
-__all__ = ["RenderGate", "add_report_routes", "mission_runs", "render_png", "utility_series",
-           "write_png"]
+__all__ = ["RenderGate", "add_report_routes", "figure", "mission_runs", "render_png",
+           "utility_series", "write_png"]
 
 BIN_S = 5.0
 MAX_BINS = 2000
@@ -91,14 +92,18 @@ def mission_runs(db: sqlite3.Connection, mission: str) -> list[tuple[float, floa
     return runs
 
 
-def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S
-                   ) -> dict[str, Any]:
+def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S,
+                   now: float | None = None) -> dict[str, Any]:
     """Per drone, the utility received per ``bin_s`` over every run of the mission (from its
     first start; before, only the latest start counted: an ``end`` and a new ``start`` left
     5 of 81 stored images in the report), and what it covers: the runs, the images counted
     and those stored outside every run (before the first start, between runs). Without a
     start, from the first image. At most :data:`MAX_BINS` bins: longer missions get wider
-    ones."""
+    ones.
+
+    While the mission runs (no end recorded) and ``now`` is given, only the bins that are
+    over by ``now`` (at least the first): the bin still filling would draw every drone
+    dropping towards 0 at the right edge of a live report, a fall that is only the clock."""
     rows = db.execute("SELECT sender, t_rcv, utility FROM images WHERE mission = ? "
                       "AND type = 'image' ORDER BY t_rcv", (mission,)).fetchall()
     runs = mission_runs(db, mission)
@@ -112,6 +117,9 @@ def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S
     if rows_in and (t_last - t0) // bin_s >= MAX_BINS:  # a long span: wider bins, not more
         bin_s *= math.ceil((t_last - t0) / bin_s / MAX_BINS * (1 + 1e-9))
     n = max(1, int((t_last - t0) // bin_s) + 1) if rows_in else 0
+    running = not runs or runs[-1][1] is None
+    if now is not None and running:
+        n = min(n, max(1, int((now - t0) // bin_s)))
     drones: dict[str, list[float]] = {}
     for sender, t_rcv, utility in rows_in:
         i = int((t_rcv - t0) // bin_s)
@@ -132,9 +140,9 @@ def _gaps(series: dict[str, Any]) -> list[tuple[float, float]]:
             if end is not None]
 
 
-def render_png(series: dict[str, Any], path: Path | None) -> bytes:
-    """Draw the series (matplotlib's OO API on a figure of its own, no pyplot, no display:
-    safe on any thread); also written atomically to ``path`` unless None."""
+def figure(series: dict[str, Any]) -> Any:
+    """The report's matplotlib ``Figure`` (OO API, a canvas of its own, no pyplot). The legend
+    sits right of the plot: inside, it hid the red drone's peak in `make demo`'s report."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -152,8 +160,15 @@ def render_png(series: dict[str, Any], path: Path | None) -> bytes:
     ax.set_title(f"mission {name}: utility over time per drone")
     ax.grid(alpha=0.3)
     if series["drones"]:
-        ax.legend(loc="upper right", fontsize=8)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     fig.tight_layout()
+    return fig
+
+
+def render_png(series: dict[str, Any], path: Path | None) -> bytes:
+    """Draw the series (no pyplot, no display: safe on any thread); also written atomically
+    to ``path`` unless None."""
+    fig = figure(series)
     out = io.BytesIO()
     fig.savefig(out, format="png")
     body = out.getvalue()
@@ -241,7 +256,9 @@ def add_report_routes(app: web.Application, *, static_dir: Path) -> None:
 
     async def series_of(request: web.Request) -> dict[str, Any]:
         mission = request.query.get("mission", request.app[CONFIG].mission)
-        return await request.app[STORAGE].read(lambda s: utility_series(s.db, mission))
+        now = time.time()  # the fleet clock is wall time
+        return await request.app[STORAGE].read(
+            lambda s: utility_series(s.db, mission, now=now))
 
     async def api(request: web.Request) -> web.Response:
         return web.json_response(await series_of(request))

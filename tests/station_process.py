@@ -44,6 +44,7 @@ class Station:
     port: int
     token: str
     log: Path
+    dashboard_line: str = ""
 
     def log_text(self) -> str:
         time.sleep(0.2)  # the last lines reach the file
@@ -70,6 +71,6 @@ def running_station(tmp_path: Path, config_toml: str = "") -> Iterator[Station]:
         assert line is not None, log.read_text()
         port = int(line.split("/")[2].split(":")[1])
         token = (data / "token").read_text().strip()
-        yield Station(proc, port, token, log)
+        yield Station(proc, port, token, log, line.strip())
     finally:
         interrupt(proc, timeout_s=20)

@@ -4,21 +4,41 @@
 const $ = (id) => document.getElementById(id);
 function esc(s) { return String(s).replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]); }
 
+// Axis ticks at 1, 2, 2.5 or 5 times a power of ten from 0 to at least `max`, about `n`
+// steps: every label is its gridline's exact value (a 0..6 axis in quarters was labelled
+// 0 2 3 5 6, rounding 1.5 and 4.5 away).
+function niceTicks(max, n) {
+  if (!(max > 0)) max = 1;  // nothing to scale (all zero): a 0..1 axis
+  const raw = max / n, mag = 10 ** Math.floor(Math.log10(raw));
+  const step = [1, 2, 2.5, 5, 10].map((m) => m * mag).find((s) => s >= raw * (1 - 1e-9));
+  const top = Math.ceil(max / step - 1e-9);
+  return Array.from({ length: top + 1 }, (_, i) => Number((i * step).toPrecision(12)));
+}
+
 function draw(series) {
   const canvas = $("r-chart");
   const ctx = canvas.getContext("2d");
   const w = canvas.width, h = canvas.height, pad = 44;
   ctx.clearRect(0, 0, w, h);
   const drones = Object.entries(series.drones);
-  const tMax = Math.max(1, ...series.t);
-  const uMax = Math.max(1e-9, ...drones.flatMap(([, d]) => d.utility));
+  const tMax = Math.max(series.bin_s, ...series.t);  // one bin: an axis one bin wide
+  const most = Math.max(0, ...drones.flatMap(([, d]) => d.utility));
+  const yTicks = niceTicks(most, 4);
+  const uMax = yTicks[yTicks.length - 1];
   ctx.strokeStyle = "#30363d"; ctx.fillStyle = "#8b949e"; ctx.font = "12px sans-serif";
-  for (let i = 0; i <= 4; i++) {
-    const y = h - pad - (h - 2 * pad) * i / 4;
+  for (const u of yTicks) {
+    const y = h - pad - (h - 2 * pad) * u / uMax;
     ctx.beginPath(); ctx.moveTo(pad, y); ctx.lineTo(w - 10, y); ctx.stroke();
-    ctx.fillText((uMax * i / 4).toFixed(0), 4, y + 4);
+    ctx.fillText(String(u), 4, y + 4);
   }
-  ctx.fillText("mission time (s) →  " + tMax.toFixed(0) + " s", w - 200, h - 12);
+  const xTicks = niceTicks(tMax, 8).filter((t) => t <= tMax);
+  for (const t of xTicks) {
+    ctx.fillText(String(t), pad + (w - pad - 10) * t / tMax - 4, h - pad + 16);
+  }
+  ctx.fillText("mission time (s)", w - 110, h - 8);
+  // what the axes say and the numbers they were drawn for (tests read them)
+  Object.assign(canvas.dataset, { yTicks: yTicks.join(" "), xTicks: xTicks.join(" "),
+                                  most: String(most), tMax: String(tMax) });
   for (const [drone, d] of drones) {
     ctx.strokeStyle = d.color; ctx.lineWidth = 2; ctx.beginPath();
     d.utility.forEach((u, i) => {

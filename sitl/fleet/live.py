@@ -138,6 +138,12 @@ class StationTail:
         return len(q) / self.window_s, latency
 
 
+PROGRESS_LEGEND = ("per drone: images generated (g) and sent (s) by its log, received (r) "
+                   "of those sent, received images/s and their latency over the last 5 s")
+"""Printed once above the progress lines: ``drone3 g144 s8 r8 0.2/s 120ms`` is opaque to
+someone who has not read docs/fleet.md."""
+
+
 def progress_line(elapsed_s: float, drones: Sequence[DroneSlot], tails: dict[str, LogTail],
                   station: StationTail, now: float) -> str:
     """``[  12 s] drone1 g60 s20 r19 3.8/s 41ms | ...``: images generated, sent (companion

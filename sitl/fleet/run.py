@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from sitl.fleet.link import relay_argv, relay_description, relay_link
-from sitl.fleet.live import GroundStationApi, LogTail, StationTail, progress_line
+from sitl.fleet.live import PROGRESS_LEGEND, GroundStationApi, LogTail, StationTail, progress_line
 from sitl.fleet.netns import FleetNetns, Loopback
 from sitl.fleet.plan import make_plan
 from sitl.fleet.processes import (
@@ -147,6 +147,8 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
         print(f"mission started at {time.strftime('%H:%M:%S', time.localtime(t_start))} "
               f"({args.policy}); {'Ctrl-C to stop' if args.duration == 0 else ''}"
               f"{'' if args.duration == 0 else f'running {args.duration:g} s'}", file=out)
+        if not args.quiet:
+            print(PROGRESS_LEGEND, file=out)
         out.flush()
         if netns is not None and args.background is not None:
             netns.schedule_background(args.background, t_start)

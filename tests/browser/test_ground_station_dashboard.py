@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
+import math
 import re
 import time
 from collections.abc import Callable
@@ -121,6 +123,28 @@ def assert_labels_apart_and_inside(boxes: list[list[float]]) -> None:
             apart = (a[0] + a[2] <= b[0] or b[0] + b[2] <= a[0]
                      or a[1] + a[3] <= b[1] or b[1] + b[3] <= a[1])
             assert apart, (a, b)
+
+
+REPORT_AXES = """async () => { const c = document.querySelector('#r-chart').dataset;
+    const s = await (await fetch('/api/report')).json();
+    return { y: c.yTicks, x: c.xTicks, most: Number(c.most), t_max: Number(c.tMax),
+             now_most: Math.max(...Object.values(s.drones).flatMap((d) => d.utility)) }; }"""
+"""The report chart's axis labels as drawn, with the largest value and time it drew them for,
+and the largest value now (a bin only grows: the drawing may have had fewer images)."""
+
+
+def check_report_axes(axes: dict[str, Any]) -> None:
+    """Every label is its gridline's value: 0, then equal steps of 1, 2, 2.5 or 5 times a
+    power of ten, up to the first at or above the largest value (`make demo`'s report once
+    labelled a 0..6 axis in quarters 0 2 3 5 6)."""
+    y = [float(v) for v in axes["y"].split()]
+    steps = {round(b - a, 9) for a, b in itertools.pairwise(y)}
+    assert y[0] == 0.0 and len(steps) == 1, axes
+    step = steps.pop()
+    assert round(step / 10 ** math.floor(math.log10(step)), 9) in (1, 2, 2.5, 5), axes
+    assert 0 < axes["most"] <= axes["now_most"] and y[-2] < axes["most"] <= y[-1], axes
+    x = [float(v) for v in axes["x"].split()]
+    assert len(x) >= 2 and x[0] == 0.0 and x[-1] <= axes["t_max"] < 2 * x[-1] - x[-2], axes
 
 
 async def check_map(page: Any) -> None:
@@ -331,6 +355,7 @@ async def test_dashboard_live_tiles_and_start_mission(
             legend = dict(await page.evaluate("""() => [...document.querySelectorAll(
                 '#r-legend .lg')].map((e) => [e.dataset.drone, e.dataset.color])"""))
             assert legend == EXPECTED_COLOURS
+            check_report_axes(await page.evaluate(REPORT_AXES))
             await wait_js(page, "() => document.querySelector('#r-png').naturalWidth > 0",
                           timeout_s=15.0)
             assert (tmp_path / "gs" / "missions" / "browser" / "utility.png").exists()

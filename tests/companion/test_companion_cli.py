@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -85,6 +86,38 @@ def test_check_without_vehicle_fails_with_reason(tmp_path: Path, frames: Path) -
     result = _cli("check", "--config", str(config), "--timeout", "1", "--skip-camera")
     assert result.returncode == 1
     assert "no autopilot HEARTBEAT within 1 s" in result.stdout
+
+
+def test_check_logs_lines_a_person_reads_by_default(tmp_path: Path, frames: Path) -> None:
+    """`check` is read at a terminal: its log lines are text, not the JSON objects `run`
+    writes for journald (a newcomer's README walk saw one between check's lines)."""
+    config = _config(tmp_path, "udpout:127.0.0.1:9", str(frames))
+    result = subprocess.run([*COMMAND, "check", "--config", str(config), "--timeout", "1",
+                             "--skip-camera"], capture_output=True, text=True, timeout=60,
+                            check=False)
+    assert result.returncode == 1 and "no autopilot HEARTBEAT within 1 s" in result.stdout
+    log = result.stderr.splitlines()
+    assert any(" INFO companion.mavlink: mavlink connection opened: udpout:127.0.0.1:9" in line
+               for line in log), result.stderr
+    assert not any(line.startswith("{") for line in log), result.stderr
+
+
+def test_check_names_the_program_that_shares_its_port(tmp_path: Path, frames: Path) -> None:
+    """A program bound to 127.0.0.1:P with SO_REUSEADDR (as every pymavlink one is) gets
+    what the vehicle sends to 127.0.0.1:P, and our udpin:0.0.0.0:P binds all the same: check
+    said "nothing sent MAVLink to 0.0.0.0:P" while the vehicle was sending (seen on the
+    shared test machine, another companion on 14550)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other:
+        other.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        other.bind(("127.0.0.1", 0))
+        port = other.getsockname()[1]
+        config = _config(tmp_path, f"udpin:0.0.0.0:{port}", str(frames))
+        result = _cli("check", "--config", str(config), "--timeout", "1", "--skip-camera")
+    assert result.returncode == 1
+    assert (f"no autopilot HEARTBEAT within 1 s (another program also listens on "
+            f"127.0.0.1:{port} and gets the datagrams sent there") in result.stdout, result.stdout
+    alone = _cli("check", "--config", str(config), "--timeout", "1", "--skip-camera")
+    assert f"(nothing sent MAVLink to 0.0.0.0:{port}:" in alone.stdout, alone.stdout
 
 
 def test_bad_config_exits_2_naming_file_and_key(tmp_path: Path) -> None:

@@ -172,6 +172,12 @@ async def test_mission_api_exact_times_and_validation(
     assert body["command"]["args"] == {"alpha": 10, "mcts_iterations": 300}
     r = await client.post("/api/mission/end", json={"delay_s": 60}, headers=h)
     assert (await r.json())["command"]["t_exec"] == 1_700_000_060.0
+    # the alerts say when relative to their own time, not in the station's clock format
+    await client.server.app[STORAGE].flush()
+    alerts = (await (await client.get("/api/alerts", headers=h)).json())["alerts"]
+    said = [a["text"] for a in alerts if a["kind"] == "mission"]
+    assert "start in 5 s: sent to 0 drone(s)" in said
+    assert "end in 60 s: sent to 0 drone(s)" in said
     for bad in ({"when": "whenever"}, {"delay_s": -1}, {"t_exec": "x"}):
         r = await client.post("/api/mission/start", json=bad, headers=h)
         assert r.status == 400 and "error" in await r.json()

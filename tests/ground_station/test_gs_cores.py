@@ -225,8 +225,9 @@ def test_config_errors_name_file_key_expected(
 
 
 def test_config_missing_file_and_syntax(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match="existing TOML file"):
+    with pytest.raises(ConfigError, match="existing TOML file") as missing:
         load_config(tmp_path / "nope.toml")
+    assert str(missing.value) == f"{tmp_path / 'nope.toml'}: expected an existing TOML file"
     (tmp_path / "x.toml").write_text("a = [")
     with pytest.raises(ConfigError, match="valid TOML"):
         load_config(tmp_path / "x.toml")

@@ -29,3 +29,9 @@ def test_companion_help_names_the_default_config(capsys: pytest.CaptureFixture[s
         text = " ".join(_help(companion_main, [sub, "--help"], capsys).split())
         assert "default /etc/uav-companion/config.toml" in text
         assert "examples/companion.toml" in text
+
+
+def test_station_help_names_its_template(capsys: pytest.CaptureFixture[str]) -> None:
+    for sub in ("run", "shell", "export", "token", "keygen"):
+        text = " ".join(_help(station_main, [sub, "--help"], capsys).split())
+        assert "examples/ground_station.toml is the commented template" in text

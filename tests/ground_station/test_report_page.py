@@ -9,7 +9,7 @@ from typing import Any
 
 from ground_station.app import create_app
 from ground_station.config import GroundConfig
-from ground_station.report_page import color, utility_series, write_png
+from ground_station.report_page import color, figure, utility_series, write_png
 from ground_station.storage import Storage
 
 TOKEN = "report-test-token-0123456789"
@@ -40,6 +40,36 @@ def test_utility_is_summed_per_drone_and_bin_from_the_mission_start(tmp_path: Pa
     assert series["drones"]["uav3"]["total"] == 11.5
     assert (color("uav1"), color("uav3"), color("uav13")) == ("#4aa3ff", "#3fb950", "#4aa3ff")
     assert utility_series(db, "nothing")["drones"] == {}
+
+
+def test_a_running_mission_shows_only_the_bins_that_are_over(tmp_path: Path) -> None:
+    """A live report at 113 s: the bin 110-115 s still fills (uav1 1.0 and uav3 0.5 so far);
+    drawn, every drone would seem to drop at the right edge (seen in `make demo`)."""
+    db = sqlite3.connect(_fill(tmp_path))
+    running = utility_series(db, "m", bin_s=5.0, now=113.0)
+    assert running["t"] == [0.0, 5.0]
+    assert running["drones"]["uav1"]["utility"] == [3.0, 0.0]
+    assert running["drones"]["uav3"] == {"utility": [0.0, 11.0], "total": 11.0,
+                                         "color": "#3fb950"}
+    assert utility_series(db, "m", bin_s=5.0, now=115.0)["t"] == [0.0, 5.0, 10.0]
+    assert utility_series(db, "m", bin_s=5.0, now=101.0)["t"] == [0.0]  # the first, filling
+    db.execute("UPDATE missions SET t_end = 113.0 WHERE name = 'm'")
+    ended = utility_series(db, "m", bin_s=5.0, now=113.0)  # over: its last bin is all there is
+    assert ended["drones"]["uav1"]["utility"] == [3.0, 0.0, 1.0]
+
+
+def test_png_legend_covers_no_curve_and_stays_in_the_picture(tmp_path: Path) -> None:
+    """Inside the plot's upper right the legend hid drone3's peak (`make demo`, the red drone
+    rising at the end); right of the plot it covers nothing and is not cut off."""
+    db = sqlite3.connect(_fill(tmp_path))
+    fig = figure(utility_series(db, "m", bin_s=5.0))
+    renderer = fig.canvas.get_renderer()
+    ax = fig.axes[0]
+    plot, legend = ax.get_window_extent(renderer), ax.get_legend().get_window_extent(renderer)
+    assert legend.x0 >= plot.x1  # beside the plot, not on it
+    assert legend.x1 <= fig.bbox.x1 and legend.y0 >= fig.bbox.y0  # whole, in the PNG
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["uav1 (total 4)",
+                                                                   "uav3 (total 12)"]
 
 
 def test_png_is_written(tmp_path: Path) -> None:

@@ -24,6 +24,7 @@ from typing import Any
 
 import pytest
 
+from sitl.fleet.live import PROGRESS_LEGEND
 from tests.fleet_checks import (
     processes_of,
     summary_drones,
@@ -86,6 +87,9 @@ def _fleet(run_dir: Path, *args: str, timeout_s: float = 240.0) -> dict[str, Any
     for name in summary_drones(run_dir) if optimised else ():  # a baseline has no warm-up;
         warm_before_start(run_dir, name)  # an optimiser is warm before the mission starts
     warm_up_progress(proc.stdout, len(summary_drones(run_dir)))
+    lines = proc.stdout.splitlines()  # the progress lines' fields are named once, up front
+    started = next(i for i, line in enumerate(lines) if line.startswith("mission started"))
+    assert lines[started + 1] == PROGRESS_LEGEND and lines[started + 2].startswith("[")
     summary: dict[str, Any] = json.loads(summary_path.read_text())
     assert json.loads((run_dir / "summary.json").read_text()) == summary
     return summary
