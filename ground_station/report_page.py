@@ -33,7 +33,6 @@ from typing import Any, TypeVar
 from aiohttp import web
 
 from ground_station.storage_records import safe_name
-from utility_specs.intervals import intervals_of
 
 __all__ = ["RenderGate", "add_report_routes", "figure", "mission_runs", "render_png",
            "utility_series", "write_png"]
@@ -70,13 +69,12 @@ def mission_runs(db: sqlite3.Connection, mission: str) -> list[tuple[float, floa
     make two). A database without the bounds table's rows (older version) has one: its row's
     latest start to its end."""
     try:
-        bounds = db.execute("SELECT t_start, t_end FROM mission_bounds WHERE mission = ? "
-                            "ORDER BY rowid", (mission,)).fetchall()
+        bounds = db.execute("SELECT t_start, t_end, kind FROM mission_bounds "
+                            "WHERE mission = ? ORDER BY rowid", (mission,)).fetchall()
     except sqlite3.OperationalError:  # a database of an older version, opened read-only
         bounds = []
     if bounds:
-        spans = [(i.t_start, i.t_end) for i in intervals_of([tuple(b) for b in bounds], "gs")
-                 if i.t_start is not None]
+        spans = _spans(bounds)
     else:
         row = db.execute("SELECT t_start, t_end FROM missions WHERE name = ?",
                          (mission,)).fetchone()
@@ -90,6 +88,28 @@ def mission_runs(db: sqlite3.Connection, mission: str) -> list[tuple[float, floa
         else:
             runs.append((a, b))
     return runs
+
+
+def _spans(bounds: list[tuple[float | None, float | None, str]]
+           ) -> list[tuple[float, float | None]]:
+    """Start-to-end spans of the bounds rows in log order. An operator's start replaces the
+    start the station opened the mission with (images before it are not the mission's), but
+    an operator's start while an operator's run is open goes on with that run (`make demo`
+    starts its mission, then the operator presses start: the first minute is the mission's).
+    An end without an open start marks nothing."""
+    spans: list[tuple[float, float | None]] = []
+    open_start: float | None = None
+    open_kind = ""
+    for t_start, t_end, kind in bounds:
+        if t_start is not None:
+            if open_start is None or (open_kind == "open" and kind == "start"):
+                open_start, open_kind = t_start, kind
+        elif t_end is not None and open_start is not None:
+            spans.append((open_start, t_end))
+            open_start = None
+    if open_start is not None:
+        spans.append((open_start, None))
+    return spans
 
 
 def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S,

@@ -272,7 +272,7 @@ class Storage(StorageReads):
                     # an earlier batch whose bounds failed (full disk) may have started earlier
                     t_start = min(t_start, self._unbounded.get(item.mission, t_start))
                     self._unbounded[item.mission] = t_start
-                    self.mark_mission(item.mission, now=now, t_start=t_start)
+                    self.mark_mission(item.mission, now=now, t_start=t_start, opened=True)
                 self._unbounded.pop(item.mission, None)
                 self._last_rcv[item.mission] = t_rcv
             else:
@@ -369,8 +369,8 @@ class Storage(StorageReads):
                 "SELECT kind FROM mission_bounds WHERE mission = ? ORDER BY rowid", (mission,))]
             row = self.db.execute("SELECT t_start FROM missions WHERE name = ?",
                                   (mission,)).fetchone()
-            after_start = kinds[len(kinds) - kinds[::-1].index("start"):] \
-                if "start" in kinds else []
+            starts = [i for i, kind in enumerate(kinds) if kind in ("start", "open")]
+            after_start = kinds[starts[-1] + 1:] if starts else []
             if "end" in after_start or not after_start or row is None or row[0] is None:
                 return False  # ended by an operator, still open (a crash), or never opened
             t_start = float(row[0])
@@ -387,10 +387,12 @@ class Storage(StorageReads):
 
     def mark_mission(
         self, mission: str, *, now: float, t_start: float | None = None,
-        t_end: float | None = None, stop: bool = False,
+        t_end: float | None = None, stop: bool = False, opened: bool = False,
     ) -> None:
         """Record a mission's start/end; an end also goes to the mission log as ``t_end``.
-        ``stop``: the end is the station's shutdown, not an operator's end."""
+        ``stop``: the end is the station's shutdown, not an operator's end. ``opened``: the
+        start is the station's own, at a mission's first message (an operator's start
+        replaces it in the report; an operator's start while one runs goes on with it)."""
         self.db.execute(
             "INSERT OR IGNORE INTO missions (name, t_created) VALUES (?, ?)", (mission, now)
         )
@@ -405,7 +407,8 @@ class Storage(StorageReads):
         if t_start is not None or t_end is not None:
             bounds = {"t_start": t_start} if t_start is not None else {"t_end": t_end}
             # every start and end, as the mission log has them (the row keeps the latest)
-            kind = "start" if t_start is not None else "stop" if stop else "end"
+            kind = ("open" if opened else "start") if t_start is not None \
+                else "stop" if stop else "end"
             self.db.execute("INSERT INTO mission_bounds (mission, t_start, t_end, kind) "
                             "VALUES (?, ?, ?, ?)", (mission, bounds.get("t_start"),
                                                     bounds.get("t_end"), kind))

@@ -109,3 +109,18 @@ def test_a_database_without_the_bounds_table_reports_from_its_start(tmp_path: Pa
     series = utility_series(db, "m", bin_s=5.0)
     assert series["runs"] == [[100.0, None]] and series["images"] == 5
     assert series["drones"]["uav3"]["utility"] == [0.0, 11.0, 0.5]
+
+
+def test_a_start_while_the_mission_runs_goes_on_with_its_run(tmp_path: Path) -> None:
+    """`make demo` starts its mission, then the operator presses "start mission": the report
+    covered only the second start on (61 of 74 images "outside the runs", lead, audit 13)."""
+    path = _fill(tmp_path)
+    db = sqlite3.connect(path)
+    db.executemany("INSERT INTO mission_bounds (mission, t_start, t_end, kind) VALUES "
+                   "('m', ?, ?, ?)", [(95.0, None, "open"), (100.0, None, "start"),
+                                      (108.0, None, "start"), (None, 113.0, "end"),
+                                      (None, 114.0, "end")])
+    series = utility_series(db, "m", bin_s=5.0)
+    assert series["runs"] == [[100.0, 113.0]]
+    assert series["images"] == 5 and series["images_outside"] == 1  # "other" at 90 s
+    assert series["drones"]["uav1"]["utility"] == [3.0, 0.0, 1.0]
