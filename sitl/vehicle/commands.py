@@ -28,7 +28,11 @@ from sitl.vehicle.fields import finite_field, int_field, lat_lon_field, text_fie
 from sitl.vehicle.flavour import Flavour, decode_param_value, encode_param_value
 from sitl.vehicle.mission import commanded_alt_rel_m
 from sitl.vehicle.params import ParamTable
-from sitl.vehicle.stream_tables import DEFAULT_INTERVALS_S, PX4_EXTRA_INTERVALS_S
+from sitl.vehicle.stream_tables import (
+    DEFAULT_INTERVALS_S,
+    MSG_HEARTBEAT,
+    PX4_EXTRA_INTERVALS_S,
+)
 from sitl.vehicle.telemetry import Telemetry
 
 if TYPE_CHECKING:
@@ -136,10 +140,14 @@ class CommandHandlers:
             if interval is not None and interval < self.flavour.min_stream_interval_s \
                     and self.flavour.name == "ardupilot":
                 res = CommandResult(result=TEMPORARILY_REJECTED)  # its cap_message_interval
+            elif msg_id == MSG_HEARTBEAT and self.flavour.name == "px4":
+                res = CommandResult(result=FAILED)  # PX4 SIH: its rate is not settable
             else:
                 ok = self.set_interval(msg_id, interval, now)
-                res = CommandResult(result=ACCEPTED if ok else UNSUPPORTED)
-                if not ok and self.flavour.name == "ardupilot":  # as ArduCopter 4.5 answers
+                # A message the stack lacks: ArduCopter 4.5 DENIED with a STATUSTEXT, PX4 SIH
+                # FAILED and nothing else (both measured, docs/sitl.md).
+                res = CommandResult(result=ACCEPTED if ok else FAILED)
+                if not ok and self.flavour.name == "ardupilot":
                     self.statustext(6, f"No ap_message for mavlink id ({msg_id})")
                     res = CommandResult(result=DENIED)
         elif command == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
@@ -154,7 +162,8 @@ class CommandHandlers:
         elif command == mavlink.MAV_CMD_REQUEST_MESSAGE:
             builder = self._builders.get(int_field(p[0], "message_id"))
             follow_up = builder(now) if builder else None
-            res = CommandResult(result=UNSUPPORTED if builder is None else
+            missing = DENIED if self.flavour.name == "px4" else UNSUPPORTED  # PX4 SIH: DENIED
+            res = CommandResult(result=missing if builder is None else
                                 FAILED if follow_up is None else ACCEPTED)
         elif command == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             res = CommandResult(result=ACCEPTED)

@@ -69,13 +69,19 @@ def test_set_message_interval_minus_one_stops_and_zero_restores_default(make_gcs
     gcs.clear()
     gcs.run_until(2.0)
     assert len(gcs.of_type("ATTITUDE")) in (10, 11)
+    # a message PX4 lacks, and HEARTBEAT: FAILED, as PX4 SIH answers (docs/sitl.md)
     assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 9999, 1000).result == (
-        M.MAV_RESULT_UNSUPPORTED)
+        M.MAV_RESULT_FAILED)
+    assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 193, 1000).result == (
+        M.MAV_RESULT_FAILED)  # EKF_STATUS_REPORT, ArduPilot's
+    assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 0, 500_000).result == (
+        M.MAV_RESULT_FAILED)
+    assert gcs.command(M.MAV_CMD_REQUEST_MESSAGE, 193).result == M.MAV_RESULT_DENIED
 
 
 def test_ardupilot_denies_an_interval_for_a_message_it_lacks(make_gcs):
     """As ArduCopter 4.5 SITL answers (measured): DENIED and "No ap_message for mavlink id
-    (N)" for ESTIMATOR_STATUS (230, PX4's); PX4 here answers UNSUPPORTED."""
+    (N)" for ESTIMATOR_STATUS (230, PX4's); PX4 SIH answers FAILED (test above)."""
     gcs = make_gcs(flavour=ARDUPILOT)
     assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 230, 1_000_000).result == (
         M.MAV_RESULT_DENIED)

@@ -119,6 +119,24 @@ def test_px4_before_its_fix_sends_no_global_position_and_refuses_to_arm(make_gcs
     assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
 
 
+def test_px4_estimator_flags_are_those_of_px4_sih(make_gcs):
+    """As PX4 SIH reports them (measured, docs/sitl.md): 229 before the GNSS is fused, 1023 at
+    rest on the ground (CONST_POS_MODE with an absolute position: ekf2 sets it whenever the
+    vehicle is at rest), 895 once armed and in the air. A client that takes CONST_POS_MODE
+    for "no GPS" (ArduPilot's meaning) never sees a PX4 position on the ground."""
+    gcs = make_gcs(flavour=PX4, first_fix_s=3.0)
+    gcs.run_until(2.5)
+    assert {e.flags for e in gcs.of_type("ESTIMATOR_STATUS")} == {229}
+    gcs.clear()
+    gcs.run_until(5.0)
+    assert gcs.of_type("ESTIMATOR_STATUS")[-1].flags == 1023
+    assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+    gcs.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, math.nan)
+    gcs.clear()
+    gcs.run_until(12.0)
+    assert gcs.of_type("ESTIMATOR_STATUS")[-1].flags == 895
+
+
 def test_autostart_waits_for_the_fix(make_gcs):
     from sitl.vehicle.mission import MissionItem
 
