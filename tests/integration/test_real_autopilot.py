@@ -297,6 +297,8 @@ def _fly(ap: Autopilot, gs: GroundStation, lags: Lags) -> None:
     if ap.ardupilot:
         result = ap.command(m.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, ALT_M)
     else:
+        # AMSL, from the home PX4 set when it armed (PX4 SIH: 0.8 m above the first one)
+        alt_amsl0 = ap.home_alt_amsl_m()
         result = ap.command(m.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan,
                             alt_amsl0 + ALT_M)
     assert result == m.MAV_RESULT_ACCEPTED
