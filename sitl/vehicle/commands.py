@@ -246,9 +246,7 @@ class CommandHandlers:
         name = self.params.name_at(msg.param_index) if msg.param_index >= 0 else text_field(
             msg.param_id)
         if name is None or name not in self.params:
-            self.counters["unknown_param"] += 1
-            if self.flavour.unknown_param_read_text and msg.param_index >= 0:
-                self.statustext(6, f"[pm] unknown param ID: {msg.param_index}")
+            self.counters["unknown_param"] += 1  # dropped: no stack answers (see flavour.py)
             return
         self._send(self._param_value(name))
 
@@ -256,8 +254,6 @@ class CommandHandlers:
         name = text_field(msg.param_id)
         if name not in self.params:
             self.counters["unknown_param"] += 1
-            if self.flavour.unknown_param_read_text:
-                self.statustext(6, f"[pm] unknown param: {name}")
             return
         spec = self.params.spec(name)
         value = decode_param_value(msg.param_value, spec.param_type,

@@ -30,7 +30,7 @@ def test_px4_streams_flow_unrequested_at_their_rates(make_gcs):
     assert len(gcs.of_type("HEARTBEAT")) == 3
     hb = gcs.of_type("HEARTBEAT")[0]
     assert (hb.type, hb.autopilot) == (M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4)
-    assert hb.custom_mode == 3 << 16  # POSCTL
+    assert hb.custom_mode == 4 << 16 | 3 << 24  # AUTO.LOITER (Hold): PX4 SIH boots in it
     pos = gcs.of_type("GLOBAL_POSITION_INT")[-1]
     assert pos.lat == round(DEFAULT_HOME.lat_deg * 1e7)
     assert pos.relative_alt == 0
