@@ -157,6 +157,9 @@ class CommandHandlers:
                 follow_up = mavlink.MAVLink_message_interval_message(
                     msg_id, -1 if iv is None else int(iv * 1e6))
                 res = CommandResult(result=ACCEPTED)
+            elif self.flavour.name == "px4":  # PX4 SIH: interval 0, "not available"
+                follow_up = mavlink.MAVLink_message_interval_message(msg_id, 0)
+                res = CommandResult(result=ACCEPTED)
             else:
                 res = CommandResult(result=UNSUPPORTED)
         elif command == mavlink.MAV_CMD_REQUEST_MESSAGE:

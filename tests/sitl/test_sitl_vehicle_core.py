@@ -77,6 +77,9 @@ def test_set_message_interval_minus_one_stops_and_zero_restores_default(make_gcs
     assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 0, 500_000).result == (
         M.MAV_RESULT_FAILED)
     assert gcs.command(M.MAV_CMD_REQUEST_MESSAGE, 193).result == M.MAV_RESULT_DENIED
+    gcs.clear()
+    assert gcs.command(M.MAV_CMD_GET_MESSAGE_INTERVAL, 193).result == M.MAV_RESULT_ACCEPTED
+    assert [(i.message_id, i.interval_us) for i in gcs.of_type("MESSAGE_INTERVAL")] == [(193, 0)]
 
 
 def test_ardupilot_denies_an_interval_for_a_message_it_lacks(make_gcs):
