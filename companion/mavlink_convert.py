@@ -46,8 +46,12 @@ MAV_RESULT_ACCEPTED = 0
 MAV_DATA_STREAM_ALL = 0
 ESTIMATOR_POS_HORIZ_ABS = 16
 """ESTIMATOR_STATUS_FLAGS: the estimator has an absolute horizontal position (an origin)."""
-ESTIMATOR_NOT_TRUSTED = 128 | 1024 | 32768
-"""ESTIMATOR_CONST_POS_MODE, ESTIMATOR_UNINITIALIZED, ESTIMATOR_GPS_GLITCH."""
+ESTIMATOR_NOT_TRUSTED = 1024 | 32768
+"""ESTIMATOR_GPS_GLITCH, ESTIMATOR_UNINITIALIZED."""
+ESTIMATOR_CONST_POS_MODE = 128
+"""Constant-position mode: trusted only while an absolute position source is fused (below)."""
+ESTIMATOR_PRED_POS_HORIZ_ABS = 512
+"""The estimator fuses an absolute horizontal position source (GNSS)."""
 MAV_COMP_ID_ONBOARD_COMPUTER = 191
 MAV_PARAM_TYPE_SIGNED = {2, 4, 6}  # INT8, INT16, INT32
 MAV_PARAM_TYPE_UNSIGNED = {1, 3, 5}  # UINT8, UINT16, UINT32
@@ -187,9 +191,8 @@ class MavlinkConverter:
         )
 
     def _estimator(self, msg: Any, now: float) -> EstimatorSample:
-        flags = int(msg.flags)
-        ok = bool(flags & ESTIMATOR_POS_HORIZ_ABS) and not flags & ESTIMATOR_NOT_TRUSTED
-        return EstimatorSample(t=now, source=msg.get_type(), flags=flags, position_ok=ok)
+        return EstimatorSample(t=now, source=msg.get_type(), flags=int(msg.flags),
+                               position_ok=estimator_position_ok(int(msg.flags)))
 
     def _system_time(self, msg: Any, now: float) -> SystemTimeSample:
         return SystemTimeSample(
@@ -217,6 +220,20 @@ class MavlinkConverter:
 
     def _ack(self, msg: Any, now: float) -> CommandAckSample:
         return CommandAckSample(t=now, command=msg.command, result=msg.result)
+
+
+def estimator_position_ok(flags: int) -> bool:
+    """May the position be used, by ESTIMATOR_STATUS_FLAGS (EKF_STATUS_REPORT has the same)?
+
+    An absolute horizontal position, no glitch, initialised. CONST_POS_MODE means two things:
+    ArduPilot sets it while its EKF has no GPS yet (and then never POS_HORIZ_ABS); PX4 sets it
+    whenever the vehicle is at rest (ekf2 ``get_ekf_soln_status``: ``vehicle_at_rest``), so a
+    real PX4 SIH reports 1023 on the ground with GNSS fused. It disqualifies only when no
+    absolute source is fused (PRED_POS_HORIZ_ABS clear: PX4's fake position on the ground).
+    """
+    if not flags & ESTIMATOR_POS_HORIZ_ABS or flags & ESTIMATOR_NOT_TRUSTED:
+        return False
+    return not flags & ESTIMATOR_CONST_POS_MODE or bool(flags & ESTIMATOR_PRED_POS_HORIZ_ABS)
 
 
 def _param_value_bytes(msg: Any) -> bytes | None:

@@ -160,6 +160,18 @@ class Autopilot:
             self.conn.mav.request_data_stream_send(self.sysid, 1, m.MAV_DATA_STREAM_ALL,
                                                    int(rate_hz), 1)
 
+    def home_alt_amsl_m(self, timeout_s: float = 10.0) -> float:
+        """Home's altitude now. PX4 sets home again when it arms (PX4 SIH: 0.8 m higher than
+        the home read 1 s after the fix, as its height estimate settled), and a NAV_TAKEOFF
+        altitude (AMSL) must be counted from that home, as its relative_alt is."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            self.command(m.MAV_CMD_REQUEST_MESSAGE, m.MAVLINK_MSG_ID_HOME_POSITION)
+            try:
+                return float(self.wait("HOME_POSITION", 2.0).altitude) / 1000.0
+            except AssertionError:
+                assert time.monotonic() < deadline, "no HOME_POSITION"
+
     def relative_alt_m(self) -> float:
         return self.wait("GLOBAL_POSITION_INT", 5.0).relative_alt / 1000.0
 
@@ -304,9 +316,10 @@ def check_arm_and_takeoff(ap: Autopilot, alt_m: float) -> None:
         ap.set_mode(PX4_HOLD)
         assert ap.command(m.MAV_CMD_COMPONENT_ARM_DISARM, 1) == m.MAV_RESULT_ACCEPTED
         ap.heartbeat(ap.armed, 5.0, "armed")
-        # PX4: NAV_TAKEOFF param7 is AMSL; lat/lon NaN keep the current position.
+        # PX4: NAV_TAKEOFF param7 is AMSL (from the home set at arming); lat/lon NaN keep
+        # the current position.
         result = ap.command(m.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan,
-                            ap.home[2] + alt_m)
+                            ap.home_alt_amsl_m() + alt_m)
         assert result == m.MAV_RESULT_ACCEPTED
     deadline = time.monotonic() + 60.0
     while ap.relative_alt_m() < 0.9 * alt_m:

@@ -80,6 +80,9 @@ class FlightController(Guidance):
         self._base_airframe = airframe or Airframe()
         self.state = VehicleState(airframe=self._airframe())
         self.mode = flavour.initial_mode
+        self._mode_after_disarm = flavour.initial_mode
+        """PX4: the last mode that allows arming, which a disarm returns to (commander's
+        ``UserModeIntention``: ``_nav_state_after_disarming``, not set by LAND or RTL)."""
         self.mission: list[MissionItem] = []
         self.mission_current = 0
         self.mission_finished = False
@@ -155,6 +158,8 @@ class FlightController(Guidance):
             self.roi_ned_m = None
         self.mode = mode
         self._phase = ""
+        if mode not in self.flavour.unarmable_modes:
+            self._mode_after_disarm = mode
         if mode in (Mode.MANUAL, Mode.POSITION, Mode.HOLD):
             self._hold_ned = self._here_hold()
         if changed:
@@ -227,8 +232,9 @@ class FlightController(Guidance):
         self._armed_idle_since = None
         self._landed_since = None
         self._text(SEV_INFO, text)
-        if self.flavour.name == "px4" and self.mode in (Mode.LAND, Mode.RTL, Mode.TAKEOFF):
-            self._set_mode(Mode.HOLD)
+        if self.flavour.name == "px4" and self.mode is not self._mode_after_disarm:
+            # PX4 SIH, landed in LAND after MISSION: disarmed in MISSION (measured)
+            self._set_mode(self._mode_after_disarm)
 
     def set_mode(self, mode: Mode) -> CommandResult:
         if mode is Mode.GUIDED and self.flavour.name == "px4":

@@ -28,7 +28,11 @@ from sitl.vehicle.fields import finite_field, int_field, lat_lon_field, text_fie
 from sitl.vehicle.flavour import Flavour, decode_param_value, encode_param_value
 from sitl.vehicle.mission import commanded_alt_rel_m
 from sitl.vehicle.params import ParamTable
-from sitl.vehicle.stream_tables import DEFAULT_INTERVALS_S, PX4_EXTRA_INTERVALS_S
+from sitl.vehicle.stream_tables import (
+    DEFAULT_INTERVALS_S,
+    MSG_HEARTBEAT,
+    PX4_EXTRA_INTERVALS_S,
+)
 from sitl.vehicle.telemetry import Telemetry
 
 if TYPE_CHECKING:
@@ -137,10 +141,14 @@ class CommandHandlers:
             if interval is not None and interval < self.flavour.min_stream_interval_s \
                     and self.flavour.name == "ardupilot":
                 res = CommandResult(result=TEMPORARILY_REJECTED)  # its cap_message_interval
+            elif msg_id == MSG_HEARTBEAT and self.flavour.name == "px4":
+                res = CommandResult(result=FAILED)  # PX4 SIH: its rate is not settable
             else:
                 ok = self.set_interval(msg_id, interval, now)
-                res = CommandResult(result=ACCEPTED if ok else UNSUPPORTED)
-                if not ok and self.flavour.name == "ardupilot":  # as ArduCopter 4.5 answers
+                # A message the stack lacks: ArduCopter 4.5 DENIED with a STATUSTEXT, PX4 SIH
+                # FAILED and nothing else (both measured, docs/sitl.md).
+                res = CommandResult(result=ACCEPTED if ok else FAILED)
+                if not ok and self.flavour.name == "ardupilot":
                     self.statustext(6, f"No ap_message for mavlink id ({msg_id})")
                     res = CommandResult(result=DENIED)
         elif command == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
@@ -150,12 +158,16 @@ class CommandHandlers:
                 follow_up = mavlink.MAVLink_message_interval_message(
                     msg_id, -1 if iv is None else int(iv * 1e6))
                 res = CommandResult(result=ACCEPTED)
+            elif self.flavour.name == "px4":  # PX4 SIH: interval 0, "not available"
+                follow_up = mavlink.MAVLink_message_interval_message(msg_id, 0)
+                res = CommandResult(result=ACCEPTED)
             else:
                 res = CommandResult(result=UNSUPPORTED)
         elif command == mavlink.MAV_CMD_REQUEST_MESSAGE:
             builder = self._builders.get(int_field(p[0], "message_id"))
             follow_up = builder(now) if builder else None
-            res = CommandResult(result=UNSUPPORTED if builder is None else
+            missing = DENIED if self.flavour.name == "px4" else UNSUPPORTED  # PX4 SIH: DENIED
+            res = CommandResult(result=missing if builder is None else
                                 FAILED if follow_up is None else ACCEPTED)
         elif command == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             res = CommandResult(result=ACCEPTED)
@@ -255,9 +267,7 @@ class CommandHandlers:
         name = self.params.name_at(msg.param_index) if msg.param_index >= 0 else text_field(
             msg.param_id)
         if name is None or name not in self.params:
-            self.counters["unknown_param"] += 1
-            if self.flavour.unknown_param_read_text and msg.param_index >= 0:
-                self.statustext(6, f"[pm] unknown param ID: {msg.param_index}")
+            self.counters["unknown_param"] += 1  # dropped: no stack answers (see flavour.py)
             return
         self._send(self._param_value(name))
 
@@ -265,8 +275,6 @@ class CommandHandlers:
         name = text_field(msg.param_id)
         if name not in self.params:
             self.counters["unknown_param"] += 1
-            if self.flavour.unknown_param_read_text:
-                self.statustext(6, f"[pm] unknown param: {name}")
             return
         spec = self.params.spec(name)
         value = decode_param_value(msg.param_value, spec.param_type,

@@ -118,11 +118,10 @@ class Flavour:
     thread's loop) is taken as 1 ms here, an assumption, not a measurement."""
     accepted_commands: frozenset[int] = frozenset()
     """Peripheral/auxiliary MAV_CMDs this stack accepts (the rest get UNSUPPORTED)."""
-    unknown_param_read_text: bool = False
-    """PX4 answers a PARAM_REQUEST_READ of an unknown index with STATUSTEXT "[pm] unknown param
-    ID: N" and a PARAM_SET of an unknown name with "[pm] unknown param: NAME"; ArduPilot 4.5
-    drops both silently (its GCS_Param returns when AP_Param::find fails). Releases from late
-    2025 on answer with PARAM_ERROR instead (ArduPilot PR 31062, PX4 PR 25699)."""
+    # Unknown parameter names and indices are dropped by both stacks: ArduPilot 4.5's
+    # GCS_Param returns when AP_Param::find fails; PX4 (v1.14 on, and main ddb9a5d0b9 measured
+    # in SIH) only logs "unknown param ..." on its own console (PX4_ERR), no STATUSTEXT. Releases
+    # from late 2025 on answer with PARAM_ERROR (ArduPilot PR 31062, PX4 PR 25699).
 
     def custom_mode(self, mode: Mode) -> int:
         return self.modes[mode]
@@ -239,7 +238,7 @@ PX4 = Flavour(
     modes=MappingProxyType(_PX4_MODES),
     mode_aliases=MappingProxyType(_PX4_ALIASES),
     params=_PX4_PARAMS,
-    initial_mode=Mode.POSITION,
+    initial_mode=Mode.HOLD,  # PX4 SIH boots in AUTO.LOITER (commander's initial intention)
     flight_sw_version=(1 << 24) | (15 << 16) | (0 << 8) | 255,
     settings=MappingProxyType({
         "cruise_m_s": ("MPC_XY_CRUISE", 1.0),
@@ -259,7 +258,6 @@ PX4 = Flavour(
     }),
     # DO_SET_HOME 179, DO_DIGICAM_CONTROL 203 (camera trigger)
     accepted_commands=frozenset({179, 203}),
-    unknown_param_read_text=True,
 )
 
 ARDUPILOT = Flavour(

@@ -61,6 +61,13 @@ _SENSOR_PREARM = 1 << 28
 _EKF_ALWAYS = 1 | 2 | 4 | 32  # attitude, horizontal and vertical velocity, vertical position
 _EKF_POSITION = 8 | 16 | 256 | 512  # (predicted) horizontal position, relative and absolute
 _EKF_CONST_POS_MODE = 128
+_EKF_POS_VERT_AGL = 64
+# PX4 SIH (main ddb9a5d0b9, measured; docs/sitl.md): 229 before the GNSS is fused (attitude,
+# vertical velocity and position, height above ground, constant position), 1023 on the ground
+# with it (ekf2 sets CONST_POS_MODE whenever the vehicle is at rest), 831 just after arming,
+# 895 in the air (and in the first seconds after landing).
+_PX4_NO_FIX = 1 | 4 | 32 | _EKF_POS_VERT_AGL | _EKF_CONST_POS_MODE
+_PX4_FLYING = _EKF_ALWAYS | _EKF_POSITION | _EKF_POS_VERT_AGL
 
 _SENSORS = (1 | 2 | 4 | 8 | 32 | 1024 | 2048 | 4096 | 8192 | 16384 | 32768 | (1 << 21)
             | (1 << 25) | (1 << 28))
@@ -344,6 +351,11 @@ class Telemetry:
         return mavlink.MAVLink_wind_message(direction, speed, -w[2])
 
     def _estimator_flags(self) -> int:
+        if self.flavour.name == "px4":
+            if not self.fc.has_fix:
+                return _PX4_NO_FIX
+            at_rest = self.fc.state.on_ground and not self.fc.state.armed
+            return _PX4_FLYING | (_EKF_CONST_POS_MODE if at_rest else 0)
         if self.fc.has_fix:
             return _EKF_ALWAYS | _EKF_POSITION
         return _EKF_ALWAYS | _EKF_CONST_POS_MODE

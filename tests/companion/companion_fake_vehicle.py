@@ -205,6 +205,11 @@ class FakeVehicle:
                     mav.MAV_SEVERITY_INFO, f"No ap_message for mavlink id ({msg_id})".encode()))
                 self.ack(cmd, mav.MAV_RESULT_DENIED)
                 return
+            if self.autopilot == "px4" and msg_id in (mav.MAVLINK_MSG_ID_HEARTBEAT,
+                                                      mav.MAVLINK_MSG_ID_EKF_STATUS_REPORT):
+                # PX4 SIH (measured, docs/sitl.md): HEARTBEAT or a message it lacks
+                self.ack(cmd, mav.MAV_RESULT_FAILED)
+                return
             if msg_id in STREAM_IDS:
                 interval_us = msg.param2
                 self.rates_hz[msg_id] = 1e6 / interval_us if interval_us > 0 else 0.0

@@ -103,6 +103,25 @@ def test_ardupilot_is_not_asked_for_a_message_it_lacks(
     assert not [x for x in recorder.samples if isinstance(x, StatusTextSample)]
 
 
+def test_px4_is_not_asked_for_a_message_it_lacks(recorder: Recorder,
+                                                 started: list[MavlinkReader]) -> None:
+    """PX4 SIH answers SET_MESSAGE_INTERVAL for EKF_STATUS_REPORT (ArduPilot's) FAILED; the
+    refusal would set off REQUEST_DATA_STREAM, which PX4 ignores."""
+    vehicle = FakeVehicle(autopilot="px4").start()
+    try:
+        reader = _reader(vehicle.port, recorder)
+        started.append(reader)
+        reader.start()
+        assert recorder.wait(lambda: recorder.state.snapshot().lat_deg is not None)
+        time.sleep(3 * reader.settings.stream_ack_timeout_s)  # past the fallback's deadline
+        assert "EKF_STATUS_REPORT" in reader.settings.stream_rates_hz
+        assert reader.counters["stream_requests"] == 1
+        assert reader.counters["stream_fallbacks"] == 0
+        assert vehicle.data_stream_requests == 0
+    finally:
+        vehicle.stop()
+
+
 def test_own_heartbeat_is_an_onboard_controller(
         vehicle: FakeVehicle, recorder: Recorder, started: list[MavlinkReader]) -> None:
     seen: list[mav.MAVLink_message] = []

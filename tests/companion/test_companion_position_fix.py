@@ -74,6 +74,23 @@ def test_px4_estimator_status_uses_the_same_flags() -> None:
     assert (sample.source, sample.position_ok) == ("ESTIMATOR_STATUS", True)
 
 
+@pytest.mark.parametrize(("flags", "ok"), [
+    (1023, True),  # PX4 SIH on the ground with GNSS: CONST_POS_MODE is its "at rest"
+    (895, True),  # PX4 SIH in the air
+    (229, False),  # PX4 SIH before the GNSS is fused
+    (1023 & ~mav.ESTIMATOR_PRED_POS_HORIZ_ABS, False),  # at rest on a fake position, no GNSS
+    (1023 | mav.ESTIMATOR_GPS_GLITCH, False),
+])
+def test_px4_at_rest_with_gnss_has_a_position(flags: int, ok: bool) -> None:
+    """Measured on PX4 SIH (docs/sitl.md): ekf2 sets CONST_POS_MODE whenever the vehicle is at
+    rest, so a PX4 drone on the ground reported 1023; taking the bit for "no GPS" (as it
+    means on ArduPilot) kept its position off the dashboard until it took off."""
+    msg = mav.MAVLink_estimator_status_message(0, flags, 0, 0, 0, 0, 0, 0, 0, 0)
+    sample = _converter().convert(_wire(msg), now=T0)
+    assert isinstance(sample, EstimatorSample)
+    assert sample.position_ok is ok
+
+
 def test_a_valid_fix_geotags_with_the_pose_age() -> None:
     snap = _state(t_position=T0 - 0.4).snapshot()
     assert snap.position_problem is None and snap.has_pose

@@ -107,8 +107,12 @@ class Target:
 def _builtin(flavour: str, tmp_path: Path) -> Target:
     port = _free_port(socket.SOCK_DGRAM)
     # 3x real time; 9 simulated seconds (3 s wall) without a fix after each boot.
+    # COM_DISARM_PRFLT 30 simulated seconds: the 10 wall seconds a real PX4 gives between
+    # arming and takeoff (at 3x its 10 s default would be 3.3 s, less than the arm, the
+    # dashboard check and the home read can take on a busy machine).
     argv = [str(SITL), "vehicle", "--port", str(port), "--flavour", flavour,
-            "--speedup", "3", "--first-fix", "9"]
+            "--speedup", "3", "--first-fix", "9",
+            *(["--param", "COM_DISARM_PRFLT=30"] if flavour == "px4" else [])]
     url = f"udpout:127.0.0.1:{port}"
     return Target(companion_url=url, gcs_url=url,
                   process=AutopilotProcess(argv, tmp_path / "autopilot.log"))
@@ -297,6 +301,8 @@ def _fly(ap: Autopilot, gs: GroundStation, lags: Lags) -> None:
     if ap.ardupilot:
         result = ap.command(m.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, ALT_M)
     else:
+        # AMSL, from the home PX4 set when it armed (PX4 SIH: 0.8 m above the first one)
+        alt_amsl0 = ap.home_alt_amsl_m()
         result = ap.command(m.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan,
                             alt_amsl0 + ALT_M)
     assert result == m.MAV_RESULT_ACCEPTED

@@ -19,7 +19,12 @@ from tests.autopilot_checks import run_all_checks
 @pytest.mark.parametrize("flavour", ["ardupilot", "px4"])
 def test_builtin_vehicle_passes_the_real_autopilot_checks(vehicle_process, flavour):
     # A 20 s boot without a fix (simulated; 2 s wall at 10x) keeps the wait for it in play.
-    vehicle = vehicle_process("--flavour", flavour, "--speedup", "10", "--first-fix", "20")
+    # PX4 disarms after COM_DISARM_PRFLT (10 s) armed on the ground: 1 s of wall time at 10x,
+    # less than the checks' arm, HEARTBEAT (1 Hz), home read, takeoff take; 100 simulated
+    # seconds give the 10 wall seconds a client of a real PX4 has.
+    extra = ["--param", "COM_DISARM_PRFLT=100"] if flavour == "px4" else []
+    vehicle = vehicle_process("--flavour", flavour, "--speedup", "10", "--first-fix", "20",
+                              *extra)
     ap = run_all_checks(f"udpout:127.0.0.1:{vehicle.port}")
     assert ap.ardupilot == (flavour == "ardupilot")
     assert ap.home is not None

@@ -30,7 +30,7 @@ def test_px4_streams_flow_unrequested_at_their_rates(make_gcs):
     assert len(gcs.of_type("HEARTBEAT")) == 3
     hb = gcs.of_type("HEARTBEAT")[0]
     assert (hb.type, hb.autopilot) == (M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4)
-    assert hb.custom_mode == 3 << 16  # POSCTL
+    assert hb.custom_mode == 4 << 16 | 3 << 24  # AUTO.LOITER (Hold): PX4 SIH boots in it
     pos = gcs.of_type("GLOBAL_POSITION_INT")[-1]
     assert pos.lat == round(DEFAULT_HOME.lat_deg * 1e7)
     assert pos.relative_alt == 0
@@ -69,13 +69,22 @@ def test_set_message_interval_minus_one_stops_and_zero_restores_default(make_gcs
     gcs.clear()
     gcs.run_until(2.0)
     assert len(gcs.of_type("ATTITUDE")) in (10, 11)
+    # a message PX4 lacks, and HEARTBEAT: FAILED, as PX4 SIH answers (docs/sitl.md)
     assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 9999, 1000).result == (
-        M.MAV_RESULT_UNSUPPORTED)
+        M.MAV_RESULT_FAILED)
+    assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 193, 1000).result == (
+        M.MAV_RESULT_FAILED)  # EKF_STATUS_REPORT, ArduPilot's
+    assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 0, 500_000).result == (
+        M.MAV_RESULT_FAILED)
+    assert gcs.command(M.MAV_CMD_REQUEST_MESSAGE, 193).result == M.MAV_RESULT_DENIED
+    gcs.clear()
+    assert gcs.command(M.MAV_CMD_GET_MESSAGE_INTERVAL, 193).result == M.MAV_RESULT_ACCEPTED
+    assert [(i.message_id, i.interval_us) for i in gcs.of_type("MESSAGE_INTERVAL")] == [(193, 0)]
 
 
 def test_ardupilot_denies_an_interval_for_a_message_it_lacks(make_gcs):
     """As ArduCopter 4.5 SITL answers (measured): DENIED and "No ap_message for mavlink id
-    (N)" for ESTIMATOR_STATUS (230, PX4's); PX4 here answers UNSUPPORTED."""
+    (N)" for ESTIMATOR_STATUS (230, PX4's); PX4 SIH answers FAILED (test above)."""
     gcs = make_gcs(flavour=ARDUPILOT)
     assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 230, 1_000_000).result == (
         M.MAV_RESULT_DENIED)
