@@ -287,7 +287,7 @@ def test_an_autopilot_reboot_shows_no_stale_state(product: Product) -> None:
     lost = [s for s in seen if s[0] is False]
     assert lost and all(s[1:] == (None, None, None) for s in lost), seen
     after = seen[seen.index(lost[-1]) + 1:]
-    assert after[-1][1:] == ("POSCTL", False, 3), after
+    assert after[-1][1:] == ("LOITER", False, 3), after  # PX4 boots in Hold
 
 
 def test_after_end_no_new_image_is_stored(product: Product) -> None:
