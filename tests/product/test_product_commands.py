@@ -232,26 +232,32 @@ def test_a_rejected_parameter_is_an_error_with_the_reason(product: Product) -> N
     assert mission["params_rejected"] == {"mcts_iterations": 9, "warp_speed": 2}
 
 
-def test_a_vehicle_change_shows_at_the_ground_station(product: Product) -> None:
-    """Arm vehicle 2 over MAVLink: its companion reports it, the station's tile shows it."""
+def _vehicle_command(port: int, command: int, param1: float) -> int:
+    """A COMMAND_LONG to the vehicle on ``port`` as a second GCS would send it (system 250):
+    the COMMAND_ACK's result."""
     os.environ.setdefault("MAVLINK20", "1")
     from pymavlink import mavutil
 
+    link = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=250)
+    try:
+        link.mav.heartbeat_send(6, 8, 0, 0, 0)
+        assert link.wait_heartbeat(timeout=10) is not None
+        link.mav.command_long_send(link.target_system, 1, command, 0, param1, 0, 0, 0, 0, 0, 0)
+        ack = link.recv_match(type="COMMAND_ACK", blocking=True, timeout=10)
+        assert ack is not None
+        return int(ack.result)
+    finally:
+        link.close()
+
+
+def test_a_vehicle_change_shows_at_the_ground_station(product: Product) -> None:
+    """Arm vehicle 2 over MAVLink: its companion reports it, the station's tile shows it."""
     def armed() -> dict[str, Any]:
         tiles = product.api("GET", "/api/fleet")["drones"]
         return {t["drone"]: t.get("armed") for t in tiles}
 
     assert armed()["drone2"] is False
-    link = mavutil.mavlink_connection(f"udpout:127.0.0.1:{product.vehicle_ports[1]}",
-                                      source_system=250)
-    try:
-        link.mav.heartbeat_send(6, 8, 0, 0, 0)
-        assert link.wait_heartbeat(timeout=10) is not None
-        link.mav.command_long_send(link.target_system, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)
-        ack = link.recv_match(type="COMMAND_ACK", blocking=True, timeout=10)
-        assert ack is not None and ack.result == 0
-    finally:
-        link.close()
+    assert _vehicle_command(product.vehicle_ports[1], 400, 1) == 0  # arm
     product.until("drone2 armed at the ground station", lambda: armed()["drone2"] is True, 20)
     assert armed()["drone1"] is False
 
@@ -261,19 +267,8 @@ def test_an_autopilot_reboot_shows_no_stale_state(product: Product) -> None:
     boot from scratch. While the companion does not hear its autopilot the station shows its
     mode, arming and fix as unknown (it showed the last ones, as fresh as any), and after the
     reboot what the new boot says, the fix only once the new boot reports one."""
-    os.environ.setdefault("MAVLINK20", "1")
-    from pymavlink import mavutil
-
-    link = mavutil.mavlink_connection(f"udpout:127.0.0.1:{product.vehicle_ports[0]}",
-                                      source_system=250)
-    try:
-        link.mav.heartbeat_send(6, 8, 0, 0, 0)
-        assert link.wait_heartbeat(timeout=10) is not None
-        link.mav.command_long_send(link.target_system, 1, 246, 0, 1, 0, 0, 0, 0, 0, 0)
-        ack = link.recv_match(type="COMMAND_ACK", blocking=True, timeout=10)
-        assert ack is not None and ack.result == 0  # the fake answered UNSUPPORTED before
-    finally:
-        link.close()
+    # ACCEPTED (the fake answered UNSUPPORTED before)
+    assert _vehicle_command(product.vehicle_ports[0], 246, 1) == 0
     seen: list[tuple[Any, ...]] = []
 
     def back() -> bool:
