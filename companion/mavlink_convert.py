@@ -251,9 +251,34 @@ def _int_or_none(value: int, sentinel: int) -> int | None:
     return None if value == sentinel else int(value)
 
 
+PX4_MAIN_MODES = {1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 4: "AUTO", 5: "ACRO", 6: "OFFBOARD",
+                  7: "STABILIZED", 8: "RATTITUDE", 9: "SIMPLE", 10: "TERMINATION",
+                  11: "ALTITUDE_CRUISE"}
+"""PX4's ``PX4_CUSTOM_MAIN_MODE`` (px4_custom_mode.h), in pymavlink's names where it has one."""
+PX4_AUTO_SUB_MODES = {1: "READY", 2: "TAKEOFF", 3: "LOITER", 4: "MISSION", 5: "RTL", 6: "LAND",
+                      7: "RTGS", 8: "FOLLOWME", 9: "PRECLAND", 10: "VTOL_TAKEOFF",
+                      **{10 + i: f"EXTERNAL{i}" for i in range(1, 9)}}
+"""``PX4_CUSTOM_SUB_MODE_AUTO``: pymavlink 2.4.50 names 1-8 but READY, PRECLAND, VTOL_TAKEOFF
+and the external modes, so the dashboard showed "UNKNOWN" for a PX4 drone on the ground in
+AUTO.READY or precision landing."""
+PX4_POSCTL_SUB_MODES = {0: "POSCTL", 1: "ORBIT", 2: "POSCTL_SLOW"}
+
+
+def px4_mode_name(custom_mode: int) -> str:
+    """A PX4 HEARTBEAT's mode: main mode (bits 16-23) and, for AUTO and POSCTL, sub mode
+    (bits 24-31); a number we do not know is shown as numbers, not as "UNKNOWN"."""
+    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+    table = {4: PX4_AUTO_SUB_MODES, 3: PX4_POSCTL_SUB_MODES}.get(main)
+    if table is not None:
+        return table.get(sub, f"{PX4_MAIN_MODES[main]}.{sub}")
+    return PX4_MAIN_MODES.get(main, f"PX4 mode {main}.{sub}")
+
+
 def _mode_name(msg: Any) -> str:
     from pymavlink import mavutil
 
+    if getattr(msg, "autopilot", None) == mavutil.mavlink.MAV_AUTOPILOT_PX4:
+        return px4_mode_name(int(msg.custom_mode))
     return str(mavutil.mode_string_v10(msg))
 
 

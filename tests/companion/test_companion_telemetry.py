@@ -49,6 +49,23 @@ def test_heartbeat_gives_mode_name_armed_and_autopilot() -> None:
     assert conv.target_system == 1
 
 
+def test_px4_modes_pymavlink_does_not_name_are_named() -> None:
+    """PX4 SIH sits in AUTO.READY before a mission and PRECLAND lands on a target; pymavlink
+    2.4.50 calls both "UNKNOWN", which the dashboard showed (real PX4 check, 2026-11-24)."""
+    def mode(main: int, sub: int) -> str:
+        sample = MavlinkConverter().convert(
+            _heartbeat(autopilot=mav.MAV_AUTOPILOT_PX4, custom_mode=(sub << 24) | (main << 16)),
+            now=T0)
+        assert isinstance(sample, HeartbeatSample)
+        return sample.mode
+
+    assert [mode(4, sub) for sub in (1, 3, 4, 9, 10, 11)] == [
+        "READY", "LOITER", "MISSION", "PRECLAND", "VTOL_TAKEOFF", "EXTERNAL1"]
+    assert [mode(3, 0), mode(3, 1), mode(2, 0), mode(6, 0), mode(10, 0)] == [
+        "POSCTL", "ORBIT", "ALTCTL", "OFFBOARD", "TERMINATION"]
+    assert (mode(4, 99), mode(42, 7)) == ("AUTO.99", "PX4 mode 42.7")  # not "UNKNOWN"
+
+
 def test_gcs_and_companion_heartbeats_do_not_pick_the_target() -> None:
     conv = MavlinkConverter()
     gcs = _wire(mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID,
