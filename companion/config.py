@@ -228,9 +228,11 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
                   "udpout:HOST:PORT, tcp:HOST:PORT (port 1..65535) or a serial device "
                   "path like /dev/serial0", is_mavlink_url)
     rates = mav.get("stream_rates_hz", dict(DEFAULT_STREAM_RATES_HZ),
-                    f"a table of message names ({', '.join(DEFAULT_STREAM_RATES_HZ)}) to Hz",
+                    "a table of MAVLink message names (defaults: "
+                    f"{', '.join(DEFAULT_STREAM_RATES_HZ)}; any other, e.g. HIGHRES_IMU = 0 "
+                    "to turn off a stream the companion does not use) to Hz >= 0",
                     lambda v: isinstance(v, Mapping) and all(
-                        k in DEFAULT_STREAM_RATES_HZ and is_number(x) and x >= 0
+                        is_message_name(k) and is_number(x) and x >= 0
                         for k, x in v.items()))
     mavlink = MavlinkSettings(
         url=url,
@@ -337,6 +339,16 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
         ground_station=ground, budgets=budgets, constraint=constraint, telemetry=telemetry,
         middleware=middleware, peers=peers, source=source,
     )
+
+
+def is_message_name(name: object) -> bool:
+    """A message of the MAVLink dialect the companion speaks (common + ardupilotmega): the
+    companion asks for streams by id, and PX4's onboard link sends ~400 messages/s by
+    default, most of them (HIGHRES_IMU, ...) of no use on a Raspberry Pi."""
+    from pymavlink.dialects.v20 import ardupilotmega as dialect
+
+    return isinstance(name, str) and name.isupper() and \
+        isinstance(getattr(dialect, f"MAVLINK_MSG_ID_{name}", None), int)
 
 
 def load_config(path: str | Path = DEFAULT_CONFIG_PATH) -> CompanionConfig:

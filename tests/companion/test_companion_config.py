@@ -57,7 +57,7 @@ def test_minimal_config_takes_defaults() -> None:
         ('[drone]\nid = "d"\n[scoring.red_share]\nlower1 = [0, 300, 0]\n',
          "scoring.red_share.lower1", "[H 0..179"),
         ('[drone]\nid = "d"\n[mavlink]\nstream_rates_hz = { FOO = 1 }\n',
-         "mavlink.stream_rates_hz", "a table of message names"),
+         "mavlink.stream_rates_hz", "a table of MAVLink message names"),
         ('[drone]\nid = "d"\n[ground_station]\nport = 70000\n', "ground_station.port",
          "an integer in 1..65535"),
         ('[drone]\nid = "d"\n[ground_station]\nfleet_key = "short"\n',
@@ -150,3 +150,20 @@ def test_a_short_stream_table_keeps_the_estimator_streams(tmp_path: Path) -> Non
     assert rates["ATTITUDE"] == 10.0  # unlisted: the default
     assert set(rates) == set(DEFAULT_STREAM_RATES_HZ)
     assert load_config(EXAMPLE).mavlink.stream_rates_hz["EKF_STATUS_REPORT"] == 1.0
+
+
+def test_any_mavlink_message_can_be_turned_off(tmp_path: Path) -> None:
+    """PX4's onboard link streams ~400 messages/s (real PX4 SIH, 2026-11-24), HIGHRES_IMU
+    among them: a Raspberry Pi's user must be able to turn off what the companion does not
+    use; a name that is no MAVLink message is still a config error."""
+    from companion.mavlink_reader import streams_for
+
+    config = load_config(_write(tmp_path, '[drone]\nid = "d"\n[mavlink.stream_rates_hz]\n'
+                                          'HIGHRES_IMU = 0\nSCALED_IMU = 0\n'))
+    rates = config.mavlink.stream_rates_hz
+    assert rates["HIGHRES_IMU"] == 0.0 and rates["ATTITUDE"] == 10.0
+    assert streams_for("px4", rates)["HIGHRES_IMU"] == 0.0  # asked for: interval -1, off
+    for bad in ("highres_imu", "NO_SUCH_MESSAGE", "MAVLINK_MSG_ID_HEARTBEAT"):
+        with pytest.raises(ConfigError, match="a table of MAVLink message names"):
+            load_config(_write(tmp_path, f'[drone]\nid = "d"\n[mavlink.stream_rates_hz]\n'
+                                         f'{bad} = 0\n'))
