@@ -156,6 +156,10 @@ async def check_map(page: Any) -> None:
     assert await svg.locator("rect.target").count() == 1
     assert await svg.locator("path.home").count() == 1
     assert "home" in await page.inner_text("#map-key")  # the symbols are explained
+    # and so is a struck-through tile value (a newcomer met one with no word on it)
+    assert "older than it should be" in await page.inner_text("#key")
+    assert "line-through" in await page.evaluate(
+        "() => getComputedStyle(document.querySelector('#key .stale-sample')).textDecoration")
     await wait_js(page, "() => document.querySelectorAll('#map polyline.trail').length === 4",
                   timeout_s=10.0)
     # the bar says as many metres as it is long: the area rect is 300 m wide
