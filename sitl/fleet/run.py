@@ -87,7 +87,8 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
             print(f"link:       {relay_description(args)}", file=out)
         elif netns is None:
             print("link:       loopback, unshaped (no relay: --relay-rate 0)", file=out)
-        print(f"constraint: {plan.constraint} {dict(plan.constraint_params)}"
+        params = dict(plan.constraint_params)  # none: the companion's defaults ("adaptive {}")
+        print(f"constraint: {plan.constraint} {params if params else '(defaults)'}"
               f"{unused_note(args.policy)}", file=out)
         if netns is not None:
             print(f"link:       {netns.medium.describe()}", file=out)
