@@ -19,6 +19,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from companion.mavlink_hint import silence_hint
+
 __all__ = ["main"]
 
 DEFAULT_CONFIG = "/etc/uav-companion/config.toml"
@@ -212,7 +214,7 @@ def _probe_mavlink(config: Any, timeout_s: float) -> tuple[Any, list[str], bool]
         if reader.last_error is not None:
             return snap, [f"mavlink: {url}: cannot open: {reader.last_error}"], False
         return snap, [f"mavlink: {url}: no autopilot HEARTBEAT within {timeout_s:g} s "
-                      f"({_silence_hint(url)})"], False
+                      f"({silence_hint(url)})"], False
     lines = [f"mavlink: {url}: {snap.autopilot} autopilot, vehicle type {snap.vehicle_type}, "
              f"mode {snap.mode}, {'armed' if snap.armed else 'disarmed'}"]
     if snap.lat_deg is not None and snap.position_problem is None:
@@ -228,42 +230,6 @@ def _probe_mavlink(config: Any, timeout_s: float) -> tuple[Any, list[str], bool]
                      else f"{100 * snap.battery_remaining:.0f} %")
         lines.append(f"mavlink: battery {snap.battery_v:.2f} V, {remaining}")
     return snap, lines, True
-
-
-def _silence_hint(url: str) -> str:
-    """What usually explains an open link that stays silent."""
-    scheme, _, rest = url.partition(":")
-    if scheme == "udpin":
-        port = rest.rpartition(":")[2]
-        listeners = _udp_listeners(int(port)) if port.isdigit() else []
-        others = [a for a in listeners if a != rest]  # ours, were it still open, is no other
-        if others:  # pymavlink binds with SO_REUSEADDR: it shares the port, silently
-            return (f"another program also listens on {', '.join(others)} and gets the "
-                    f"datagrams sent there: stop it (mavlink-router, MAVProxy, another "
-                    f"companion?) or pick another port")
-        return (f"nothing sent MAVLink to {rest}: point the autopilot's telemetry output, "
-                f"mavlink-router or the SITL's --out at this port")
-    if scheme in ("udpout", "udp", "tcp"):
-        return f"nothing answered at {rest}: is the autopilot or SITL running there?"
-    return "the line is open but silent: check the wiring, the baud rate and SERIALn_PROTOCOL"
-
-
-def _udp_listeners(port: int) -> list[str]:
-    """IPv4 ``HOST:PORT``s bound to ``port`` on this machine (Linux ``/proc/net/udp``), once
-    our own socket is closed: a program bound to 127.0.0.1:14550 takes the autopilot's
-    datagrams from our 0.0.0.0:14550, and both binds succeed (SO_REUSEADDR)."""
-    try:
-        lines = Path("/proc/net/udp").read_text().splitlines()[1:]
-    except OSError:  # not Linux: no hint
-        return []
-    found = []
-    for line in lines:
-        local = line.split()[1] if len(line.split()) > 1 else ""
-        host_hex, _, port_hex = local.partition(":")
-        if len(host_hex) == 8 and port_hex and int(port_hex, 16) == port:
-            host = ".".join(str(b) for b in reversed(bytes.fromhex(host_hex)))
-            found.append(f"{host}:{port}")
-    return sorted(set(found))
 
 
 def _probe_camera(config: Any, snapshot: Any) -> tuple[list[str], bool]:

@@ -38,6 +38,7 @@ from companion.mavlink_convert import (
     MAV_TYPE_ONBOARD_CONTROLLER,
     MavlinkConverter,
 )
+from companion.mavlink_hint import silence_hint
 from companion.telemetry import (
     CommandAckSample,
     HeartbeatSample,
@@ -253,8 +254,9 @@ class MavlinkReader:
         elif not self._silent:  # never heard: close and reopen (serial re-enumeration, ...)
             self._silent = True
             log.info("mavlink: %s on %s: closing it and reopening every ~%g s until an "
-                     "autopilot HEARTBEAT arrives", reason, self.settings.url,
-                     self.settings.heartbeat_timeout_s + self.settings.reconnect_delay_s)
+                     "autopilot HEARTBEAT arrives (%s)", reason, self.settings.url,
+                     self.settings.heartbeat_timeout_s + self.settings.reconnect_delay_s,
+                     silence_hint(self.settings.url, own_socket_open=True))
         self._fail_pending(f"link lost: {reason}")
         with contextlib.suppress(OSError):
             conn.close()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import socket
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -232,3 +233,33 @@ def test_commands_fail_cleanly_without_a_vehicle(
     reader.start()
     with pytest.raises(CommandError, match="no autopilot connected"):
         reader.submit(ArmCommand(arm=True)).result(5)
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_run_logs_who_takes_the_autopilots_datagrams(
+        shared: bool, recorder: Recorder, started: list[MavlinkReader],
+        caplog: pytest.LogCaptureFixture) -> None:
+    """`run` on the default loopback address with another program bound there too (another
+    companion, a MAVProxy): both binds succeed (SO_REUSEADDR) and the link stays silent.
+    `check` named that program; `run`'s log only said it reopened the link (newcomer walk)."""
+    import logging
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other:
+        other.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        other.bind(("127.0.0.1", 0))
+        port = other.getsockname()[1]
+        if not shared:
+            other.close()
+        settings = MavlinkSettings(url=f"udpin:127.0.0.1:{port}", heartbeat_timeout_s=0.3,
+                                   reconnect_delay_s=0.1, recv_timeout_s=0.05)
+        reader = MavlinkReader(settings, clock=time.time, post=recorder.post)
+        started.append(reader)
+        with caplog.at_level(logging.INFO, logger="companion.mavlink"):
+            reader.start()
+            deadline = time.monotonic() + 10
+            while "reopening" not in caplog.text and time.monotonic() < deadline:
+                time.sleep(0.05)
+    if shared:
+        assert f"another program also listens on 127.0.0.1:{port}" in caplog.text, caplog.text
+    else:
+        assert f"nothing sent MAVLink to 127.0.0.1:{port}" in caplog.text, caplog.text

@@ -1,0 +1,63 @@
+"""Why an opened MAVLink link stays silent: said by `uav-companion check` and in `run`'s log.
+
+A program bound to 127.0.0.1:P with SO_REUSEADDR (as every pymavlink one is) gets what the
+autopilot sends to 127.0.0.1:P, and a companion's udpin on the same port binds all the same:
+the link opens and hears nothing.
+"""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+__all__ = ["silence_hint", "udp_listeners"]
+
+
+def silence_hint(url: str, *, own_socket_open: bool = False) -> str:
+    """What usually explains an open link that stays silent. ``own_socket_open``: our socket
+    is still bound (``run``'s log), so one listener at our address is ours; `check` asks
+    after closing it, so every listener is another program, also one at our very address
+    (the default ``udpin:127.0.0.1:14550`` and another companion's)."""
+    scheme, _, rest = url.partition(":")
+    if scheme == "udpin":
+        host, _, port = rest.rpartition(":")
+        others = udp_listeners(int(port)) if port.isdigit() else []
+        ours = f"{_ipv4(host)}:{port}"
+        if own_socket_open and ours in others:
+            others.remove(ours)
+        if others:  # pymavlink binds with SO_REUSEADDR: it shares the port, silently
+            where = ", ".join(sorted(set(others)))
+            return (f"another program also listens on {where} and gets the "
+                    f"datagrams sent there: stop it (mavlink-router, MAVProxy, another "
+                    f"companion?) or pick another port")
+        return (f"nothing sent MAVLink to {rest}: point the autopilot's telemetry output, "
+                f"mavlink-router or the SITL's --out at this port")
+    if scheme in ("udpout", "udp", "tcp"):
+        return f"nothing answered at {rest}: is the autopilot or SITL running there?"
+    return "the line is open but silent: check the wiring, the baud rate and SERIALn_PROTOCOL"
+
+
+def _ipv4(host: str) -> str:
+    """``localhost`` as /proc/net/udp lists it (a name that does not resolve: as given)."""
+    try:
+        return socket.gethostbyname(host)
+    except (OSError, UnicodeError):
+        return host
+
+
+def udp_listeners(port: int) -> list[str]:
+    """IPv4 ``HOST:PORT``s bound to ``port`` on this machine (Linux ``/proc/net/udp``), one
+    entry per socket: a program bound to 127.0.0.1:14550 takes the autopilot's datagrams
+    from our 0.0.0.0:14550 (or our 127.0.0.1:14550), and both binds succeed (SO_REUSEADDR)."""
+    try:
+        lines = Path("/proc/net/udp").read_text().splitlines()[1:]
+    except OSError:  # not Linux: no hint
+        return []
+    found = []
+    for line in lines:
+        local = line.split()[1] if len(line.split()) > 1 else ""
+        host_hex, _, port_hex = local.partition(":")
+        if len(host_hex) == 8 and port_hex and int(port_hex, 16) == port:
+            host = ".".join(str(b) for b in reversed(bytes.fromhex(host_hex)))
+            found.append(f"{host}:{port}")
+    return sorted(found)
