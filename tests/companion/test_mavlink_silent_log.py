@@ -51,4 +51,5 @@ command_public_key_file = "keys/command.pub"
     assert said[0] == f"companion.mavlink: mavlink connection opened: {url}"
     assert re.fullmatch(rf"companion\.mavlink: mavlink: no HEARTBEAT for [01]\.\d s on "
                         rf"{re.escape(url)}: closing it and reopening every ~0\.7 s until an "
-                        "autopilot HEARTBEAT arrives", said[1]), said[1]
+                        r"autopilot HEARTBEAT arrives \(nothing sent MAVLink to "
+                        rf"{re.escape(url.partition(':')[2])}: .*\)", said[1]), said[1]
