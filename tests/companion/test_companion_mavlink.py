@@ -87,20 +87,28 @@ def test_ardupilot_streams_only_after_set_message_interval(
     assert vehicle.rates_hz[mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT] == pytest.approx(5.0)
 
 
-def test_ardupilot_is_not_asked_for_a_message_it_lacks(
-        vehicle: FakeVehicle, recorder: Recorder, started: list[MavlinkReader]) -> None:
-    """ArduCopter 4.5 answers SET_MESSAGE_INTERVAL for ESTIMATOR_STATUS (PX4's) DENIED with
-    a STATUSTEXT, which the dashboard would show as the drone's latest status; the refusal
-    also set off REQUEST_DATA_STREAM, which sets every stream group to our highest rate."""
+def _asks_once_without_fallback(vehicle: FakeVehicle, recorder: Recorder,
+                                started: list[MavlinkReader], foreign: str) -> None:
+    """``foreign``, the other autopilot family's estimator message, is in the reader's table;
+    the reader asks for its streams once and, past the fallback's deadline, has sent no
+    REQUEST_DATA_STREAM (a refusal of ``foreign`` would have set it off)."""
     reader = _reader(vehicle.port, recorder)
     started.append(reader)
     reader.start()
     assert recorder.wait(lambda: recorder.state.snapshot().lat_deg is not None)
     time.sleep(3 * reader.settings.stream_ack_timeout_s)  # past the fallback's deadline
-    assert "ESTIMATOR_STATUS" in reader.settings.stream_rates_hz
+    assert foreign in reader.settings.stream_rates_hz
     assert reader.counters["stream_requests"] == 1
     assert reader.counters["stream_fallbacks"] == 0
     assert vehicle.data_stream_requests == 0
+
+
+def test_ardupilot_is_not_asked_for_a_message_it_lacks(
+        vehicle: FakeVehicle, recorder: Recorder, started: list[MavlinkReader]) -> None:
+    """ArduCopter 4.5 answers SET_MESSAGE_INTERVAL for ESTIMATOR_STATUS (PX4's) DENIED with
+    a STATUSTEXT, which the dashboard would show as the drone's latest status; the refusal
+    also set off REQUEST_DATA_STREAM, which sets every stream group to our highest rate."""
+    _asks_once_without_fallback(vehicle, recorder, started, "ESTIMATOR_STATUS")
     assert not [x for x in recorder.samples if isinstance(x, StatusTextSample)]
 
 
@@ -110,15 +118,7 @@ def test_px4_is_not_asked_for_a_message_it_lacks(recorder: Recorder,
     refusal would set off REQUEST_DATA_STREAM, which PX4 ignores."""
     vehicle = FakeVehicle(autopilot="px4").start()
     try:
-        reader = _reader(vehicle.port, recorder)
-        started.append(reader)
-        reader.start()
-        assert recorder.wait(lambda: recorder.state.snapshot().lat_deg is not None)
-        time.sleep(3 * reader.settings.stream_ack_timeout_s)  # past the fallback's deadline
-        assert "EKF_STATUS_REPORT" in reader.settings.stream_rates_hz
-        assert reader.counters["stream_requests"] == 1
-        assert reader.counters["stream_fallbacks"] == 0
-        assert vehicle.data_stream_requests == 0
+        _asks_once_without_fallback(vehicle, recorder, started, "EKF_STATUS_REPORT")
     finally:
         vehicle.stop()
 
