@@ -44,9 +44,17 @@ def _read_until(fd: int, marker: bytes, timeout_s: float) -> bytes:
     return out
 
 
+def _sigint_as_on_a_terminal() -> None:
+    """A program started from a terminal gets SIGINT's default action; one started under a
+    runner launched with ``&`` by a non-interactive shell inherits SIGINT ignored, and
+    Python then never raises KeyboardInterrupt (the suite failed that way, launched so)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_at_the_prompt_ends_the_shell_at_once() -> None:
     pid, fd = pty.fork()
     if pid == 0:  # the child: the shell on the terminal
+        _sigint_as_on_a_terminal()
         os.execv(SHELL[0], SHELL)
     status: int | None = None
     try:
@@ -78,7 +86,8 @@ def test_ctrl_c_at_the_prompt_ends_the_shell_at_once() -> None:
 def test_a_signal_during_a_scripted_wait_is_one_line_and_exit_0(sig: int) -> None:
     proc = subprocess.Popen([*SHELL, "-c", "help; sleep 30"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                            preexec_fn=_sigint_as_on_a_terminal)
     assert proc.stdout is not None
     for line in proc.stdout:  # the help is printed: the shell runs, now it sleeps
         if line.startswith("Every wait gives up"):
@@ -113,7 +122,8 @@ def test_ctrl_c_while_check_waits_for_the_autopilot(tmp_path: Path) -> None:
     proc = subprocess.Popen([str(COMPANION), "check", "--config", str(config), "--timeout",
                              "60", "--skip-camera"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                            preexec_fn=_sigint_as_on_a_terminal)
     assert proc.stdout is not None
     for line in proc.stdout:  # the config is read: now it waits for a HEARTBEAT
         if line.startswith("config:"):
