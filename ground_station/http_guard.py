@@ -1,7 +1,8 @@
 """HTTP hardening of the dashboard server (docs/ground_station.md, "Security").
 
 * security headers on every response (CSP without inline scripts, no framing, nosniff, no
-  Referer), added in ``on_response_prepare`` so static files and errors get them too;
+  Referer, ``Cache-Control: no-store`` on data), added in ``on_response_prepare`` so static
+  files and errors get them too;
 * a same-origin check for cookie-authenticated requests and the WebSocket;
 * an access log that never shows a token or login code (request line and Referer), and a
   request aiohttp cannot parse logged as one line, not a traceback quoting its raw bytes,
@@ -37,6 +38,7 @@ __all__ = [
     "RedactingAccessLogger",
     "UnparsableRequestFilter",
     "add_security_headers",
+    "cache_policy",
     "json_reply",
     "raise_open_file_limit",
     "redact",
@@ -70,6 +72,24 @@ def redact(text: str) -> str:
 async def add_security_headers(request: web.Request, response: web.StreamResponse) -> None:
     for name, value in SECURITY_HEADERS.items():
         response.headers.setdefault(name, value)
+    response.headers.update(cache_policy(request.path, response))
+
+
+def cache_policy(path: str, response: web.StreamResponse) -> dict[str, str]:
+    """``Cache-Control`` for a response: nothing a browser or a proxy could keep holds fleet
+    data or a credential.
+
+    The fleet's data (``/api/``, the WebSocket) and anything that sets a cookie are
+    ``no-store`` whatever the handler said: a shared computer's browser cache, or a proxy
+    between the operator and the station, would otherwise keep positions, images and
+    reports on disk after the session. Every other answer (the HTML shells, errors) is
+    ``no-store`` unless its handler chose (the shells say ``no-cache``: no data in them);
+    ``/static/`` (the dashboard's own code, versioned URLs) keeps aiohttp's validators."""
+    if path.startswith(("/api/", "/ws")) or response.cookies:
+        return {"Cache-Control": "no-store"}
+    if path.startswith("/static/") or "Cache-Control" in response.headers:
+        return {}
+    return {"Cache-Control": "no-store"}
 
 
 def same_origin(request: web.Request) -> bool:

@@ -295,7 +295,7 @@ def add_report_routes(app: web.Application, *, static_dir: Path) -> None:
                 / "utility.png") if series["drones"] else None
         body = await gate.run(lambda: render_png(series, path))
         return web.Response(body=body, content_type="image/png",
-                            headers={"Cache-Control": "no-cache"})
+                            headers={"Cache-Control": "no-store"})
 
     async def close_gate(app: web.Application) -> None:
         gate.close()
