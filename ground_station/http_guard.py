@@ -57,9 +57,15 @@ SECURITY_HEADERS = {
     "X-Frame-Options": "DENY",
     "X-Content-Type-Options": "nosniff",
     "Referrer-Policy": "no-referrer",
+    "Cross-Origin-Resource-Policy": "same-origin",
+    "Cross-Origin-Opener-Policy": "same-origin",
 }
 """Inline scripts are refused (an injected ``<script>`` does not run); inline style
-attributes are allowed because the tiles draw their meters with them."""
+attributes are allowed because the tiles draw their meters with them. Only this origin may
+embed an answer (CORP): the session cookie is SameSite, and a page on another port of the
+same host, or another name of the same site, is same-site, so its ``<img>`` of an image URL
+went out with the operator's cookie and loaded (an oracle of which images and drones
+exist, and their sizes)."""
 
 _SECRET_PARAM = re.compile(r"((?:^|[?&;])(?:token|login|access_token)=)[^&;#\s\"]*", re.I)
 
