@@ -57,11 +57,15 @@ class MavlinkOut:
 
     async def open(self) -> Addr:
         loop = asyncio.get_running_loop()
-        local = self.listen if self.listen is not None else (
-            "127.0.0.1" if self.out is None or self.out[0] in ("127.0.0.1", "localhost")
-            else "0.0.0.0", 0)
-        transport, _ = await loop.create_datagram_endpoint(lambda: _Protocol(self),
-                                                           local_addr=local)
+        if self.listen is not None:
+            transport, _ = await loop.create_datagram_endpoint(lambda: _Protocol(self),
+                                                               local_addr=self.listen)
+        else:  # push only: connected, so the kernel drops datagrams from anyone but the GCS
+            # (bound to every interface and unconnected, any host that saw the pushed
+            # traffic's source port could send a HEARTBEAT there and get the fleet's stream)
+            assert self.out is not None
+            transport, _ = await loop.create_datagram_endpoint(lambda: _Protocol(self),
+                                                               remote_addr=self.out)
         self.transport = transport
         host, port = self.transport.get_extra_info("sockname")[:2]
         log.info("MAVLink 2 fleet mirror on udp://%s:%d%s", host, port,
@@ -112,6 +116,11 @@ class MavlinkOut:
         if transport is None:
             return
         dests = self.mirror.live_clients(self.clock())
+        if self.listen is None:  # connected: every frame goes once, to the socket's one peer
+            for frame, _addr in self.mirror.datagrams_to_send():
+                transport.sendto(frame)
+            self._arm()
+            return
         if self.out is not None and self.out not in dests:
             dests.append(self.out)
         for frame, addr in self.mirror.datagrams_to_send():
