@@ -12,8 +12,10 @@ from aiohttp import web
 from ground_station.http_guard import json_reply, same_origin
 from ground_station.keys import CLOCK, CONFIG, TOKEN
 from ground_station.token import (
+    PAGE_KEY_HEADER,
     SESSION_COOKIE,
     LoginCodes,
+    page_key,
     session_value,
     token_matches,
 )
@@ -34,15 +36,19 @@ def _header_token(request: web.Request) -> str | None:
 
 
 def _authorized(request: web.Request, *, control: bool) -> bool:
-    """A header token, or the dashboard's HttpOnly session cookie. With the cookie, control
-    requests must also come from this origin (a SameSite=Strict cookie plus an Origin check:
-    no cross-site request forgery)."""
+    """A header token, or the dashboard's session: the HttpOnly cookie together with the
+    page key (``token.page_key``: the cookie also goes to other ports of this host). With
+    the session, control requests must also come from this origin (a SameSite=Strict
+    cookie plus an Origin check: no cross-site request forgery)."""
     token = request.app[TOKEN]
     given = _header_token(request)
     if given is not None:
         return token_matches(token, given)
     cookie = request.cookies.get(SESSION_COOKIE)
     if cookie is None or not token_matches(session_value(token), cookie):
+        return False
+    key = request.headers.get(PAGE_KEY_HEADER, request.query.get("key"))
+    if not token_matches(page_key(token), key):
         return False
     return not control or same_origin(request)
 
@@ -79,17 +85,21 @@ async def index(request: web.Request) -> web.StreamResponse:
     if "login" in request.query or "token" in request.query:
         code = request.query.get("login")
         kept = [(k, v) for k, v in request.query.items() if k not in ("login", "token")]
-        target = request.rel_url.with_query(kept)
-        response = web.HTTPSeeOther(location=str(target))
+        target = str(request.rel_url.with_query(kept))
         if code is not None and request.app[LOGIN_CODES].redeem(code, now=request.app[CLOCK]()):
+            # the page key rides in the fragment: never sent to a server, read by app.js,
+            # which stores it and takes it out of the address bar
+            response = web.HTTPSeeOther(location=f"{target}#key={page_key(request.app[TOKEN])}")
             _set_session(response, request)
+        else:
+            response = web.HTTPSeeOther(location=target)
         raise response
     return web.FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
 
 
 async def api_login(request: web.Request) -> web.Response:
     """The token box: the token comes in a header (checked by the middleware), the browser
-    gets the HttpOnly session cookie and JavaScript never keeps the token."""
-    response = web.Response(status=204)
+    gets the HttpOnly session cookie and the page key; JavaScript never keeps the token."""
+    response = json_reply({"key": page_key(request.app[TOKEN])})
     _set_session(response, request)
     return response

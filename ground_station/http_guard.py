@@ -67,7 +67,8 @@ same host, or another name of the same site, is same-site, so its ``<img>`` of a
 went out with the operator's cookie and loaded (an oracle of which images and drones
 exist, and their sizes)."""
 
-_SECRET_PARAM = re.compile(r"((?:^|[?&;])(?:token|login|access_token)=)[^&;#\s\"]*", re.I)
+_SECRET_PARAM = re.compile(r"((?:^|[?&;])(?:token|login|access_token|key)=)[^&;#\s\"]*",
+                           re.I)
 
 
 def redact(text: str) -> str:

@@ -11,10 +11,12 @@ from pathlib import Path
 from companion.secret_files import make_private_dir
 
 __all__ = [
+    "PAGE_KEY_HEADER",
     "SESSION_COOKIE",
     "LoginCodes",
     "ensure_token",
     "login_code",
+    "page_key",
     "read_token",
     "session_value",
     "token_matches",
@@ -60,12 +62,26 @@ def token_matches(expected: str, given: str | None) -> bool:
 # POSTing the token in a header (the token box). Rotating the token file ends all sessions.
 
 SESSION_COOKIE = "gs_session"
+PAGE_KEY_HEADER = "X-GS-Key"
 LOGIN_TTL_S = 600.0
 
 
 def session_value(token: str) -> str:
     """The session cookie's value: a MAC of the token, so the cookie never is the token."""
     return hmac.new(token.encode(), b"uav-infodist dashboard session", "sha256").hexdigest()
+
+
+def page_key(token: str) -> str:
+    """The second half of a browser session, which only the station's own page holds.
+
+    Cookies are not isolated by port: the browser sends the session cookie to every server
+    on the station's host name (``http://127.0.0.1:OTHER``: another user's program on a
+    shared computer, any local service that logs its requests), which could replay it with
+    a forged ``Origin``. Storage is isolated by origin, port included: the page keeps this
+    key in ``localStorage`` and sends it with the cookie (``X-GS-Key`` or ``?key=``); it is
+    handed out only at login (the login link's redirect fragment, the token box's answer),
+    so the cookie alone opens nothing."""
+    return hmac.new(token.encode(), b"uav-infodist dashboard page key", "sha256").hexdigest()[:32]
 
 
 def _login_mac(token: str, message: str) -> str:

@@ -15,17 +15,31 @@ const $ = (id) => document.getElementById(id);
 // -- token ---------------------------------------------------------------------------------
 // The page never holds the token: the server keeps the session in an HttpOnly cookie, set by
 // the one-time login link (/?login=...) or by sending the token once from the token box.
+// The cookie also goes to every other port of this host, so it opens nothing alone: each
+// request carries the page key too, which the login hands to this page only (the link's
+// redirect fragment, the token box's answer) and localStorage keeps per origin, port included.
 function initToken() {
   localStorage.removeItem("gs-token");  // left by older versions
+  const m = /^#key=([0-9a-f]+)$/.exec(location.hash);
+  if (m) {
+    localStorage.setItem("gs-key", m[1]);
+    history.replaceState(null, "", location.pathname + location.search);
+  }
   $("token-save").onclick = async () => {
     const token = $("token-input").value.trim();
     $("token-input").value = "";
     const res = await fetch("/api/login", { method: "POST", headers: { Authorization: "Bearer " + token } });
-    if (res.ok) location.reload(); else toast("token refused");
+    if (!res.ok) { toast("token refused"); return; }
+    localStorage.setItem("gs-key", (await res.json()).key);
+    location.reload();
   };
 }
+const pageKey = () => localStorage.getItem("gs-key") || "";
+// For what cannot send a header (images, the WebSocket): the key in the query string.
+const keyed = (url) => url + (url.includes("?") ? "&" : "?") + "key=" + encodeURIComponent(pageKey());
 async function api(path, options = {}) {
-  const res = await fetch(path, { ...options, credentials: "same-origin" });
+  const headers = { ...(options.headers || {}), "X-GS-Key": pageKey() };
+  const res = await fetch(path, { ...options, headers, credentials: "same-origin" });
   if (res.status === 401) { $("token-box").classList.remove("hidden"); throw new Error("unauthorized: token needed"); }
   const body = await res.json().catch(() => ({}));
   if (!res.ok) throw new Error(body.error || res.statusText);
@@ -67,7 +81,7 @@ function now() { return Date.now() / 1000 + state.clockOffset; }
 // -- live connection -------------------------------------------------------------------------
 function connect(delay = 500) {
   const proto = location.protocol === "https:" ? "wss:" : "ws:";
-  const ws = new WebSocket(`${proto}//${location.host}/ws`);
+  const ws = new WebSocket(keyed(`${proto}//${location.host}/ws`));
   state.ws = ws;
   ws.onopen = () => { $("conn").className = "dot on"; delay = 500; };
   ws.onclose = () => {
@@ -178,7 +192,7 @@ function renderTile(d) {
     const last = state.imgTimes.get(d.drone) || { tag: null, at: 0 };
     // At most 5 image reloads per tile per second; the newest wins.
     if (last.tag !== tag && performance.now() - last.at > 200) {
-      el.querySelector("img").src = `/api/drones/${encodeURIComponent(d.drone)}/latest.jpg?s=${img.seq}`;
+      el.querySelector("img").src = keyed(`/api/drones/${encodeURIComponent(d.drone)}/latest.jpg?s=${img.seq}`);
       state.imgTimes.set(d.drone, { tag, at: performance.now() });
     } else if (last.tag !== tag) {
       state.dirty.add(d.drone);
@@ -492,7 +506,7 @@ async function renderGallery() {
     const high = state.config.high_utility;
     $("gallery").innerHTML = body.images.map((im) => `
       <figure class="${high != null && im.utility >= high ? "high" : ""}" data-id="${im.id}">
-        <img loading="lazy" src="${im.url}" alt="${esc(im.sender)} #${im.seq}">
+        <img loading="lazy" src="${esc(keyed(im.url))}" alt="${esc(im.sender)} #${im.seq}">
         <figcaption><b style="color:${color(im.sender)}">${esc(im.sender)}</b> #${im.seq} · <span class="muted">${fmt.time(im.t_gen)}</span>${im.pose === "none" ? ` · <span class="stale">no position</span>` : im.pose === "stale" ? ` · <span class="stale">position ${fmt.num(im.pose_age_s, 1)} s old</span>` : ""}
         <div class="why" title="why the drone sent it: its utility, the version it chose (0 = best quality) and the drone's share of the link in the ${body.window_s || 5} s before it arrived">why sent: ${whySent(im)}</div></figcaption>
       </figure>`).join("") || `<p class="muted">no stored images yet</p>`;

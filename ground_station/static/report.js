@@ -72,14 +72,15 @@ function covers(series) {
 }
 
 async function load() {
-  const res = await fetch("/api/report", { credentials: "same-origin" });
+  const key = localStorage.getItem("gs-key") || "";  // the dashboard's page key (app.js)
+  const res = await fetch("/api/report", { headers: { "X-GS-Key": key }, credentials: "same-origin" });
   if (!res.ok) { $("r-empty").textContent = "not logged in: open the dashboard's login link first"; $("r-empty").classList.remove("hidden"); return; }
   const series = await res.json();
   $("r-mission").textContent = series.mission;
   $("r-bin").textContent = series.bin_s;
   $("r-times").textContent = covers(series);
   draw(series);
-  $("r-png").src = "/api/report.png?t=" + Date.now();
+  $("r-png").src = "/api/report.png?t=" + Date.now() + "&key=" + encodeURIComponent(key);
   document.body.dataset.loaded = "1";
 }
 load();

@@ -126,7 +126,8 @@ def assert_labels_apart_and_inside(boxes: list[list[float]]) -> None:
 
 
 REPORT_AXES = """async () => { const c = document.querySelector('#r-chart').dataset;
-    const s = await (await fetch('/api/report')).json();
+    const s = await (await fetch('/api/report',  // the page key, as report.js sends it
+        { headers: { 'X-GS-Key': localStorage.getItem('gs-key') } })).json();
     return { y: c.yTicks, x: c.xTicks, most: Number(c.most), t_max: Number(c.tMax),
              now_most: Math.max(...Object.values(s.drones).flatMap((d) => d.utility)) }; }"""
 """The report chart's axis labels as drawn, with the largest value and time it drew them for,

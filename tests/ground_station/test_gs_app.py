@@ -18,7 +18,7 @@ from ground_station.app import create_app
 from ground_station.config import GroundConfig
 from ground_station.keys import LINK, STORAGE, TOKEN
 from ground_station.storage import Storage
-from ground_station.token import session_value
+from ground_station.token import page_key, session_value
 from utility_specs.message import Message
 
 KEY = b"ground-station-test-fleet-key"  # as in conftest.gs_config
@@ -70,12 +70,15 @@ async def test_control_needs_token_reads_need_it_unless_public(
     assert (await gs_client.get("/api/fleet", headers=bad)).status == 401
     assert (await gs_client.get("/api/fleet", headers=auth())).status == 200
     assert (await gs_client.get("/")).status == 200  # the page itself holds no data
-    # the dashboard's session cookie opens reads, control routes only from this origin
-    # (no CSRF; tests/ground_station/test_http_security.py); the raw token is no cookie
-    cookie = {"Cookie": f"gs_session={session_value(TOKEN_VALUE)}"}
-    raw = {"Cookie": f"gs_session={TOKEN_VALUE}"}
+    # the dashboard's session (cookie and page key) opens reads, control routes only from
+    # this origin (no CSRF; tests/ground_station/test_http_security.py); the raw token is no
+    # cookie, and the cookie alone opens nothing
+    cookie = {"Cookie": f"gs_session={session_value(TOKEN_VALUE)}",
+              "X-GS-Key": page_key(TOKEN_VALUE)}
+    raw = {"Cookie": f"gs_session={TOKEN_VALUE}", "X-GS-Key": page_key(TOKEN_VALUE)}
     assert (await gs_client.get("/api/fleet", headers=raw)).status == 401
     assert (await gs_client.get("/api/fleet", headers=cookie)).status == 200
+    assert (await gs_client.get("/api/fleet", headers={"Cookie": cookie["Cookie"]})).status == 401
     assert (await gs_client.post("/api/mission/start", json={}, headers=cookie)).status == 401
     public = gs_config.with_overrides(public_read=True, data_dir=gs_config.data_dir / "p")
     client: TestClient[Any, Any] = await aiohttp_client(create_app(public, token="x" * 20))

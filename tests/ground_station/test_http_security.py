@@ -11,7 +11,7 @@ import pytest
 from aiohttp.test_utils import TestClient
 
 from ground_station.http_guard import SECURITY_HEADERS, redact
-from ground_station.token import SESSION_COOKIE, login_code, session_value
+from ground_station.token import SESSION_COOKIE, login_code, page_key, session_value
 
 TOKEN = "test-token-0123456789"  # as in conftest.gs_client
 
@@ -45,12 +45,19 @@ async def test_security_headers_on_every_response(gs_client: TestClient[Any, Any
 async def test_one_time_login_link(gs_client: TestClient[Any, Any]) -> None:
     code = login_code(TOKEN, now=time.time())
     resp = await gs_client.get(f"/?login={code}&mission=m1", allow_redirects=False)
-    assert resp.status == 303 and resp.headers["Location"] == "/?mission=m1"
+    key = page_key(TOKEN)  # for the page only: in the fragment, which no server sees
+    assert resp.status == 303 and resp.headers["Location"] == f"/?mission=m1#key={key}"
     cookie = resp.cookies[SESSION_COOKIE]
     assert cookie.value == session_value(TOKEN) != TOKEN
     assert cookie["httponly"] and cookie["samesite"] == "Strict"
     jar = {SESSION_COOKIE: cookie.value}
-    assert (await gs_client.get("/api/stats", cookies=jar)).status == 200
+    assert (await gs_client.get("/api/stats", cookies=jar,
+                                headers={"X-GS-Key": key})).status == 200
+    assert (await gs_client.get(f"/api/stats?key={key}", cookies=jar)).status == 200
+    # the cookie alone (what any other port of this host gets) opens nothing
+    assert (await gs_client.get("/api/stats", cookies=jar)).status == 401
+    assert (await gs_client.get("/api/stats", cookies=jar,
+                                headers={"X-GS-Key": key[:-1] + "x"})).status == 401
     # once only; forged, expired and plain tokens in the URL give no session
     for url in (f"/?login={code}",
                 f"/?login={code[:-1]}{'0' if code[-1] != '0' else '1'}",
@@ -61,20 +68,25 @@ async def test_one_time_login_link(gs_client: TestClient[Any, Any]) -> None:
         assert again.status == 303 and SESSION_COOKIE not in again.cookies, url
         assert "login=" not in again.headers["Location"]
         assert "token=" not in again.headers["Location"]
+        assert "key=" not in again.headers["Location"]
 
 
 async def test_the_cookie_commands_only_from_this_origin(
     gs_client: TestClient[Any, Any],
 ) -> None:
     jar = {SESSION_COOKIE: session_value(TOKEN)}
+    key = {"X-GS-Key": page_key(TOKEN)}
     body = {"delay_s": 5}
-    assert (await gs_client.post("/api/mission/start", json=body, cookies=jar)).status == 401
-    foreign = {"Origin": "http://evil.example"}
+    assert (await gs_client.post("/api/mission/start", json=body, cookies=jar,
+                                 headers=key)).status == 401
+    foreign = {"Origin": "http://evil.example", **key}
     assert (await gs_client.post("/api/mission/start", json=body, cookies=jar,
                                  headers=foreign)).status == 401
-    own = {"Origin": origin(gs_client)}
+    own = {"Origin": origin(gs_client)}  # the cookie and this origin, but not the page key
     assert (await gs_client.post("/api/mission/start", json=body, cookies=jar,
-                                 headers=own)).status == 200
+                                 headers=own)).status == 401
+    assert (await gs_client.post("/api/mission/start", json=body, cookies=jar,
+                                 headers={**own, **key})).status == 200
     wrong = {SESSION_COOKIE: session_value("not the token")}
     assert (await gs_client.get("/api/stats", cookies=wrong)).status == 401
 
@@ -83,17 +95,25 @@ async def test_token_box_login_sets_the_cookie(gs_client: TestClient[Any, Any]) 
     assert (await gs_client.post("/api/login",
                                  headers={"Authorization": "Bearer wrong"})).status == 401
     resp = await gs_client.post("/api/login", headers=auth())
-    assert resp.status == 204
+    assert resp.status == 200 and await resp.json() == {"key": page_key(TOKEN)}
     assert resp.cookies[SESSION_COOKIE].value == session_value(TOKEN)
+    # the cookie alone, even from this origin, cannot fetch the page key
+    cookie = {"Cookie": f"{SESSION_COOKIE}={session_value(TOKEN)}", "Origin": origin(gs_client)}
+    assert (await gs_client.post("/api/login", headers=cookie)).status == 401
 
 
 async def test_websocket_refuses_other_origins(gs_client: TestClient[Any, Any]) -> None:
     cookie = f"{SESSION_COOKIE}={session_value(TOKEN)}"
+    keyed = f"/ws?key={page_key(TOKEN)}"
     with pytest.raises(aiohttp.WSServerHandshakeError) as info:
         await gs_client.ws_connect(
-            "/ws", headers={"Origin": "http://evil.example", "Cookie": cookie})
+            keyed, headers={"Origin": "http://evil.example", "Cookie": cookie})
     assert info.value.status == 403
-    ws = await gs_client.ws_connect("/ws", headers={"Origin": origin(gs_client),
+    with pytest.raises(aiohttp.WSServerHandshakeError) as info:  # no page key
+        await gs_client.ws_connect("/ws", headers={"Origin": origin(gs_client),
+                                                   "Cookie": cookie})
+    assert info.value.status == 401
+    ws = await gs_client.ws_connect(keyed, headers={"Origin": origin(gs_client),
                                                     "Cookie": cookie})
     first = await ws.receive_json(timeout=5)
     assert first["kind"] == "snapshot"

@@ -24,7 +24,7 @@ import aiohttp
 from ground_station.app import create_app
 from ground_station.config import GroundConfig
 from ground_station.fake_drone import FakeDrone, synthetic_jpeg
-from ground_station.token import SESSION_COOKIE, session_value
+from ground_station.token import SESSION_COOKIE, page_key, session_value
 from tests.integration.test_ground_station_cli import free_port, wait_http
 from tests.keys import TEST_COMMAND_KEY, TEST_FLEET_KEY, write_test_keys
 from tests.processes import interrupt
@@ -76,7 +76,7 @@ async def test_no_cache_keeps_data_and_no_log_shows_a_secret(tmp_path: Path) -> 
         token = (data / "token").read_text().strip()
         assert token in printed[0]  # on the terminal, once, as documented
         code = parse_qs(urlsplit(printed[1].split()[1]).query)["login"][0]
-        session = session_value(token)
+        session, key = session_value(token), page_key(token)
         await wait_http(base + "/api/stats")
         await drone.open()
         drone.send_image(synthetic_jpeg(1, red=0.3, label="uav1"),
@@ -114,14 +114,14 @@ async def test_no_cache_keeps_data_and_no_log_shows_a_secret(tmp_path: Path) -> 
             answers.append(str(await ws.receive_json(timeout=5)))
             await ws.close()
             async with http.post(base + "/api/login", headers=auth) as resp:
-                assert resp.status == 204 and SESSION_COOKIE in resp.cookies
+                assert resp.status == 200 and SESSION_COOKIE in resp.cookies
                 assert resp.headers["Cache-Control"] == "no-store"
             async with http.get(f"{base}/?login={code}&token={token}", allow_redirects=False,
                                 headers={"Referer": f"{base}/?token={token}&login={code}"}
                                 ) as resp:
                 assert resp.status == 303 and SESSION_COOKIE in resp.cookies
                 assert resp.headers["Cache-Control"] == "no-store"
-            async with http.get(f"{base}/api/stats?token={token}",
+            async with http.get(f"{base}/api/stats?token={token}&key={key}",
                                 headers={"Cookie": f"{SESSION_COOKIE}={session}"}) as resp:
                 assert resp.status == 200 and resp.headers["Cache-Control"] == "no-store"
         cookie_line = f"Cookie: {SESSION_COOKIE}={session}; x={'a' * 9000}\r\n".encode()
@@ -136,6 +136,7 @@ async def test_no_cache_keeps_data_and_no_log_shows_a_secret(tmp_path: Path) -> 
     text = log.read_text()
     assert station.returncode == 0 and "Traceback" not in text
     assert "GET /?login=***&token=***" in text  # the requests were logged, redacted
-    for secret in (token, session, code, code.split(".")[1]):
+    assert "GET /api/stats?token=***&key=***" in text
+    for secret in (token, session, key, code, code.split(".")[1]):
         assert secret not in text
         assert not any(secret in answer for answer in answers)

@@ -6,6 +6,8 @@ computer) is same-site with the station on ``http://127.0.0.1:8080``, so the bro
 the operator's cookie with that page's ``<img src=".../api/images/1.jpg">``. Before
 ``Cross-Origin-Resource-Policy: same-origin`` the image loaded: the page learnt which images
 and drones exist, and their sizes. Real headless Chromium, logged in as the operator is.
+The URLs carry the page key as the dashboard's own do (``token.page_key``, which since the
+same day the cookie needs and such a page lacks): this checks CORP on its own.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from ground_station.app import create_app
 from ground_station.config import GroundConfig
 from ground_station.fake_drone import FakeDrone, synthetic_jpeg
 from ground_station.keys import LINK
-from ground_station.token import login_code
+from ground_station.token import login_code, page_key
 from tests.keys import TEST_COMMAND_KEY
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -69,8 +71,10 @@ async def test_a_same_site_page_cannot_embed_the_fleets_images(
                                                args=["--no-sandbox", "--disable-gpu"])
             page = await browser.new_page()
             await page.goto(f"{base}/?login={login_code(TOKEN, now=time.time())}")
-            urls = [f"{base}/api/images/1.jpg", f"{base}/api/drones/uav1/latest.jpg",
-                    f"{base}/api/report.png?mission=corp"]
+            key = page_key(TOKEN)
+            urls = [f"{base}/api/images/1.jpg?key={key}",
+                    f"{base}/api/drones/uav1/latest.jpg?key={key}",
+                    f"{base}/api/report.png?mission=corp&key={key}"]
             async with asyncio.timeout(15):  # the operator's own page shows them
                 while (mine := await page.evaluate(PROBE, urls))[0] == "blocked":
                     await asyncio.sleep(0.2)

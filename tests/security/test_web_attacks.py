@@ -13,7 +13,7 @@ import pytest
 from aiohttp.test_utils import TestClient
 
 from ground_station.config import GroundConfig
-from ground_station.token import SESSION_COOKIE, session_value
+from ground_station.token import SESSION_COOKIE, page_key, session_value
 
 TOKEN = "test-token-0123456789"  # as in tests/ground_station/conftest.py
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -93,10 +93,12 @@ async def test_every_state_change_needs_the_token_and_this_origin(
             "Authorization": f"Bearer {TOKEN[:-1]}x"})).status == 401, path
         gs_client.session.cookie_jar.update_cookies(cookie)
         try:
-            for hostile in ({"Origin": "http://evil.example"}, {"Origin": "null"}, {}):
+            key = {"X-GS-Key": page_key(TOKEN)}
+            for hostile in ({"Origin": "http://evil.example", **key}, {"Origin": "null", **key},
+                            key, {"Origin": here}):  # the last: the cookie, no page key
                 resp = await gs_client.post(path, json={}, headers=hostile)
                 assert resp.status == 401, (path, hostile, resp.status)
-            resp = await gs_client.post(path, json={}, headers={"Origin": here})
+            resp = await gs_client.post(path, json={}, headers={"Origin": here, **key})
             assert resp.status != 401, path
         finally:
             gs_client.session.cookie_jar.clear()
@@ -112,7 +114,7 @@ async def test_no_get_route_changes_the_mission(gs_client: TestClient[Any, Any])
 
 async def test_login_cookie_is_httponly_and_strict(gs_client: TestClient[Any, Any]) -> None:
     resp = await gs_client.post("/api/login", headers=AUTH)
-    assert resp.status == 204
+    assert resp.status == 200
     morsel = resp.cookies[SESSION_COOKIE]
     assert morsel["httponly"] and morsel["samesite"] == "Strict"
     assert morsel.value != TOKEN
