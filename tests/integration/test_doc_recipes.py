@@ -460,7 +460,10 @@ def _check_login_link(made: subprocess.CompletedProcess[str], http: int) -> None
     browser = urllib.request.build_opener(urllib.request.HTTPCookieProcessor())
     with browser.open(link, timeout=5) as page:  # redirected to / with the cookie
         assert page.status == 200 and "login=" not in page.url, page.url
-    with browser.open(stats, timeout=5) as response:
+        # and the page key in the fragment, which the page keeps and sends with the cookie
+        key = page.url.partition("#key=")[2]
+    with browser.open(urllib.request.Request(stats, headers={"X-GS-Key": key}),
+                      timeout=5) as response:
         assert response.status == 200
     again = urllib.request.build_opener(urllib.request.HTTPCookieProcessor())
     again.open(link, timeout=5).close()
