@@ -22,7 +22,7 @@ import aiohttp
 
 from ground_station.app import create_app
 from ground_station.config import GroundConfig
-from ground_station.token import SESSION_COOKIE, login_code, session_value
+from ground_station.token import SESSION_COOKIE, login_code, page_key, session_value
 from tests.integration.test_peers_e2e import free_port
 from tests.keys import TEST_COMMAND_KEY, write_test_keys
 
@@ -79,6 +79,15 @@ async def test_nothing_but_the_token_changes_anything(tmp_path: Path) -> None:
                 "cookie, no origin": {"Cookie": f"{SESSION_COOKIE}={session_value(token)}"},
                 "cookie of another token": {
                     "Cookie": f"{SESSION_COOKIE}={session_value(token + 'x')}", **here},
+                # 2026-11-25: the cookie also reaches other ports of this host, so with
+                # this page's Origin it still needs the page key, which alone is nothing
+                "cookie, this origin, no page key": {
+                    "Cookie": f"{SESSION_COOKIE}={session_value(token)}", **here},
+                "cookie, this origin, another token's page key": {
+                    "Cookie": f"{SESSION_COOKIE}={session_value(token)}",
+                    "X-GS-Key": page_key(token + "x"), **here},
+                "page key, this origin": {"X-GS-Key": page_key(token), **here},
+                "page key as token": {"Authorization": f"Bearer {page_key(token)}"},
             }
             tried = 0
             for path in _state_changing_paths():
