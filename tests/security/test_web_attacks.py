@@ -125,7 +125,16 @@ async def test_login_cookie_is_httponly_and_strict(gs_client: TestClient[Any, An
                                   b'{"a": ' + b"[" * 200_000 + b"]" * 200_000 + b"}",
                                   b'{"delay_s": [1]}', b'{"t_exec": true}',
                                   b'{"params": {"alpha": [[{}]]}}', b'{"when": "at 99:99"}',
-                                  b'{"params": "' + b"a=" * 1000 + b'"}', b'{"delay_s": -1e308}'])
+                                  b'{"params": "' + b"a=" * 1000 + b'"}', b'{"delay_s": -1e308}',
+                                  # 2026-11-25: a 5000-digit integer (past Python's int
+                                  # parsing limit), 1e999999, NaN, 50 000 nested objects,
+                                  # 60 000 parameters, a NUL and a bidi override in a value
+                                  b'{"t_exec": ' + b"1" * 5000 + b"}",
+                                  b'{"t_exec": 1e999999}', b'{"t_exec": NaN}',
+                                  b'{"a":' * 50_000 + b"1" + b"}" * 50_000,
+                                  b'{"params": {' + b",".join(
+                                      b'"a%d": 1' % i for i in range(60_000)) + b"}}",
+                                  b'{"params": {"x": "\\u0000\\u202e"}}'])
 async def test_bad_bodies_get_a_short_error_without_a_traceback(
         gs_client: TestClient[Any, Any], body: bytes) -> None:
     for path in ("/api/mission/start", "/api/mission/params"):
