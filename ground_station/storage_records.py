@@ -8,6 +8,7 @@ transaction handling only.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import re
 from collections.abc import Mapping
@@ -100,9 +101,19 @@ _SAFE = re.compile(r"[^A-Za-z0-9_.-]")
 
 
 def safe_name(name: str) -> str:
-    """A sender or mission id usable as one path component."""
-    cleaned = _SAFE.sub("_", name)[:64]
-    return cleaned if cleaned not in ("", ".", "..") else "_"
+    """A sender or mission id usable as one path component, one per id.
+
+    An id of letters, digits and ``_.-`` (up to 64) is its own name. Any other gets what is
+    left of it after cleaning plus ``~`` and a hash of the id: replacing characters alone
+    mapped ``Möwe1`` and ``Mäwe1`` (or ``uav 1`` and ``uav_1``) to one folder, where the
+    second drone's images overwrote the first's files under the first's database rows (the
+    dashboard showed one drone's picture as the other's). ``~`` is never in a clean name,
+    so a cleaned one cannot meet a clean one either."""
+    cleaned = _SAFE.sub("_", name)
+    if cleaned == name and len(name) <= 64 and name not in ("", ".", ".."):
+        return name
+    digest = hashlib.sha256(name.encode("utf-8", "surrogatepass")).hexdigest()[:12]
+    return f"{cleaned[:51]}~{digest}"
 
 
 def jsonable(value: Any) -> Any:
