@@ -142,11 +142,12 @@ def _warn_every_interface(config: GroundConfig) -> None:
                 "%s is %r: listening on every network interface", what, host
             )
     listen_host = (config.mavlink_listen or "").rpartition(":")[0].strip("[]")
-    if config.mavlink_listen is not None and listen_host in ("0.0.0.0", "::", ""):
+    if (config.mavlink_listen is not None and listen_host in ("0.0.0.0", "::", "")
+            and config.mavlink_signing_key is None):
         logging.getLogger("ground_station").warning(
             "mavlink_listen is %r: every host that reaches this port and sends a HEARTBEAT "
-            "gets the fleet's positions (MAVLink has no key here); bind it to an address "
-            "only the GCS reaches", config.mavlink_listen)
+            "gets the fleet's positions (unsigned MAVLink); bind it to an address only the "
+            "GCS reaches, or set mavlink_signing_key_file", config.mavlink_listen)
 
 
 def _login_url(config: GroundConfig, token: str, port: int | None = None) -> str:

@@ -6,6 +6,7 @@ A wrong file fails with :class:`ConfigError` naming the file, the key and what w
 
 from __future__ import annotations
 
+import hashlib
 import re
 import tomllib
 from dataclasses import dataclass, fields, replace
@@ -126,6 +127,10 @@ class GroundConfig:
     ``127.0.0.1:14550``); off when unset (docs/peers.md)."""
     mavlink_listen: str | None = None
     """``HOST:PORT`` the MAVLink mirror binds for clients that connect."""
+    mavlink_signing_key: bytes | None = None
+    """MAVLink 2 signing key of the mirror (``mavlink_signing_key_file``: a passphrase, the
+    key its SHA-256 as MAVProxy's ``signing setup`` makes it): every frame out is signed,
+    and only signed clients are answered. None: unsigned (docs/peers.md)."""
     shared_medium: str | None = None
     """the fleet's shared medium (``broadcast:ADDR:PORT`` or
     ``multicast:GROUP:PORT[:IFACE]``) heard besides ``udp_port``; None: unicast only."""
@@ -235,6 +240,7 @@ _TYPES: dict[str, tuple[type | tuple[type, ...], str]] = {
     "token_file": (str, "a path string"),
     "mavlink_out": (str, "HOST:PORT"),
     "mavlink_listen": (str, "HOST:PORT"),
+    "mavlink_signing_key_file": (str, "a path string"),
     "shared_medium": (str, "broadcast:ADDR:PORT or multicast:GROUP:PORT[:IFACE]"),
 }
 
@@ -244,8 +250,8 @@ def config_from_mapping(raw: dict[str, Any], *, file: str = "<config>") -> Groun
     table = raw.get("ground_station", raw)
     if not isinstance(table, dict):
         raise ConfigError(file, "ground_station", "a table")
-    known = ({f.name for f in fields(GroundConfig)} - {"command_key"}) | {
-        "fleet_key_file", "command_key_file"}
+    known = ({f.name for f in fields(GroundConfig)} - {"command_key", "mavlink_signing_key"}) | {
+        "fleet_key_file", "command_key_file", "mavlink_signing_key_file"}
     base = Path(file).parent if file != "<config>" else Path.cwd()
     values: dict[str, Any] = {}
     value: Any
@@ -274,6 +280,19 @@ def config_from_mapping(raw: dict[str, Any], *, file: str = "<config>") -> Groun
                 raise ConfigError(file, key, _PRIVATE, str(exc)) from exc
             except OSError as exc:
                 raise ConfigError(file, key, "a readable key file", str(exc)) from exc
+        elif key == "mavlink_signing_key_file":
+            path = Path(str(value)).expanduser()
+            path = path if path.is_absolute() else base / path
+            try:
+                passphrase = read_secret(path).strip()
+            except UnsafeKeyFile as exc:
+                raise ConfigError(file, key, _PRIVATE, str(exc)) from exc
+            except OSError as exc:
+                raise ConfigError(file, key, "a readable key file", str(exc)) from exc
+            if len(passphrase) < 8:
+                raise ConfigError(file, key, "a passphrase of at least 8 bytes",
+                                  f"{len(passphrase)} bytes")
+            values["mavlink_signing_key"] = hashlib.sha256(passphrase).digest()
         elif key == "command_key_file":
             path = Path(str(value)).expanduser()
             path = path if path.is_absolute() else base / path

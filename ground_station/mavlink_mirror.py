@@ -47,6 +47,7 @@ from typing import Any, cast
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from ground_station.mavlink_signing import SignedFrames
 from utility_specs.data_fields import first_number
 
 __all__ = ["Addr", "MavlinkMirror", "parse_endpoint", "system_id_for"]
@@ -137,7 +138,7 @@ class MavlinkMirror:
     """Sans-I/O: drone data in, MAVLink 2 frames out (module docstring)."""
 
     def __init__(self, *, now: float, link_lost_s: float = 3.0, max_clients: int = 8,
-                 max_drones: int = MAX_SYSTEM_ID) -> None:
+                 max_drones: int = MAX_SYSTEM_ID, signing_key: bytes | None = None) -> None:
         self.link_lost_s = link_lost_s
         self.max_clients = max_clients
         self.max_drones = max_drones
@@ -147,6 +148,7 @@ class MavlinkMirror:
         self.counters: Counter[str] = Counter()
         self._out: list[tuple[bytes, Addr | None]] = []
         self._now = now
+        self.signing = SignedFrames(signing_key) if signing_key is not None else None
 
     @staticmethod
     def _new_parser() -> Any:
@@ -165,11 +167,14 @@ class MavlinkMirror:
             taken = {d.system_id: d.drone for d in self.drones.values()}
             sysid = system_id_for(drone, taken)
             encoder = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
+            if self.signing is not None:
+                self.signing.sign_with(encoder)
             state = _Drone(drone=drone, system_id=sysid, encoder=encoder, last_heard=now,
                            next_period=now)
             self.drones[drone] = state
             log.info("MAVLink out: %s is system id %d", drone, sysid)
         state.last_heard = now
+        self._now = now
         for key, value in data.items():
             if key in ("statustext", "text"):
                 continue
@@ -188,6 +193,7 @@ class MavlinkMirror:
     def receive_datagram(self, data: bytes, addr: Addr, now: float) -> None:
         # A parser of its own per datagram: a shared one kept a torn frame's bytes (10 from
         # anyone) and read the next client's datagram as that frame's payload.
+        self._now = now
         try:
             msgs = self._new_parser().parse_buffer(data) or []
         except mavlink.MAVError:
@@ -195,6 +201,11 @@ class MavlinkMirror:
             return
         for msg in msgs:
             kind = msg.get_type()
+            if self.signing is not None and kind != "BAD_DATA":
+                refusal = self.signing.check(msg, now)
+                if refusal is not None:  # nothing unsigned is answered, nobody is added
+                    self.counters[refusal] += 1
+                    continue
             if kind == "BAD_DATA":
                 self.counters["bad_data"] += 1
             elif kind == "HEARTBEAT":
@@ -245,6 +256,7 @@ class MavlinkMirror:
         return min(live) if live else None
 
     def handle_timer(self, now: float) -> None:
+        self._now = now
         self._emit_due(now)
 
     def datagrams_to_send(self) -> list[tuple[bytes, Addr | None]]:
@@ -254,6 +266,8 @@ class MavlinkMirror:
 
     # -- output ---------------------------------------------------------------------------
     def _send(self, state: _Drone, msg: Any, addr: Addr | None = None) -> None:
+        if self.signing is not None:
+            self.signing.advance(state.encoder, self._now)
         self._out.append((msg.pack(state.encoder), addr))
         state.encoder.seq = (state.encoder.seq + 1) % 256
         self.counters["frames"] += 1

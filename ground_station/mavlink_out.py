@@ -47,11 +47,12 @@ class MavlinkOut:
     """The UDP shell: one socket, one timer, the mirror's frames to every destination."""
 
     def __init__(self, *, clock: Any, out: Addr | None, listen: Addr | None,
-                 link_lost_s: float = 3.0) -> None:
+                 link_lost_s: float = 3.0, signing_key: bytes | None = None) -> None:
         self.clock = clock
         self.out = out
         self.listen = listen
-        self.mirror = MavlinkMirror(now=clock(), link_lost_s=link_lost_s)
+        self.mirror = MavlinkMirror(now=clock(), link_lost_s=link_lost_s,
+                                    signing_key=signing_key)
         self.transport: asyncio.DatagramTransport | None = None
         self._timer: asyncio.TimerHandle | None = None
 
@@ -68,8 +69,9 @@ class MavlinkOut:
                                                                remote_addr=self.out)
         self.transport = transport
         host, port = self.transport.get_extra_info("sockname")[:2]
-        log.info("MAVLink 2 fleet mirror on udp://%s:%d%s", host, port,
-                 f", sending to {self.out[0]}:{self.out[1]}" if self.out else "")
+        log.info("MAVLink 2 fleet mirror on udp://%s:%d%s%s", host, port,
+                 f", sending to {self.out[0]}:{self.out[1]}" if self.out else "",
+                 ", signed" if self.mirror.signing is not None else "")
         self._arm()
         return str(host), int(port)
 
@@ -137,6 +139,7 @@ async def open_mavlink_out(config: Any, clock: Any) -> MavlinkOut | None:
         return None
     mirror = MavlinkOut(clock=clock, out=parse_endpoint(out) if out else None,
                         listen=parse_endpoint(listen) if listen else None,
-                        link_lost_s=config.link_lost_s)
+                        link_lost_s=config.link_lost_s,
+                        signing_key=getattr(config, "mavlink_signing_key", None))
     await mirror.open()
     return mirror
