@@ -143,7 +143,7 @@ class Station:
     """`uav-ground-station run` with the MAVLink mirror on ``mavlink_listen``, fed by
     FakeDrones that keep sending telemetry over the fleet protocol."""
 
-    def __init__(self, tmp_path: Path) -> None:
+    def __init__(self, tmp_path: Path, *, extra: str = "") -> None:
         self.udp = free_port(socket.SOCK_DGRAM)
         self.http = free_port(socket.SOCK_STREAM)
         self.mav = free_port(socket.SOCK_DGRAM)
@@ -153,7 +153,7 @@ class Station:
             "[ground_station]\n"
             f'fleet_key = "{KEY}"\nfleet_id = 5\ndata_dir = "data"\n'
             f'udp_port = {self.udp}\nhttp_port = {self.http}\n'
-            f'mavlink_listen = "127.0.0.1:{self.mav}"\nlink_lost_s = 5\n')
+            f'mavlink_listen = "127.0.0.1:{self.mav}"\nlink_lost_s = 5\n' + extra)
         self.proc = subprocess.Popen([*BIN, "run", "--config", str(config)],
                                      stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                      text=True)
