@@ -96,8 +96,8 @@ async def test_the_cookie_another_port_gets_opens_nothing(
                 else:
                     await page.goto(base + "/")
                     await page.fill("#token-input", TOKEN)
-                    await page.click("#token-save")
-                    await page.wait_for_load_state()
+                    async with page.expect_navigation():  # the page reloads, logged in
+                        await page.click("#token-save")
                 async with asyncio.timeout(15):  # the dashboard reads, images and the feed
                     while not await page.evaluate(DASHBOARD_WORKS):
                         await asyncio.sleep(0.2)
