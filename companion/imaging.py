@@ -75,8 +75,13 @@ def encode_versions(image: npt.NDArray[Any], *, jpeg_quality: int = 80,
 def image_message(image: npt.NDArray[Any], *, sender: str, seq: int, t_gen: float,
                   features: Mapping[str, Any], geotag: Mapping[str, Any],
                   jpeg_quality: int = 80,
-                  scales: Sequence[tuple[str, float]] = DEFAULT_SCALES) -> EncodedImage:
-    """One frame as an ``image`` message with full/half/quarter versions (eq. 4.33)."""
+                  scales: Sequence[tuple[str, float]] = DEFAULT_SCALES,
+                  frame_index: int | None = None) -> EncodedImage:
+    """One frame as an ``image`` message with full/half/quarter versions (eq. 4.33).
+
+    ``frame_index`` (the camera's frame counter) goes into ``data["frame"]``: the stream's
+    own sequence number, from which the other drones' optimisers learn its frame rate even
+    when few of its frames are sent (``seq`` counts all of a drone's messages)."""
     versions = encode_versions(image, jpeg_quality=jpeg_quality, scales=scales)
     full = versions[0]
     diagonal = math.hypot(full.width_px, full.height_px)
@@ -89,6 +94,8 @@ def image_message(image: npt.NDArray[Any], *, sender: str, seq: int, t_gen: floa
         "diagonal_px": diagonal,
         **geotag,
     }
+    if frame_index is not None:
+        data["frame"] = frame_index
     message = Message(
         sender=sender,
         seq=seq,

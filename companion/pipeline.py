@@ -70,4 +70,5 @@ class CameraPipeline:
                   else {"position": "none"})
         return image_message(frame.image, sender=self._drone_id, seq=seq,
                              t_gen=frame.t_capture, features=features, geotag=geotag,
-                             jpeg_quality=self._settings.jpeg_quality, scales=self._scales)
+                             jpeg_quality=self._settings.jpeg_quality, scales=self._scales,
+                             frame_index=frame.index)

@@ -34,12 +34,18 @@ _SPREAD_REL = 0.05
 median: a stream whose messages are all worth the same keeps its one forecast copy."""
 _GOLDEN = 0.6180339887498949
 """Quantile step between consecutive forecast messages (any run of them covers the range)."""
+STREAM_SEQ = "frame"
+"""Data field of a per-stream sequence number (the companion's camera frame index): it
+counts the periods between two heard messages of that stream alone, as ``seq`` cannot
+(one counter for all of a sender's types). Round 11 (docs/middleware.md)."""
 
 
 @dataclass(slots=True)
 class _Stream:
     times: deque[float] = field(default_factory=lambda: deque(maxlen=_HISTORY))
     seqs: deque[int] = field(default_factory=lambda: deque(maxlen=_HISTORY))
+    counts: deque[int | None] = field(default_factory=lambda: deque(maxlen=_HISTORY))
+    """The messages' own per-stream numbers (:data:`STREAM_SEQ`), None where absent."""
     sizes: deque[int] = field(default_factory=lambda: deque(maxlen=8))
     last: Message | None = None
     """The newest known message (its data and versions are what forecasts carry)."""
@@ -99,6 +105,8 @@ class StreamForecaster:
             return  # late news about an older message: the newest data stays the newest
         stream.times.append(message.t_gen)
         stream.seqs.append(message.seq)
+        count = message.data.get(STREAM_SEQ)
+        stream.counts.append(count if type(count) is int and count >= 0 else None)
         stream.sizes.append(_best_size(message))
         stream.last = message
         stream.cached = None
@@ -117,6 +125,15 @@ class StreamForecaster:
         if stream is None or len(stream.times) < 2:
             return None
         times = list(stream.times)
+        counts = list(stream.counts)
+        if _increasing(counts):
+            first, newest = counts[0], counts[-1]
+            assert first is not None and newest is not None
+            # Round 11: the stream numbers its own messages (a camera's frame index), so
+            # the steps count its periods even when most frames were dropped. Without it
+            # the others forecast a drone's frames at the rate they arrive (one per ~2 s
+            # for 3 frames/s), left no room for its red frames, and took the window.
+            return (times[-1] - times[0]) / (newest - first)
         seqs = list(stream.seqs)
         steps = seqs[-1] - seqs[0]
         if steps > 0 and self._alone(key) and _seq_paced(times, seqs):
@@ -268,6 +285,13 @@ class StreamForecaster:
         stale = [k for k, s in self._streams.items() if not s.times or s.times[-1] < older_than]
         for key in stale:
             del self._streams[key]
+
+
+def _increasing(counts: list[int | None]) -> bool:
+    """Every message carries a per-stream number and they increase (a restarted sender
+    starts again from 0: then the numbers do not count the periods in between)."""
+    return len(counts) >= 2 and all(a is not None and b is not None and b > a
+                                    for a, b in itertools.pairwise(counts))
 
 
 def _seq_paced(times: list[float], seqs: list[int]) -> bool:

@@ -354,7 +354,8 @@ class Middleware:
         else:
             option, reason = result.option, "mcts-exact" if result.exhausted else "mcts"
             if self.config.price_bytes and message.versions:  # issue 18 rounds 5-6, gate.py
-                option = priced_option(problem, level, option, price_per_byte(problem))
+                option = priced_option(problem, level, option,
+                                       price_per_byte(problem, level=level))
             small = self.config.small_share
             if small is not None and option == 0 and message.size <= small * budget:
                 option = self._small_option(problem, level, search.lam, now=now,

@@ -74,3 +74,14 @@ def test_offered_versions_are_relative_to_the_best_offered() -> None:
     assert [(v.name, v.quality) for v in encoded.message.versions] == [("half", 1.0),
                                                                       ("quarter", 0.5)]
     assert encoded.message.data["width_px"] == 320
+
+
+def test_the_camera_frame_index_numbers_the_stream() -> None:
+    """Round 11: the frame index rides in ``data["frame"]`` (the other drones' optimisers
+    read the stream's frame rate from it); ``seq`` stays the drone's message counter."""
+    numbered = image_message(_image(), sender="d1", seq=40, t_gen=T0, features={"red": 0.0},
+                             geotag={}, frame_index=12).message
+    assert numbered.data["frame"] == 12 and numbered.seq == 40
+    unnumbered = image_message(_image(), sender="d1", seq=41, t_gen=T0,
+                               features={"red": 0.0}, geotag={}).message
+    assert "frame" not in unnumbered.data

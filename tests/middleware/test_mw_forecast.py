@@ -118,3 +118,32 @@ def test_a_stream_heard_once_repeats_at_the_fleet_period() -> None:
     off.observe(msg("b", 0, "battery", T0 + 1.2))
     off.refresh()
     assert off.predict(("b", "battery"), t_from=T0, t_to=T0 + 9) == []
+
+
+def test_a_stream_that_numbers_its_frames_is_forecast_at_its_generation_rate() -> None:
+    """Round 11: a drone sending one of its 3 frames/s every ~1-2 s, among telemetry that
+    shares its ``seq`` counter. Its frames carry the camera's frame index (``frame``): the
+    steps between heard frames count the periods, so the others forecast all its frames,
+    not one per gap heard. Without the index the gaps (3, 4, 6, 5 frames) give no period
+    near 1/3 s."""
+    frames = [0, 3, 7, 13, 18]
+    counted, plain = StreamForecaster(), StreamForecaster()
+    for k, n in enumerate(frames):
+        t = T0 + n / 3
+        counted.observe(msg("d3", 10 * k, "image", t, red=0.5, frame=n))
+        plain.observe(msg("d3", 10 * k, "image", t, red=0.5))
+        for f in (counted, plain):  # telemetry with the same seq counter
+            f.observe(msg("d3", 10 * k + 1, "position", t + 0.05))
+    assert counted.period(("d3", "image")) == pytest.approx(1 / 3, rel=1e-9)
+    assert plain.period(("d3", "image")) > 0.9
+    last = T0 + 18 / 3
+    assert len(counted.predict(("d3", "image"), t_from=last, t_to=last + 3.0)) == 9
+
+
+def test_a_restarted_frame_counter_says_nothing_about_the_period() -> None:
+    """The camera's index starts again at 0 after a companion restart: the numbers no
+    longer increase, and the period falls back to the gaps."""
+    f = StreamForecaster()
+    for k, (n, t) in enumerate([(40, 0.0), (43, 1.0), (2, 2.0), (5, 3.0)]):
+        f.observe(msg("d3", k, "image", T0 + t, red=0.5, frame=n))
+    assert f.period(("d3", "image")) == pytest.approx(1.0, rel=1e-9)

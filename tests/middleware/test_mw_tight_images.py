@@ -11,7 +11,7 @@ import pytest
 
 from companion.middleware import ConstantConstraint, Middleware, MiddlewareConfig
 from companion.middleware.gate import creates_violation, price_per_byte
-from companion.middleware.incremental import PlanItem, build_problem
+from companion.middleware.incremental import FixedItem, PlanItem, build_problem
 from companion.middleware.mcts import rollout_threshold
 from utility_specs.files import builtin_spec
 from utility_specs.message import Message, Version
@@ -105,3 +105,86 @@ def test_the_price_counts_each_message_in_its_densest_version_with_that_versions
     assert price_per_byte(problem) == pytest.approx(densities[fits])
     assert rollout_threshold(problem) == pytest.approx(densities[0])
     assert price_per_byte(problem) < rollout_threshold(problem)
+
+
+# -- round 11: the red drone on the product path ------------------------------------------------
+
+
+def _frames(sender: str, reds: list[float], times: list[float], *, counted: bool,
+            first: int = 0) -> list[Message]:
+    """Frames of one stream; ``counted``: they carry the camera's frame index, as the
+    companion's do."""
+    return [Message(sender=sender, seq=first + k, type="image", t_gen=t, size=FULL.size,
+                    data={"red": red, **({"frame": first + k} if counted else {})},
+                    versions=(FULL, HALF, QUARTER), version=0)
+            for k, (red, t) in enumerate(zip(reds, times, strict=True))]
+
+
+def _fleet_problem(decided: str, *, counted: bool = True) -> tuple[Any, int]:
+    """A red drone (red 0.5) and three plain ones, 3 frames/s each over 3 s, 10 kB/s over a
+    2 s window (the slow fleet test's link), every stream's last half frame a second old;
+    ``decided`` is the sender of the frame decided at t = 0."""
+    spec = builtin_spec("image_streaming")
+    times = [k / 3 for k in range(9)]
+    senders = {"red": 0.5, "plain": 0.0, "plain2": 0.0, "plain3": 0.0}
+    frames: list[Message] = []
+    fixed = []
+    for j, (name, red) in enumerate(senders.items()):
+        ts = [t + 0.01 * j for t in times]
+        frames += _frames(name, [red] * 9, ts, counted=counted, first=10)
+        base = _frames(name, [red], [-1.0], counted=counted, first=7)[0].with_version(1)
+        fixed.append(FixedItem(message=base, send_t=-1.0, rcv_t=-0.9))
+    frames.sort(key=lambda m: m.t_gen)
+    decide = next(m for m in frames if m.sender == decided)
+    items = [PlanItem(message=m, send_t=m.t_gen, rcv_t=m.t_gen + 0.1,
+                      kind="decide" if m is decide else "forecast") for m in frames]
+    level = next(i for i, it in enumerate(items) if it.kind == "decide")
+    return build_problem(spec, items=items, fixed=fixed, horizon_end=3.0,
+                         budget_bytes=20_000.0, window_s=2.0), level
+
+
+def _density(problem: Any, level: int, option: int) -> float:
+    return float(problem.gain[level, option, 0]) / int(problem.size[level, option])
+
+
+def test_own_copies_do_not_price_a_frame_out_but_a_redder_frame_to_come_does() -> None:
+    """Counted each as the stream's only send, a drone's own forecast frames, worth more
+    the longer after its last send, set a price its current frame never earned: the red
+    drone sent a half frame per ~2 s with the window half empty. With the decided level,
+    its later frames count what they add once it is sent: copies add little, a much redder
+    frame to come still raises the price (the value of waiting, round 5)."""
+    spec = builtin_spec("image_streaming")
+    times = [k / 3 for k in range(9)]
+
+    def alone(reds: list[float]) -> Any:
+        frames = _frames("a", reds, times, counted=False)
+        items = [PlanItem(message=m, send_t=m.t_gen, rcv_t=m.t_gen + 0.1,
+                          kind="decide" if k == 0 else "forecast")
+                 for k, m in enumerate(frames)]
+        base = _frames("a", [reds[0]], [-1.0], counted=False, first=50)[0].with_version(1)
+        return build_problem(spec, items=items, horizon_end=3.0, budget_bytes=20_000.0,
+                             window_s=2.0,
+                             fixed=[FixedItem(message=base, send_t=-1.0, rcv_t=-0.9)])
+
+    copies = alone([0.5] * 9)
+    before, now = price_per_byte(copies), price_per_byte(copies, level=0)
+    half = _density(copies, 0, 2)  # the version that fits the window with room to spare
+    assert half < before  # the old price: the half frame waits for its own copies
+    assert half >= now  # now it earns its price
+    redder = alone([0.5, 0.5, 0.5, 0.5, 1.0, 0.5, 0.5, 0.5, 0.5])
+    assert price_per_byte(redder, level=0) > 3 * now
+
+
+def test_counted_streams_are_priced_as_substitutes_and_the_red_frame_wins() -> None:
+    """Streams forecast at their generation rate (their frames carry the camera's index):
+    each frame counts what it adds after the stream's previous one, so the price is lower
+    than with nine independent frames per stream; the red drone's half frame earns its
+    price, a plain drone's half frame does not (it leaves the room to the red frames)."""
+    red, red_level = _fleet_problem("red")
+    plain, plain_level = _fleet_problem("plain")
+    uncounted, level = _fleet_problem("plain", counted=False)
+    red_price = price_per_byte(red, level=red_level)
+    plain_price = price_per_byte(plain, level=plain_level)
+    assert 0.0 < plain_price < price_per_byte(uncounted, level=level)
+    assert _density(red, red_level, 2) >= red_price
+    assert _density(plain, plain_level, 2) < plain_price
