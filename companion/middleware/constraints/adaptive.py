@@ -51,20 +51,29 @@ class LinkStatsConstraint(GoodputConstraint):
         stats: LinkStats | None = None,
         base_window_s: float = 10.0,
         min_base_latency_s: float = 0.005,
+        fleet_goodput: bool = False,
+        link_rate_bytes_per_s: float = 0.0,
     ) -> None:
         super().__init__(window_s=window_s)
         self.stats = stats if stats is not None else LinkStats(
-            window_s=window_s, base_window_s=base_window_s, min_base_latency_s=min_base_latency_s
+            window_s=window_s, base_window_s=base_window_s, min_base_latency_s=min_base_latency_s,
+            fleet_goodput=fleet_goodput, link_rate_bytes_per_s=link_rate_bytes_per_s,
         )
         self.n_updates = 0
         self.last_stats: WindowStats | None = None
+
+    @property
+    def fleet_goodput(self) -> bool:
+        """Whether other agents' report entries count in the goodput (LinkStats)."""
+        return self.stats.fleet_goodput
 
     def on_sample(self, sample: LinkSample, *, now: float) -> None:
         """One update per delivered message (thesis: 'whenever a new message is received')."""
         self.on_samples([sample], now=now)
 
     def on_samples(self, samples: Iterable[LinkSample], *, now: float) -> None:
-        """All messages of one report: still one model update per message."""
+        """All messages of one report: still one model update per message of this agent's
+        (another agent's, with ``fleet_goodput``, only counts in the goodput)."""
         observations: list[WindowStats] = []
         for sample in samples:
             before = self.stats.counters["samples"]
@@ -151,6 +160,11 @@ class AdaptiveConstraint(LinkStatsConstraint):
         congestion (docs/adaptive.md). Below the rate where G·q/δ̂ = α nothing changes.
     window_s
         T of both the link statistics and the budget window (eq. 6.1).
+    fleet_goodput, link_rate_bytes_per_s
+        What the link statistics are read with (:class:`LinkStats`; both off: the thesis'):
+        the fleet's goodput instead of this agent's, and the link's rate, so a message's
+        own transmission time does not read as queueing. The demo's narrow link needs both
+        (``sitl.fleet.link.relay_constraint_params``, docs/adaptive.md).
     stats
         Link statistics to use (default: a new :class:`LinkStats` with ``window_s``).
     """
@@ -174,6 +188,8 @@ class AdaptiveConstraint(LinkStatsConstraint):
         window_s: float = 2.5,
         base_window_s: float = 10.0,
         min_base_latency_s: float = 0.005,
+        fleet_goodput: bool = False,
+        link_rate_bytes_per_s: float = 0.0,
         stats: LinkStats | None = None,
     ) -> None:
         super().__init__(
@@ -181,6 +197,8 @@ class AdaptiveConstraint(LinkStatsConstraint):
             stats=stats,
             base_window_s=base_window_s,
             min_base_latency_s=min_base_latency_s,
+            fleet_goodput=fleet_goodput,
+            link_rate_bytes_per_s=link_rate_bytes_per_s,
         )
         if not min_coef >= 0:
             raise ConstraintError(f"min_coef must be >= 0, got {min_coef}")
