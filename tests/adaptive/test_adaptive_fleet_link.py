@@ -3,13 +3,16 @@ link"): the fleet's goodput, and a message's transmission time kept apart from q
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from companion.middleware.constraints import make_constraint
 from companion.middleware.constraints.adaptive import AdaptiveConstraint
 from companion.middleware.constraints.linkstats import LinkSample, LinkStats
+from companion.middleware.constraints.losses import SendLedger
 from companion.middleware.errors import LinkStatsError
-from companion.middleware.reports import ReceiverReport, feed_link
+from companion.middleware.reports import ReceiverReport, feed_link, link_observations
 from companion.protocol.records import ReportEntry
 from sitl.fleet.link import relay_constraint_params
 
@@ -154,3 +157,65 @@ def test_the_relay_fleet_learns_the_fleets_goodput_at_the_relays_rate() -> None:
     assert constraint.fleet_goodput is True  # type: ignore[attr-defined]
     assert constraint.stats.link_rate_bytes_per_s == RATE  # type: ignore[attr-defined]
     assert make_constraint("adaptive").fleet_goodput is False  # type: ignore[attr-defined]
+
+
+def test_the_ledger_finds_the_messages_a_fifo_link_lost() -> None:
+    ledger = SendLedger()
+    for i, size in enumerate([200, 7000, 7500, 200, 300]):
+        ledger.on_sent(size, now=float(i))
+    assert ledger.on_delivered(200) == 0
+    # the 7000 and 7500 B frames never arrived: the next status shows both lost
+    assert ledger.on_delivered(200) == 2
+    assert ledger.on_delivered(999) == 0  # never sent as far as the ledger knows: no loss
+    assert ledger.on_delivered(300) == 0
+    assert ledger.counters == {"sent": 5, "delivered": 3, "lost": 2, "unmatched": 1}
+    assert len(ledger) == 0
+
+
+def test_the_ledger_forgets_old_sends_without_counting_them_lost() -> None:
+    ledger = SendLedger(max_records=3, horizon=2)
+    for i in range(5):
+        ledger.on_sent(100 + i, now=float(i))
+    assert len(ledger) == 3
+    assert ledger.on_delivered(104) == 0  # beyond the horizon of 2: not matched
+    assert ledger.on_delivered(103) == 1
+    assert ledger.counters["lost"] == 1
+
+
+def _fleet_report(sizes: list[int], seqs: list[int], t: float) -> ReceiverReport:
+    return ReceiverReport(entries=[
+        ReportEntry(sender="d1", seq=seq, type="x", t_gen=t + 0.01 * k, t_sent=t + 0.01 * k,
+                    t_rcv=t + 0.01 * k + 0.001, size=size)
+        for k, (size, seq) in enumerate(zip(sizes, seqs, strict=True))])
+
+
+@pytest.mark.parametrize("name", ["adaptive", "aimd"])
+def test_a_lost_message_makes_its_reports_windows_congested(name: str) -> None:
+    """Same sends and reports, latency never rising: only the constraint that reads loss
+    as congestion lowers ξ when a frame is missing from the reports."""
+    params = relay_constraint_params(name, RATE)
+    lossy = make_constraint(name, **params, loss_is_congestion=True)
+    blind = make_constraint(name, **params)
+    t, seq = T0, 0
+    for step in range(12):  # 3 s: one status and one frame every 0.25 s, all delivered
+        for c in (lossy, blind):
+            c.on_sent(200, now=t)
+            c.on_sent(6000, now=t + 0.01)
+            c.on_samples(link_observations(_fleet_report([200, 6000], [seq, seq + 1], t),
+                                           agent="d1")[0], now=t + 0.2)
+        t, seq = t + 0.25, seq + 2
+        if step == 9:
+            xi_lossy, xi_blind = (c.limit_bytes_per_s(now=t) for c in (lossy, blind))
+            assert xi_lossy == pytest.approx(xi_blind)
+    for c in (lossy, blind):  # a frame lost, then a status delivered
+        c.on_sent(6000, now=t)
+        c.on_sent(200, now=t + 0.01)
+        c.on_samples(link_observations(_fleet_report([200], [seq + 1], t), agent="d1")[0],
+                     now=t + 0.2)
+    assert lossy.last_stats is not None and lossy.last_stats.lost == 1  # type: ignore[attr-defined]
+    assert lossy.last_stats.backlog_bytes_per_s == math.inf  # type: ignore[attr-defined]
+    assert blind.last_stats is not None and blind.last_stats.lost == 0  # type: ignore[attr-defined]
+    # AIMD: one multiplicative step (b = 0.998) where the blind one increased
+    cut = 0.99 if name == "adaptive" else 1.0
+    assert lossy.limit_bytes_per_s(now=t) < cut * blind.limit_bytes_per_s(now=t)
+    assert lossy.ledger.counters["lost"] == 1  # type: ignore[attr-defined]

@@ -38,6 +38,7 @@ class AimdConstraint(LinkStatsConstraint):
         min_base_latency_s: float = 0.005,
         fleet_goodput: bool = False,
         link_rate_bytes_per_s: float = 0.0,
+        loss_is_congestion: bool = False,
         stats: LinkStats | None = None,
     ) -> None:
         super().__init__(
@@ -47,6 +48,7 @@ class AimdConstraint(LinkStatsConstraint):
             min_base_latency_s=min_base_latency_s,
             fleet_goodput=fleet_goodput,
             link_rate_bytes_per_s=link_rate_bytes_per_s,
+            loss_is_congestion=loss_is_congestion,
         )
         if not alpha_bytes_per_s > 0:
             raise ConstraintError(f"alpha_bytes_per_s must be > 0, got {alpha_bytes_per_s}")

@@ -74,6 +74,9 @@ class WindowStats:
     queueing_s: float | None = None
     """With a link rate: the mean per-message queueing delay, latency − δ̂ − size/rate
     (each at least 0). None: the thesis' ‖W‖_L − δ̂."""
+    lost: int = 0
+    """This agent's messages the report of this window showed lost (the constraint's
+    ``loss_is_congestion``; its backlog is then infinite: the queue overflowed)."""
 
     @property
     def queueing_delay_s(self) -> float:
