@@ -152,11 +152,14 @@ def test_other_agents_messages_add_no_sgd_steps() -> None:
     assert fleet.n_updates == alone.n_updates > 0
 
 
-def test_the_relay_fleet_learns_the_fleets_goodput_at_the_relays_rate() -> None:
+def test_the_relay_fleet_learns_the_fleets_goodput_at_the_relays_rate_and_its_losses() -> None:
     constraint = make_constraint("adaptive", **relay_constraint_params("adaptive", RATE))
     assert constraint.fleet_goodput is True  # type: ignore[attr-defined]
     assert constraint.stats.link_rate_bytes_per_s == RATE  # type: ignore[attr-defined]
-    assert make_constraint("adaptive").fleet_goodput is False  # type: ignore[attr-defined]
+    assert constraint.loss_is_congestion is True  # type: ignore[attr-defined]
+    thesis = make_constraint("adaptive")
+    assert thesis.fleet_goodput is False  # type: ignore[attr-defined]
+    assert thesis.loss_is_congestion is False  # type: ignore[attr-defined]
 
 
 def test_the_ledger_finds_the_messages_a_fifo_link_lost() -> None:
@@ -194,8 +197,8 @@ def test_a_lost_message_makes_its_reports_windows_congested(name: str) -> None:
     """Same sends and reports, latency never rising: only the constraint that reads loss
     as congestion lowers ξ when a frame is missing from the reports."""
     params = relay_constraint_params(name, RATE)
-    lossy = make_constraint(name, **params, loss_is_congestion=True)
-    blind = make_constraint(name, **params)
+    lossy = make_constraint(name, **params)
+    blind = make_constraint(name, **{**params, "loss_is_congestion": False})
     t, seq = T0, 0
     for step in range(12):  # 3 s: one status and one frame every 0.25 s, all delivered
         for c in (lossy, blind):
