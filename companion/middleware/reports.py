@@ -53,6 +53,8 @@ class LinkFeed:
     """What the constraint learned from one report."""
 
     link_samples: int = 0
+    other_samples: int = 0
+    """Other agents' entries handed over for the fleet's goodput (``fleet_goodput``)."""
     round_trips: int = 0
     bad_round_trips: int = 0
     """Echoes whose times are impossible (reception before sending): skipped."""
@@ -82,10 +84,12 @@ def deliveries(report: ReceiverReport) -> tuple[list[Message], int]:
     return messages, bad
 
 
-def link_observations(report: ReceiverReport, *, agent: str
+def link_observations(report: ReceiverReport, *, agent: str, others: bool = False
                       ) -> tuple[list[LinkSample], list[RoundTrip], int]:
     """``agent``'s own entries as link samples, its echoes as round trips, and how many
-    echoes were impossible. Entries without ``t_sent`` carry no latency: skipped."""
+    echoes were impossible. Entries without ``t_sent`` carry no latency: skipped. With
+    ``others``, the other agents' entries too, in report order, marked ``own=False`` (they
+    count in the fleet's goodput only)."""
     trips: list[RoundTrip] = []
     bad = 0
     if report.t_sent is not None and report.t_rcv is not None:
@@ -98,8 +102,9 @@ def link_observations(report: ReceiverReport, *, agent: str
             except LinkStatsError:
                 bad += 1
     samples = [LinkSample(t_sent=e.t_sent, t_rcv=e.t_rcv, size=e.size, sender=e.sender,
-                          seq=e.seq)
-               for e in report.entries if e.sender == agent and e.t_sent is not None]
+                          seq=e.seq, own=e.sender == agent)
+               for e in report.entries
+               if (others or e.sender == agent) and e.t_sent is not None]
     return samples, trips, bad
 
 
@@ -107,10 +112,14 @@ def feed_link(constraint: GoodputConstraint, report: ReceiverReport, *, agent: s
               now: float) -> LinkFeed:
     """Hand ``agent``'s link observations of ``report`` to ``constraint``: round trips first
     (they refine the clock offset the samples' latencies are read with), then the samples
-    as one batch (one model update per sample)."""
-    samples, trips, bad = link_observations(report, agent=agent)
+    as one batch (one model update per own sample). A constraint whose link statistics
+    count the fleet's goodput (``fleet_goodput``) gets the other agents' entries too."""
+    others = getattr(constraint, "fleet_goodput", False) is True
+    samples, trips, bad = link_observations(report, agent=agent, others=others)
     for trip in trips:
         constraint.on_round_trip(trip, now=now)
     if samples:
         constraint.on_samples(samples, now=now)
-    return LinkFeed(link_samples=len(samples), round_trips=len(trips), bad_round_trips=bad)
+    own = sum(1 for s in samples if s.own)
+    return LinkFeed(link_samples=own, other_samples=len(samples) - own,
+                    round_trips=len(trips), bad_round_trips=bad)

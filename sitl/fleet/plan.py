@@ -57,9 +57,11 @@ def make_plan(args: argparse.Namespace, run_dir: Path, *, netns: bool = False) -
         constraint=args.constraint, constraint_params=params, alpha=args.alpha, seed=args.seed,
         policy=COMPANION_POLICY[args.policy], drop_probability=args.drop_probability,
         fleet_share=args.fleet_share,
-        # pacing helps the --netns link (bursts, not overload, filled its queue) and not
-        # the relay, where the fleet's own overshoot fills it (docs/protocol.md, pacing)
-        link_rate_bytes_per_s=args.link_rate / 8.0 if netns else 0.0,
+        # every shaped link paces each message at its rate: a camera frame larger than the
+        # relay's queue only gets through paced, and two drones' frames at once fill half
+        # as much of it (docs/protocol.md, pacing; docs/adaptive.md, the narrow link)
+        link_rate_bytes_per_s=(args.link_rate / 8.0 if netns
+                               else args.relay_rate / 8.0 if relay else 0.0),
         **_peers_plan(args, drones, netns=netns))
 
 

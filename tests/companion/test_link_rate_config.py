@@ -1,5 +1,6 @@
 """``[ground_station] link_rate_bytes_per_s``: the rate each message's datagrams are paced at;
-the fleet launcher writes its ``--netns`` link's rate into every companion."""
+the fleet launcher writes its shaped link's rate (``--netns``, or the relay's) into every
+companion."""
 
 from __future__ import annotations
 
@@ -29,7 +30,7 @@ def test_the_link_rate_is_read_and_checked() -> None:
 @pytest.mark.parametrize(("argv", "rate"), [
     (["--netns", "--drones", "2"], 750_000.0),  # 6 Mbit/s
     (["--netns", "--drones", "2", "--link-rate", "2000000"], 250_000.0),
-    (["--drones", "2"], None),  # the relay: unpaced (measured worse, docs/protocol.md)
+    (["--drones", "2"], 50_000.0),  # the relay's 400 kbit/s (docs/adaptive.md, narrow link)
     (["--drones", "2", "--relay-rate", "0"], None),  # no shaped link: nothing written
 ])
 def test_the_fleet_writes_its_link_rate(tmp_path: Path, argv: list[str],

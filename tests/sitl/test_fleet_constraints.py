@@ -13,7 +13,7 @@ from sitl.fleet.link import relay_constraint_params
 def test_each_learning_constraint_is_built_from_the_relay_parameters(name: str) -> None:
     rate = 50_000.0
     constraint = make_constraint(name, **relay_constraint_params(name, rate))
-    assert constraint.window_s == 1.0
+    assert constraint.window_s == 0.5
     assert 0.05 * rate <= constraint.limit_bytes_per_s(now=0.0) <= rate
 
 

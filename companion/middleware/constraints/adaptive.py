@@ -15,6 +15,7 @@ Pure compute: no clock, no I/O (SGDRegressor is a numeric routine).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from abc import abstractmethod
 from collections.abc import Iterable
@@ -24,6 +25,7 @@ from sklearn.linear_model import SGDRegressor
 
 from companion.middleware.constraints.base import GoodputConstraint
 from companion.middleware.constraints.linkstats import LinkSample, LinkStats, RoundTrip, WindowStats
+from companion.middleware.constraints.losses import SendLedger
 from companion.middleware.errors import ConstraintError
 
 __all__ = ["AdaptiveConstraint", "LinkStatsConstraint"]
@@ -42,6 +44,10 @@ class LinkStatsConstraint(GoodputConstraint):
 
     Feeds every sample to its :class:`LinkStats` and hands each warm window to
     :meth:`_learn`. Subclasses decide what ξ does with the observations.
+
+    With ``loss_is_congestion`` it also keeps a :class:`SendLedger` of this agent's sends
+    (:meth:`on_sent`); the windows learned from a report that shows a lost message read as
+    a full queue (``backlog_bytes_per_s`` = inf, ``lost`` > 0), whatever their latency.
     """
 
     def __init__(
@@ -51,26 +57,55 @@ class LinkStatsConstraint(GoodputConstraint):
         stats: LinkStats | None = None,
         base_window_s: float = 10.0,
         min_base_latency_s: float = 0.005,
+        fleet_goodput: bool = False,
+        link_rate_bytes_per_s: float = 0.0,
+        loss_is_congestion: bool = False,
     ) -> None:
         super().__init__(window_s=window_s)
         self.stats = stats if stats is not None else LinkStats(
-            window_s=window_s, base_window_s=base_window_s, min_base_latency_s=min_base_latency_s
+            window_s=window_s, base_window_s=base_window_s, min_base_latency_s=min_base_latency_s,
+            fleet_goodput=fleet_goodput, link_rate_bytes_per_s=link_rate_bytes_per_s,
         )
         self.n_updates = 0
         self.last_stats: WindowStats | None = None
+        self.ledger: SendLedger | None = SendLedger() if loss_is_congestion else None
+        """This agent's sends, to find the lost ones (``loss_is_congestion``); else None."""
+
+    @property
+    def loss_is_congestion(self) -> bool:
+        """Whether a lost message makes the windows of its report congested."""
+        return self.ledger is not None
+
+    def on_sent(self, size_bytes: int, *, now: float) -> None:
+        super().on_sent(size_bytes, now=now)
+        if self.ledger is not None:
+            self.ledger.on_sent(size_bytes, now=now)
+
+    @property
+    def fleet_goodput(self) -> bool:
+        """Whether other agents' report entries count in the goodput (LinkStats)."""
+        return self.stats.fleet_goodput
 
     def on_sample(self, sample: LinkSample, *, now: float) -> None:
         """One update per delivered message (thesis: 'whenever a new message is received')."""
         self.on_samples([sample], now=now)
 
     def on_samples(self, samples: Iterable[LinkSample], *, now: float) -> None:
-        """All messages of one report: still one model update per message."""
+        """All messages of one report: still one model update per message of this agent's
+        (another agent's, with ``fleet_goodput``, only counts in the goodput)."""
         observations: list[WindowStats] = []
+        lost = 0
+        counters = self.stats.counters
         for sample in samples:
-            before = self.stats.counters["samples"]
+            before, stale = counters["samples"], counters["stale"]
             stats = self.stats.update(sample, now=now).get()
-            if self.stats.counters["samples"] == before or stats is None:
-                continue  # duplicate, stale or invalid: nothing new to learn
+            if self.ledger is not None and sample.own and (
+                    counters["samples"] > before or counters["stale"] > stale):
+                lost += self.ledger.on_delivered(sample.size)  # arrived, even if late
+            if counters["samples"] == before or stats is None:
+                continue  # duplicate, stale, invalid or another agent's: nothing to learn
+            if lost:  # a message sent before this one never arrived: the queue overflowed
+                stats = dataclasses.replace(stats, backlog_bytes_per_s=math.inf, lost=lost)
             self.last_stats = stats
             if stats.warm:
                 observations.append(stats)
@@ -151,6 +186,14 @@ class AdaptiveConstraint(LinkStatsConstraint):
         congestion (docs/adaptive.md). Below the rate where G·q/δ̂ = α nothing changes.
     window_s
         T of both the link statistics and the budget window (eq. 6.1).
+    fleet_goodput, link_rate_bytes_per_s
+        What the link statistics are read with (:class:`LinkStats`; both off: the thesis'):
+        the fleet's goodput instead of this agent's, and the link's rate, so a message's
+        own transmission time does not read as queueing. The demo's narrow link needs both
+        (``sitl.fleet.link.relay_constraint_params``, docs/adaptive.md).
+    loss_is_congestion
+        Off (the thesis'): only latency says congestion. On: a report that shows one of
+        this agent's messages lost makes its windows congested (:class:`LinkStatsConstraint`).
     stats
         Link statistics to use (default: a new :class:`LinkStats` with ``window_s``).
     """
@@ -174,6 +217,9 @@ class AdaptiveConstraint(LinkStatsConstraint):
         window_s: float = 2.5,
         base_window_s: float = 10.0,
         min_base_latency_s: float = 0.005,
+        fleet_goodput: bool = False,
+        link_rate_bytes_per_s: float = 0.0,
+        loss_is_congestion: bool = False,
         stats: LinkStats | None = None,
     ) -> None:
         super().__init__(
@@ -181,6 +227,9 @@ class AdaptiveConstraint(LinkStatsConstraint):
             stats=stats,
             base_window_s=base_window_s,
             min_base_latency_s=min_base_latency_s,
+            fleet_goodput=fleet_goodput,
+            link_rate_bytes_per_s=link_rate_bytes_per_s,
+            loss_is_congestion=loss_is_congestion,
         )
         if not min_coef >= 0:
             raise ConstraintError(f"min_coef must be >= 0, got {min_coef}")

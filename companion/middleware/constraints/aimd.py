@@ -36,6 +36,9 @@ class AimdConstraint(LinkStatsConstraint):
         window_s: float = 2.5,
         base_window_s: float = 10.0,
         min_base_latency_s: float = 0.005,
+        fleet_goodput: bool = False,
+        link_rate_bytes_per_s: float = 0.0,
+        loss_is_congestion: bool = False,
         stats: LinkStats | None = None,
     ) -> None:
         super().__init__(
@@ -43,6 +46,9 @@ class AimdConstraint(LinkStatsConstraint):
             stats=stats,
             base_window_s=base_window_s,
             min_base_latency_s=min_base_latency_s,
+            fleet_goodput=fleet_goodput,
+            link_rate_bytes_per_s=link_rate_bytes_per_s,
+            loss_is_congestion=loss_is_congestion,
         )
         if not alpha_bytes_per_s > 0:
             raise ConstraintError(f"alpha_bytes_per_s must be > 0, got {alpha_bytes_per_s}")

@@ -45,6 +45,10 @@ class LinkSample:
     """Payload bytes."""
     sender: str = ""
     seq: int = -1
+    own: bool = True
+    """False: another agent's message on the same link, listed in this agent's reports. It
+    counts in the fleet's goodput when :class:`LinkStats` has ``fleet_goodput``, never in
+    latency: its send time is on another agent's clock, whose offset is not known here."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -67,10 +71,19 @@ class WindowStats:
     """‖W‖_Δ = ‖W‖_G·‖W‖_L/δ̂ − ‖W‖_G (eq. 6.4), bytes per second (≥ 0; δ̂ floored)."""
     warm: bool
     """True once observations span at least one whole window (before, G is too low)."""
+    queueing_s: float | None = None
+    """With a link rate: the mean per-message queueing delay, latency − δ̂ − size/rate
+    (each at least 0). None: the thesis' ‖W‖_L − δ̂."""
+    lost: int = 0
+    """This agent's messages the report of this window showed lost (the constraint's
+    ``loss_is_congestion``; its backlog is then infinite: the queue overflowed)."""
 
     @property
     def queueing_delay_s(self) -> float:
-        """Mean latency above the base latency, ‖W‖_L − δ̂."""
+        """Mean latency above the base latency, ‖W‖_L − δ̂ (without the messages'
+        transmission times when the link rate is known)."""
+        if self.queueing_s is not None:
+            return self.queueing_s
         return self.mean_latency_s - self.base_latency_s
 
 
@@ -206,6 +219,19 @@ class LinkStats:
         has (air time of a packet). Without it, a path with microsecond base latency (a
         veth pair, loopback) turns sub-millisecond jitter into a backlog of several times
         the goodput, and a clock error that drives δ̂ to ≤ 0 would divide by zero.
+    fleet_goodput
+        False (thesis-exact as the reference code read it): only this agent's messages
+        count. True: the goodput ‖W‖_G is the whole fleet's on the link, every reported
+        message (eq. 6.2 sums over all messages exchanged), because ξ is the fleet's budget:
+        each agent plans the fleet's window with it. Fitted to one drone's own goodput, ξ
+        settled near a quarter of the link in the 4-drone demo (docs/adaptive.md).
+    link_rate_bytes_per_s
+        0 (thesis-exact): a message's latency above δ̂ is all queueing. Above 0, the link's
+        rate: a message of ``size`` bytes needs size/rate to get through even on an empty
+        link, so its queueing is latency − δ̂ − size/rate (at least 0), and eq. 6.4's
+        divisor is the window's mean latency on an empty link, δ̂ + mean(size/rate). On
+        the demo's 50 kB/s link a 6 kB camera frame takes 120 ms to transmit; with δ̂ at
+        the 10 ms floor that read as 11 times the goodput in the queue at 15 % load.
     """
 
     def __init__(
@@ -216,6 +242,8 @@ class LinkStats:
         clock: ClockOffsetEstimator | None = None,
         assumed_offset_s: float = 0.0,
         min_base_latency_s: float = 0.005,
+        fleet_goodput: bool = False,
+        link_rate_bytes_per_s: float = 0.0,
     ) -> None:
         if not window_s > 0:
             raise LinkStatsError(f"window_s must be > 0, got {window_s}")
@@ -229,12 +257,21 @@ class LinkStats:
         self.clock = clock if clock is not None else ClockOffsetEstimator()
         self.assumed_offset_s = assumed_offset_s
         self.min_base_latency_s = min_base_latency_s
+        if not (math.isfinite(link_rate_bytes_per_s) and link_rate_bytes_per_s >= 0):
+            raise LinkStatsError(
+                f"link_rate_bytes_per_s must be >= 0 (0: unknown), got {link_rate_bytes_per_s}")
+        self.fleet_goodput = bool(fleet_goodput)
+        self.link_rate_bytes_per_s = float(link_rate_bytes_per_s)
         self.counters: dict[str, int] = {"samples": 0, "duplicate": 0, "stale": 0, "invalid": 0}
-        # (t_rcv, raw latency, size, key) in arrival order; keys dedupe repeated reports.
-        self._window: deque[tuple[float, float, int, tuple[str, int] | None]] = deque()
+        self.others = 0
+        """Other agents' samples counted in the goodput (``fleet_goodput``) or ignored."""
+        # (t_rcv, raw latency or None for another agent's message, size, key) in arrival
+        # order; keys dedupe repeated reports.
+        self._window: deque[tuple[float, float | None, int, tuple[str, int] | None]] = deque()
         self._keys: set[tuple[str, int]] = set()
         self._sum_size = 0
         self._sum_latency = 0.0
+        self._n_timed = 0
         # Sliding minimum of raw latency over base_window_s: (t_rcv, raw latency), increasing.
         self._min: deque[tuple[float, float]] = deque()
         self._t_first: float | None = None
@@ -253,6 +290,9 @@ class LinkStats:
         if not (math.isfinite(t_rcv) and math.isfinite(t_sent)) or sample.size < 0:
             self.counters["invalid"] += 1
             return self
+        if not sample.own and not self.fleet_goodput:
+            self.others += 1
+            return self
         if self._t_newest is not None and t_rcv <= self._t_newest - self.window_s:
             self.counters["stale"] += 1
             return self
@@ -263,18 +303,23 @@ class LinkStats:
         if key is not None and key in self._keys:
             self.counters["duplicate"] += 1
             return self
-        self.counters["samples"] += 1
-        raw = t_rcv - t_sent
-        self._window.append((t_rcv, raw, sample.size, key))
+        if self._t_first is None:
+            self._t_first = t_rcv
         if key is not None:
             self._keys.add(key)
         self._sum_size += sample.size
+        if not sample.own:  # the fleet's goodput only (see LinkSample.own)
+            self.others += 1
+            self._window.append((t_rcv, None, sample.size, key))
+            return self
+        self.counters["samples"] += 1
+        raw = t_rcv - t_sent
+        self._window.append((t_rcv, raw, sample.size, key))
         self._sum_latency += raw
+        self._n_timed += 1
         while self._min and self._min[-1][1] >= raw:
             self._min.pop()
         self._min.append((t_rcv, raw))
-        if self._t_first is None:
-            self._t_first = t_rcv
         return self
 
     def on_round_trip(self, round_trip: RoundTrip) -> Self:
@@ -288,11 +333,13 @@ class LinkStats:
         while self._window and self._window[0][0] <= horizon:
             _, raw, size, key = self._window.popleft()
             self._sum_size -= size
-            self._sum_latency -= raw
+            if raw is not None:
+                self._sum_latency -= raw
+                self._n_timed -= 1
             if key is not None:
                 self._keys.discard(key)
-        if not self._window:  # re-anchor the float sums when the window empties
-            self._sum_size, self._sum_latency = 0, 0.0
+        if not self._n_timed:  # re-anchor the float sum when no latency is left
+            self._sum_latency = 0.0
         base_horizon = self._t_newest - self.base_window_s
         while self._min and self._min[0][0] <= base_horizon:
             self._min.popleft()
@@ -306,17 +353,30 @@ class LinkStats:
         return estimate.offset_s if estimate is not None else self.assumed_offset_s
 
     def get(self) -> WindowStats | None:
-        """Statistics of the current window, or None before the first sample."""
-        if self._t_newest is None or not self._window or self._t_first is None:
+        """Statistics of the current window, or None before this agent's first sample in it
+        (another agent's message alone says nothing about latency)."""
+        if self._t_newest is None or not self._n_timed or self._t_first is None:
             return None
         n = len(self._window)
         offset = self.offset_s
         goodput = self._sum_size / self.window_s
-        mean_latency = self._sum_latency / n - offset
-        base = (self._min[0][1] if self._min else min(w[1] for w in self._window)) - offset
-        # eq. 6.4 as G·(L − δ̂)/δ̂: identical for δ̂ > 0, and the numerator (queueing delay)
-        # does not depend on the clock offset at all; only the divisor is floored.
-        backlog = goodput * max(0.0, mean_latency - base) / max(base, self.min_base_latency_s)
+        mean_latency = self._sum_latency / self._n_timed - offset
+        base = self._min[0][1] - offset
+        queueing: float | None = None
+        if self.link_rate_bytes_per_s > 0:
+            # Per message: its latency less the base and its own transmission time. O(|W|),
+            # only with a known link rate (the thesis' path stays O(1)).
+            rate, raw_base = self.link_rate_bytes_per_s, self._min[0][1]
+            timed = [(raw, size / rate) for _, raw, size, _ in self._window if raw is not None]
+            queueing = sum(max(0.0, raw - raw_base - tx) for raw, tx in timed) / len(timed)
+            divisor = max(base + sum(tx for _, tx in timed) / len(timed),
+                          self.min_base_latency_s)
+            backlog = goodput * queueing / divisor
+        else:
+            # eq. 6.4 as G·(L − δ̂)/δ̂: identical for δ̂ > 0, and the numerator (queueing
+            # delay) does not depend on the clock offset at all; only the divisor is floored.
+            backlog = goodput * max(0.0, mean_latency - base) / max(base,
+                                                                    self.min_base_latency_s)
         return WindowStats(
             t_end=self._t_newest,
             window_s=self.window_s,
@@ -326,4 +386,5 @@ class LinkStats:
             base_latency_s=base,
             backlog_bytes_per_s=backlog,
             warm=self._t_newest - self._t_first >= self.window_s,
+            queueing_s=queueing,
         )
