@@ -26,7 +26,6 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from companion.middleware.forecast import STREAM_SEQ
 from companion.middleware.incremental import Problem
 
 __all__ = ["creates_violation", "price_per_byte", "priced_option"]
@@ -73,19 +72,16 @@ def price_per_byte(problem: Problem, *, level: int | None = None) -> float:
     over the horizon: each message counted in its densest version, with that version's
     bytes (the density and the bytes of one and the same option).
 
-    A message's gain is over its stream's base, as if it were the stream's only send, with
-    two exceptions for the frames of one stream, which are substitutes (round 11):
+    A message's gain is over its stream's base, as if it were the stream's only send. With
+    ``level`` (the decided message), the later messages of its own stream count what they
+    add once it is sent (round 11): a redder frame to come still raises the price (the
+    value of waiting), but a copy does not. Counted on their own, a red drone's own
+    forecast frames, each worth more the longer after its last send, set a price its
+    current frame never earned: it sent a half frame per ~2 s with the window half empty.
 
-    * With ``level`` (the decided message), the later messages of its own stream count
-      what they add once it is sent: a redder frame to come still raises the price (the
-      value of waiting), but a copy does not. Counted on their own, a red drone's own
-      forecast frames, each worth more the longer after its last send, set a price its
-      current frame never earned: it sent a half frame per ~2 s with the window half empty.
-    * A stream whose messages carry their own sequence number (:data:`STREAM_SEQ`, the
-      companion's camera frame index) is forecast at its generation rate (3 frames/s),
-      not at the rate its frames were heard: each of its messages counts what it adds
-      after the stream's previous one. Nine frames' worth of price for one stream left
-      every plain drone waiting for the others' frames (1-3 frames per drone a minute).
+    The other drones' streams stay independent: pricing each of their frames at what it
+    adds after the previous one (as if all were sent) let plain drones take 1/3 of a
+    2-drone link that the red drone should mostly have (round 11, not kept).
     """
     n = problem.n
     if n == 0:
@@ -105,15 +101,6 @@ def price_per_byte(problem: Problem, *, level: int | None = None) -> float:
             if int(problem.stream[i]) == own:
                 gain = float(problem.gain[i, int(best[i]) + 1, after])
                 density[i] = max(0.0, gain / nbytes[i])
-    last: dict[int, int] = {}
-    for i in range(n):
-        s = int(problem.stream[i])
-        if s < 0 or s == own or STREAM_SEQ not in problem.items[i].message.data:
-            continue
-        option = int(best[i]) + 1
-        state = last.get(s, 0)
-        density[i] = max(0.0, float(problem.gain[i, option, state]) / nbytes[i])
-        last[s] = problem.next_slot(i, option, state)
     span = float(problem.send_t[-1] - problem.send_t[0])
     capacity = problem.budget_bytes * max(1.0, span / problem.window_s)
     order = np.lexsort((nbytes, density))[::-1]  # densest first; ties: larger first
