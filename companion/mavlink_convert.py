@@ -36,6 +36,11 @@ MAV_AUTOPILOT_INVALID = 8
 MAV_AUTOPILOT_PX4 = 12
 MAV_TYPE_ONBOARD_CONTROLLER = 18
 MAV_TYPE_GCS = 6
+NOT_A_VEHICLE = frozenset({MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER, 26, 27, 30, 31, 32, 33, 34,
+                           36, 37, 38, 39, 40, 41, 42})
+"""MAV_TYPE of components that are never the autopilot: GCS, onboard controller, gimbal,
+ADS-B, camera, charging station, FLARM, servo, OpenDroneID, battery, parachute, log, OSD,
+IMU, GPS, winch."""
 MAV_STATE_ACTIVE = 4
 MAV_MODE_FLAG_SAFETY_ARMED = 128
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
@@ -91,8 +96,9 @@ def _none_if(value: float, sentinel: float) -> float | None:
 class MavlinkConverter:
     """Pure conversion of pymavlink message objects into telemetry samples (SI units).
 
-    It keeps only what the conversion needs: which system is the autopilot (the first
-    HEARTBEAT whose ``autopilot`` is not MAV_AUTOPILOT_INVALID) and its family, for mode
+    It keeps only what the conversion needs: which system and component is the autopilot
+    (the first HEARTBEAT whose ``autopilot`` is not MAV_AUTOPILOT_INVALID, from a vehicle
+    type) and its family, for mode
     names and PX4's parameter encoding. Messages from other systems are ignored.
     """
 
@@ -106,7 +112,10 @@ class MavlinkConverter:
         kind = msg.get_type()
         if kind == "HEARTBEAT":
             return self._heartbeat(msg, now)
-        if self.target_system is None or msg.get_srcSystem() != self.target_system:
+        # Only the autopilot's own component: the autopilot routes the other components of
+        # its system (a camera, a gimbal, a payload app) to this link too.
+        if self.target_system is None or (msg.get_srcSystem(), msg.get_srcComponent()) != (
+                self.target_system, self.target_component):
             return None
         handler = _HANDLERS.get(kind)
         if handler is None:
@@ -114,15 +123,14 @@ class MavlinkConverter:
         return handler(self, msg, now)
 
     def _heartbeat(self, msg: Any, now: float) -> HeartbeatSample | None:
-        if msg.autopilot == MAV_AUTOPILOT_INVALID or msg.type in (
-            MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER):
+        if msg.autopilot == MAV_AUTOPILOT_INVALID or msg.type in NOT_A_VEHICLE:
             return None
         system = msg.get_srcSystem()
         if self.target_system is None:
             self.target_system = system
             self.target_component = msg.get_srcComponent()
-        elif system != self.target_system:
-            return None
+        elif (system, msg.get_srcComponent()) != (self.target_system, self.target_component):
+            return None  # another system, or another component of the autopilot's system
         self.autopilot = AUTOPILOT_NAMES.get(msg.autopilot, f"autopilot{msg.autopilot}")
         self.vehicle_type = msg.type
         return HeartbeatSample(

@@ -122,6 +122,29 @@ def test_other_systems_are_ignored() -> None:
     assert conv.convert(_wire(raw, system=1), now=T0) is not None
 
 
+def test_other_components_of_the_autopilots_system_are_ignored() -> None:
+    """The autopilot routes its system's other components to the companion's link: a MAVSDK
+    camera or payload app (system 1, its own component; MAVSDK's server heartbeat says
+    MAV_TYPE_GENERIC / MAV_AUTOPILOT_GENERIC, docs/sitl.md) must not become the autopilot:
+    the dashboard's mode and armed state flipped to it at each of its HEARTBEATs."""
+    conv = MavlinkConverter()
+    camera = mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GENERIC, mav.MAV_AUTOPILOT_GENERIC, 0,
+                                           0, mav.MAV_STATE_ACTIVE, 3)
+    gimbal = mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GIMBAL, mav.MAV_AUTOPILOT_GENERIC, 0,
+                                           0, mav.MAV_STATE_ACTIVE, 3)
+    # heard before the autopilot: a gimbal is never taken for it
+    assert conv.convert(_wire(gimbal, component=154), now=T0) is None
+    sample = conv.convert(_heartbeat(armed=True), now=T0)
+    assert isinstance(sample, HeartbeatSample) and sample.armed is True
+    assert (conv.target_system, conv.target_component) == (1, 1)
+    assert conv.convert(_wire(camera, component=100), now=T0) is None
+    raw = mav.MAVLink_attitude_message(0, 0.1, 0.2, 0.3, 0, 0, 0)
+    assert conv.convert(_wire(raw, component=100), now=T0) is None
+    text = mav.MAVLink_statustext_message(mav.MAV_SEVERITY_INFO, b"camera ready")
+    assert conv.convert(_wire(text, component=100), now=T0) is None
+    assert conv.convert(_wire(raw), now=T0) is not None
+
+
 def _px4_param_frame(name: bytes, value: int) -> object:
     """A PARAM_VALUE frame as PX4 writes it: the int32's bytes memcpy'd into the float field.
 
