@@ -227,7 +227,9 @@ class MavlinkConverter:
         )
 
     def _ack(self, msg: Any, now: float) -> CommandAckSample:
-        return CommandAckSample(t=now, command=msg.command, result=msg.result)
+        return CommandAckSample(t=now, command=msg.command, result=msg.result,
+                                target_system=int(getattr(msg, "target_system", 0) or 0),
+                                target_component=int(getattr(msg, "target_component", 0) or 0))
 
 
 def estimator_position_ok(flags: int) -> bool:

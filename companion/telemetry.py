@@ -156,6 +156,9 @@ class CommandAckSample(Sample):
     command: int
     result: int
     """MAV_RESULT (0 accepted, 3 unsupported...)."""
+    target_system: int = 0
+    target_component: int = 0
+    """Whom it answers (MAVLink 2; 0: not said): a GCS on the same link sees its acks too."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -153,6 +153,33 @@ def test_falls_back_to_request_data_stream() -> None:
         vehicle.stop()
 
 
+def test_a_gcs_acks_on_a_shared_link_are_not_the_companions() -> None:
+    """A GCS on the same link (a router, one UDP port) gets ACCEPTED for its own
+    SET_MESSAGE_INTERVALs, addressed to it (target 255/190) but seen by every client of the
+    link: counted as the companion's, they hid that the autopilot refused the companion's
+    and the REQUEST_DATA_STREAM fallback never went out (no telemetry from ArduPilot)."""
+    vehicle = FakeVehicle(autopilot="ardupilot", accept_message_interval=False).start()
+    recorder = Recorder()
+    reader = _reader(vehicle.port, recorder)
+    stop = threading.Event()
+
+    def gcs_acks() -> None:
+        while not stop.wait(0.05):
+            vehicle.send(mav.MAVLink_command_ack_message(
+                mav.MAV_CMD_SET_MESSAGE_INTERVAL, mav.MAV_RESULT_ACCEPTED, 0, 0, 255, 190))
+
+    threading.Thread(target=gcs_acks, daemon=True).start()
+    try:
+        reader.start()
+        assert recorder.wait(lambda: recorder.state.snapshot().lat_deg is not None)
+        assert reader.counters["stream_fallbacks"] == 1
+    finally:
+        stop.set()
+        reader.stop()
+        reader.join(5)
+        vehicle.stop()
+
+
 def test_mode_change_is_confirmed_by_heartbeat(
         vehicle: FakeVehicle, recorder: Recorder, started: list[MavlinkReader]) -> None:
     reader = _reader(vehicle.port, recorder)
