@@ -219,7 +219,8 @@ class MavlinkReader:
                 self._emit(LinkStateSample(t=now, connected=True,
                                            reason=f"heartbeat from system {sample.system_id}"))
                 self._request_streams(conn, now)
-        elif isinstance(sample, CommandAckSample) and not self._for_us(sample):
+        elif isinstance(sample, CommandAckSample) and not sample.answers(
+                self.settings.source_system, self.settings.source_component):
             self._emit(sample)
             return  # another client's answer (a GCS on this link): never ours to count
         elif isinstance(sample, CommandAckSample) and sample.command == \
@@ -227,10 +228,6 @@ class MavlinkReader:
             self._stream_acks += 1
         self._emit(sample)
         self._resolve_pending(sample)
-
-    def _for_us(self, ack: CommandAckSample) -> bool:
-        return ack.target_system in (0, self.settings.source_system) and \
-            ack.target_component in (0, self.settings.source_component)
 
     def _emit(self, sample: Sample) -> None:
         self.counters["samples"] += 1

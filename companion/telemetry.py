@@ -160,6 +160,10 @@ class CommandAckSample(Sample):
     target_component: int = 0
     """Whom it answers (MAVLink 2; 0: not said): a GCS on the same link sees its acks too."""
 
+    def answers(self, system: int, component: int) -> bool:
+        """Whether it answers that client (or says nobody in particular)."""
+        return self.target_system in (0, system) and self.target_component in (0, component)
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class LinkStateSample(Sample):
