@@ -272,36 +272,17 @@ def config_from_mapping(raw: dict[str, Any], *, file: str = "<config>") -> Groun
                 raise ConfigError(file, key, "a list of DNS names (strings)", value)
             values[key] = tuple(value)
         elif key == "fleet_key_file":
-            path = Path(str(value)).expanduser()
-            path = path if path.is_absolute() else base / path
-            try:
-                values["fleet_key"] = read_secret(path).strip()
-            except UnsafeKeyFile as exc:
-                raise ConfigError(file, key, _PRIVATE, str(exc)) from exc
-            except OSError as exc:
-                raise ConfigError(file, key, "a readable key file", str(exc)) from exc
+            values["fleet_key"] = _key_file(file, key, value, base).strip()
         elif key == "mavlink_signing_key_file":
-            path = Path(str(value)).expanduser()
-            path = path if path.is_absolute() else base / path
-            try:
-                passphrase = read_secret(path).strip()
-            except UnsafeKeyFile as exc:
-                raise ConfigError(file, key, _PRIVATE, str(exc)) from exc
-            except OSError as exc:
-                raise ConfigError(file, key, "a readable key file", str(exc)) from exc
+            passphrase = _key_file(file, key, value, base).strip()
             if len(passphrase) < 8:
                 raise ConfigError(file, key, "a passphrase of at least 8 bytes",
                                   f"{len(passphrase)} bytes")
             values["mavlink_signing_key"] = hashlib.sha256(passphrase).digest()
         elif key == "command_key_file":
-            path = Path(str(value)).expanduser()
-            path = path if path.is_absolute() else base / path
+            key_text = _key_file(file, key, value, base)
             try:
-                values["command_key"] = decode_key_text(read_secret(path), "command key")
-            except UnsafeKeyFile as exc:
-                raise ConfigError(file, key, _PRIVATE, str(exc)) from exc
-            except OSError as exc:
-                raise ConfigError(file, key, "a readable key file", str(exc)) from exc
+                values["command_key"] = decode_key_text(key_text, "command key")
             except LocalProtocolError as exc:
                 raise ConfigError(file, key, "a file written by uav-ground-station keygen",
                                   str(exc)) from exc
@@ -313,6 +294,17 @@ def config_from_mapping(raw: dict[str, Any], *, file: str = "<config>") -> Groun
         return GroundConfig(**values)
     except ConfigError as exc:
         raise ConfigError(file, exc.key, exc.expected, exc.got) from exc
+
+
+def _key_file(file: str, key: str, value: Any, base: Path) -> bytes:
+    """A ``*_key_file``'s bytes (relative to the config's folder; private to this user)."""
+    path = Path(str(value)).expanduser()
+    try:
+        return read_secret(path if path.is_absolute() else base / path)
+    except UnsafeKeyFile as exc:
+        raise ConfigError(file, key, _PRIVATE, str(exc)) from exc
+    except OSError as exc:
+        raise ConfigError(file, key, "a readable key file", str(exc)) from exc
 
 
 def load_config(path: Path | str) -> GroundConfig:
