@@ -114,8 +114,8 @@ def feed_link(constraint: GoodputConstraint, report: ReceiverReport, *, agent: s
     (they refine the clock offset the samples' latencies are read with), then the samples
     as one batch (one model update per own sample). A constraint whose link statistics
     count the fleet's goodput (``fleet_goodput``) gets the other agents' entries too."""
-    others = getattr(constraint, "fleet_goodput", False) is True
-    samples, trips, bad = link_observations(report, agent=agent, others=others)
+    samples, trips, bad = link_observations(report, agent=agent,
+                                            others=constraint.fleet_goodput)
     for trip in trips:
         constraint.on_round_trip(trip, now=now)
     if samples:

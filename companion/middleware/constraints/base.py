@@ -52,6 +52,12 @@ class GoodputConstraint(ABC):
     def on_round_trip(self, round_trip: RoundTrip, *, now: float) -> None:  # noqa: B027
         """A report round trip (clock offset and delay); default: not used."""
 
+    @property
+    def fleet_goodput(self) -> bool:
+        """Whether :meth:`on_samples` wants the other agents' report entries too (marked
+        ``own=False``, for the fleet's goodput); default: only this agent's."""
+        return False
+
     def on_sent(self, size_bytes: int, *, now: float) -> None:
         """Record that ``size_bytes`` went on the link at ``now``."""
         self._sent.append((now, size_bytes))
