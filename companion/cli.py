@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from companion.cli_help import DefaultsFormatter, DefaultsRawFormatter
 from companion.mavlink_hint import silence_hint
 
 __all__ = ["main"]
@@ -60,20 +61,37 @@ def configure_logging(level: str, fmt: str) -> None:
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="uav-companion",
+        prog="uav-companion", formatter_class=DefaultsRawFormatter,
         description="The drone's companion app: run it, check a setup, install the systemd unit.",
+        epilog="First time: copy examples/companion.toml, set drone.id, mavlink.url, camera.source,"
+               "\nground_station.host and the two key files (README.md), then\n"
+               "  uav-companion check --config companion.toml\n"
+               "Each command's options: uav-companion COMMAND --help. "
+               "Documentation: docs/companion.md.",
     )
     parser.add_argument("--log-level", default="info",
-                        choices=["debug", "info", "warning", "error"])
+                        choices=["debug", "info", "warning", "error"],
+                        help="least severe log record written to stderr")
     parser.add_argument("--log-format", default=None, choices=["json", "text"],
                         help="default: json for run (journald keeps it), text for the "
                              "commands a person reads (check, install-service)")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    run = sub.add_parser("run", help="run the companion until SIGTERM or Ctrl-C")
+    run = sub.add_parser(
+        "run", help="run the companion until SIGTERM or Ctrl-C", formatter_class=DefaultsFormatter,
+        description="Read the autopilot, score camera frames and stream what the optimiser "
+                    "chooses to the ground station, until SIGTERM or Ctrl-C. Logs go to stderr, "
+                    "one JSON object per line. Exit status: 0 stopped, 1 a service failed (systemd "
+                    "restarts it), 2 bad configuration.")
     run.add_argument("--config", default=DEFAULT_CONFIG, help=CONFIG_HELP)
 
-    check = sub.add_parser("check", help="validate the config, probe MAVLink and the camera")
+    check = sub.add_parser(
+        "check", help="validate the config, probe MAVLink and the camera",
+        formatter_class=DefaultsRawFormatter,
+        description="Validate the configuration, wait for an autopilot HEARTBEAT and grab one\n"
+                    "camera frame; print what was found. Exit status: 0 all answered,\n"
+                    "1 a probe failed (no HEARTBEAT, no frame), 2 bad configuration.",
+        epilog="example:\n  uav-companion check --config companion.toml --timeout 10")
     check.add_argument("--config", default=DEFAULT_CONFIG, help=CONFIG_HELP)
     check.add_argument("--timeout", type=_seconds, default=5.0,
                        help="seconds to wait for the autopilot (default 5)")
@@ -82,7 +100,14 @@ def _parser() -> argparse.ArgumentParser:
     check.add_argument("--skip-camera", action="store_true",
                        help="do not grab a camera frame")
 
-    inst = sub.add_parser("install-service", help="write and enable the systemd unit")
+    inst = sub.add_parser(
+        "install-service", help="write and enable the systemd unit",
+        formatter_class=DefaultsRawFormatter,
+        description="Write a systemd unit that runs `uav-companion run` with this config and\n"
+                    "restarts it on failure, then enable and start it (needs root). Exit\n"
+                    "status: 0 done, 1 systemctl or the file failed, 2 bad configuration.",
+        epilog="example (sudo drops the venv from PATH):\n"
+               "  sudo .venv/bin/uav-companion install-service --dry-run")
     inst.add_argument("--config", default=DEFAULT_CONFIG, help=CONFIG_HELP)
     inst.add_argument("--unit-dir", default=None,
                       help="where to write the unit (default /etc/systemd/system)")
@@ -90,7 +115,7 @@ def _parser() -> argparse.ArgumentParser:
     inst.add_argument("--no-enable", action="store_true",
                       help="write the unit but do not run systemctl")
     inst.add_argument("--user", type=_user_name, default=None,
-                      help="run the service as this user")
+                      help="run the service as this user (default: systemd's, root)")
     return parser
 
 

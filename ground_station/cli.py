@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import errno
 import logging
 import math
 import os
@@ -12,6 +13,7 @@ import signal
 import sys
 from pathlib import Path
 
+from companion.cli_help import DefaultsFormatter, DefaultsRawFormatter
 from companion.secret_files import make_private_dir
 from ground_station.config import ConfigError, GroundConfig, load_config, missing_keys
 from ground_station.mission_input import HELP
@@ -60,19 +62,35 @@ def _common(parser: argparse.ArgumentParser) -> None:
         "--config", type=Path, help=f"TOML file (default {DEFAULT_CONFIG} if it exists; "
                                     "examples/ground_station.toml is the commented template)"
     )
-    parser.add_argument("--data-dir", type=Path, help="override data_dir")
+    parser.add_argument("--data-dir", type=Path,
+                        help="database, images, logs, token and keys/ (default: the config's "
+                             "data_dir, else gs-data in the current folder)")
 
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="uav-ground-station",
+        prog="uav-ground-station", formatter_class=DefaultsRawFormatter,
         description="Receive, store and show a UAV fleet's prioritised images; manage missions.",
+        epilog="First time:\n"
+               "  uav-ground-station keygen     # the fleet's keys, in gs-data/keys\n"
+               "  uav-ground-station run        # prints the dashboard's one-time login link\n"
+               "Each command's options: uav-ground-station COMMAND --help. "
+               "Documentation: docs/ground_station.md.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    run = sub.add_parser("run", help="run the ground station (UDP receiver + web dashboard)")
+    run = sub.add_parser(
+        "run", help="run the ground station (UDP receiver + web dashboard)",
+        formatter_class=DefaultsRawFormatter,
+        description="Receive the fleet on UDP, store its images and serve the dashboard until\n"
+                    "Ctrl-C or SIGTERM. Options override the config file's keys. Exit status:\n"
+                    "0 stopped, 1 a port could not be opened, 2 bad configuration, no keys or\n"
+                    "an unusable data folder.",
+        epilog="example:\n  uav-ground-station run --config gs.toml --mission survey-1")
     _common(run)
-    run.add_argument("--mission", help="mission name images and logs are grouped under")
-    run.add_argument("--udp-port", type=int, help="UDP port the fleet sends to")
+    run.add_argument("--mission", help="mission name images and logs are grouped under "
+                                       "(default: the config's mission, default)")
+    run.add_argument("--udp-port", type=int,
+                     help="UDP port the fleet sends to (default: the config's udp_port, 14600)")
     run.add_argument("--http-host", help="dashboard address (default 127.0.0.1)")
     run.add_argument("--http-port", type=int, help="dashboard port (default 8080)")
     run.add_argument("--public-read", action="store_true", help="dashboard readable without token")
@@ -80,10 +98,10 @@ def _parser() -> argparse.ArgumentParser:
                      help="a DNS name the dashboard is reached by (repeatable); requests for "
                           "other names are refused (DNS rebinding). IP addresses and "
                           "localhost always work")
-    run.add_argument("-v", "--verbose", action="store_true")
+    run.add_argument("-v", "--verbose", action="store_true", help="log DEBUG records too")
     shell = sub.add_parser(
         "shell", help="interactive mission manager (thesis fig. 3.7)",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=DefaultsRawFormatter,
         epilog=HELP + '\n\nScripted: -c "drones 3; start +5; params alpha=10" exits 1 when a '
                       "line failed or a drone did not answer done.")
     _common(shell)
@@ -92,14 +110,18 @@ def _parser() -> argparse.ArgumentParser:
     shell.add_argument("-c", "--commands", help="run these ';'-separated commands and exit")
     shell.add_argument("--timeout", type=float, default=30.0,
                        help="seconds any wait may take before it names who did not answer")
-    export = sub.add_parser("export", help="images and a geotag CSV for photogrammetry")
+    export = sub.add_parser("export", help="images and a geotag CSV for photogrammetry",
+                            formatter_class=DefaultsRawFormatter,
+                            epilog="example:\n  uav-ground-station export survey-1 --out "
+                                   "./survey-1")
     _common(export)
     export.add_argument("mission", help="mission name")
     export.add_argument("--out", type=Path, required=True, help="output folder")
     export.add_argument("--include-stale-poses", action="store_true",
                         help="also list images with a stale or no position in geotags.csv "
                              "(column 'pose' says which)")
-    token = sub.add_parser("token", help="print the control token (created if missing)")
+    token = sub.add_parser("token", help="print the control token (created if missing)",
+                           formatter_class=DefaultsFormatter)
     _common(token)
     token.add_argument("--url", action="store_true",
                        help="print a one-time dashboard login URL instead (valid 10 min)")
@@ -109,10 +131,15 @@ def _parser() -> argparse.ArgumentParser:
                        help="with --url: the dashboard's port, when `run` got one on its "
                             "command line")
     keygen = sub.add_parser(
-        "keygen", help="make the fleet key and the command key pair (default DATA_DIR/keys)"
+        "keygen", help="make the fleet key and the command key pair (default DATA_DIR/keys)",
+        formatter_class=DefaultsFormatter,
+        description="Make the fleet key (fleet.key), the station's command signing key\n"
+                    "(command.key) and its public half (command.pub). Each drone gets fleet.key "
+                    "and command.pub, never command.key.",
     )
     _common(keygen)
-    keygen.add_argument("--out", type=Path, help="folder for fleet.key, command.key, command.pub")
+    keygen.add_argument("--out", type=Path, help="folder for fleet.key, command.key, command.pub "
+                                                 "(default DATA_DIR/keys)")
     keygen.add_argument("--force", action="store_true", help="replace existing keys")
     return parser
 
@@ -230,9 +257,21 @@ def _run(args: argparse.Namespace, config: GroundConfig) -> int:
               idle_timeout_s=config.http_idle_timeout_s, stop_signals=stop_signals,
               on_serving=announce)
     except OSError as exc:  # address in use, permission denied...
-        print(f"uav-ground-station: cannot serve: {exc}", file=sys.stderr)
+        print(f"uav-ground-station: {_serve_problem(exc, config)}", file=sys.stderr)
         return 1
     return 0
+
+
+def _serve_problem(exc: OSError, config: GroundConfig) -> str:
+    """One line for a port the station cannot open; a port in use names it and the option
+    that moves it (aiohttp's own words named neither the dashboard nor the flag)."""
+    if exc.errno != errno.EADDRINUSE:
+        return f"cannot serve: {exc}"
+    if (exc.strerror or "").startswith("UDP "):  # the transport names its address
+        return (f"UDP {config.udp_host}:{config.udp_port} is already in use (another ground "
+                "station?): stop it, or pick another --udp-port")
+    return (f"dashboard {config.http_host}:{config.http_port} is already in use (another "
+            "program listens there): stop it, or pick another --http-port")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -293,8 +332,11 @@ def main(argv: list[str] | None = None) -> int:
     url = args.url or f"http://{host}:{config.http_port}"
     try:
         token = args.token or read_token(config.token_path)
-    except OSError as exc:
-        print(f"uav-ground-station: no token ({exc}); pass --token", file=sys.stderr)
+    except OSError as exc:  # the station's folder: its --data-dir or --config, or the token
+        why = "no such file" if isinstance(exc, FileNotFoundError) else exc.strerror or exc
+        print(f"uav-ground-station: no control token in {config.token_path} ({why}): give the "
+              "station's --data-dir or --config (as `run` got them), or --token",
+              file=sys.stderr)
         return 2
     lines = [c for c in args.commands.split(";")] if args.commands else None
     if not (math.isfinite(args.timeout) and args.timeout > 0):  # inf: a wait never ends

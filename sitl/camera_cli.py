@@ -13,6 +13,8 @@ import sys
 import time
 from pathlib import Path
 
+from companion.cli_help import DefaultsRawFormatter
+
 __all__ = ["MAX_SIDE", "main"]
 
 MAX_SIDE = 8192
@@ -44,8 +46,9 @@ def _size(text: str) -> tuple[int, int]:
 
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(
-        prog="uav-sitl camera",
+        prog="uav-sitl camera", formatter_class=DefaultsRawFormatter,
         description="Render synthetic camera frames of a scene at given poses to PNG files.",
+        epilog="example:\n  uav-sitl camera --scene demo --pose 20,30,30 --out frames/",
     )
     p.add_argument("--scene", default="demo", help="scene name or TOML path (default demo)")
     p.add_argument("--pose", type=_pose, action="append", default=[],
@@ -53,13 +56,15 @@ def main(argv: list[str]) -> int:
     p.add_argument("--poses", type=Path, default=None, help="file with one pose per line")
     p.add_argument("--out", type=Path, default=Path("frames"), help="output folder")
     p.add_argument("--size", type=_size, default=None, help="WIDTHxHEIGHT (default: scene)")
-    p.add_argument("--hfov", type=float, default=None, help="horizontal field of view (deg)")
+    p.add_argument("--hfov", type=float, default=None,
+                   help="horizontal field of view (deg; default: the scene's camera)")
     p.add_argument("--mount-pitch", type=float, default=None,
-                   help="camera pitch on the airframe (deg, -90 = straight down)")
+                   help="camera pitch on the airframe (deg, -90 = straight down; default: the "
+                        "scene's camera)")
     p.add_argument("--gimbal", action="store_true", help="gimbal-stabilised (ignore roll/pitch)")
     p.add_argument("--noise", type=float, default=3.0, help="sensor noise std (DN)")
     p.add_argument("--t", type=float, default=0.0, help="scene time (s) for lighting")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise")
     p.add_argument("--texture", action="store_true", help="also write the ground texture")
     args = p.parse_args(argv)
     if not 0 <= args.noise < math.inf:

@@ -34,12 +34,22 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="uav-sitl",
         description="Simulated vehicles, cameras, fleets and simulation studies.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="The whole demo on one machine: uav-sitl fleet --duration 120 (what `make demo` "
+               "runs).\nEach command's options: uav-sitl COMMAND --help. Documentation: "
+               "docs/sitl.md, docs/fleet.md.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (_, text) in COMMANDS.items():
         sub.add_parser(name, help=text, add_help=False)
-    study = sub.add_parser("study", help="simulation studies that reproduce thesis figures")
-    study.add_argument("name", choices=sorted(STUDIES), help="which study")
+    study = sub.add_parser(
+        "study", help="simulation studies that reproduce thesis figures",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="studies:\n" + "\n".join(f"  {name:<21}{text}" for name, (_, text)
+                                           in sorted(STUDIES.items()))
+        + "\n\neach study's options: uav-sitl study NAME --help (most take --out DIR and "
+          "--quick)")
+    study.add_argument("name", choices=sorted(STUDIES), metavar="NAME", help="which study")
     if not argv or argv[0] in ("-h", "--help"):
         parser.print_help()
         if not argv:

@@ -25,6 +25,11 @@ def _parser() -> argparse.ArgumentParser:
         "evaluate",
         help="total utility of a recorded mission (JSON Lines log)",
         description="Total utility U(M) of a mission log (eq. 4.1/4.2) with its breakdown.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="examples (after `make demo`, its run folder's logs):\n"
+               "  uav-utility evaluate --spec image_streaming "
+               "out/fleet/*/gs-data/missions/fleet/mission_log.jsonl\n"
+               "  uav-utility evaluate --spec my_mission.toml drone1.jsonl gs.jsonl --json",
     )
     ev.add_argument("log", type=Path, nargs="+", help="mission log(s), JSON Lines; merged")
     ev.add_argument(
@@ -57,7 +62,10 @@ def _parser() -> argparse.ArgumentParser:
     pl.add_argument("kind", metavar="KIND", help=f"one of: {', '.join(KINDS)}, 4.2-4.10, all")
     pl.add_argument("--out", type=Path, required=True, help="output PNG (a folder with 'all')")
 
-    sub.add_parser("specs", help="list the built-in mission specs")
+    sub.add_parser("specs", help="list the built-in mission specs",
+                   description="List the built-in mission specs: each name works as "
+                               "`evaluate --spec NAME` and as a companion's mission.spec = "
+                               "\"builtin:NAME\".")
     return parser
 
 

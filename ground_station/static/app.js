@@ -241,7 +241,9 @@ function renderKey() {
   const c = state.config, sc = c.utility_scale;
   $("key-high").textContent = c.high_utility == null ? "never (no image type gains)" : "U " + fmt.num(c.high_utility, 2);
   if (sc) {
-    $("key-scale").textContent = `${fmt.num(sc.plain, 0)} plain … ${fmt.num(sc.max, 0)} best (${sc.source})`;
+    // U is the full image's weight times the version sent (eq. 4.33): a half-size copy of a
+    // plain frame shows U 0.50, which read as wrong against "1 plain" alone.
+    $("key-scale").textContent = `${fmt.num(sc.plain, 0)} plain … ${fmt.num(sc.max, 0)} best (${sc.source}), × the version sent (half size 0.5)`;
     $("key-high").title = sc.fraction == null ? "set in the ground-station config"
       : `1 + ${sc.fraction} × ${fmt.num(sc.max - sc.plain, 1)}: ${Math.round(sc.fraction * 100)} % of the largest gain`;
   }

@@ -8,6 +8,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from companion.cli_help import DefaultsRawFormatter
 from companion.middleware.constraints.registry import CONSTRAINTS
 from sitl.camera_cli import MAX_SIDE
 from sitl.fleet.link import (
@@ -28,9 +29,13 @@ from sitl.fleet_config import mission_spec_path
 
 def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(
-        prog="uav-sitl fleet",
-        description="Run N simulated drones (vehicle + synthetic camera + uav-companion) and a "
-                    "uav-ground-station on one machine; print a summary at the end.")
+        prog="uav-sitl fleet", formatter_class=DefaultsRawFormatter,
+        description="Run N simulated drones (vehicle + synthetic camera + uav-companion) and a\n"
+                    "uav-ground-station on one machine; print the dashboard's login link first\n"
+                    "and a summary at the end (Ctrl-C or --duration stops it).",
+        epilog="examples:\n"
+               "  uav-sitl fleet --duration 120                 # what `make demo` runs\n"
+               "  uav-sitl fleet --drones 2 --relay-rate 0      # straight over loopback")
     p.add_argument("--drones", type=int, default=4, help="number of drones (default 4)")
     p.add_argument("--scene", default="demo", help="scene name (sitl/scenes) or TOML path")
     p.add_argument("--duration", type=float, default=0.0,
@@ -52,7 +57,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
                    help="constant constraint: window T in s (default 2)")
     p.add_argument("--rate", type=float, default=5.0, help="camera frames/s per drone")
     p.add_argument("--size", default="640x480", help="camera frame size WxH (default 640x480)")
-    p.add_argument("--mcts-iterations", type=int, default=300)
+    p.add_argument("--mcts-iterations", type=int, default=300,
+                   help="optimiser iterations per decision, as in the thesis")
     p.add_argument("--time-budget", type=float, default=0.05,
                    help="wall time per middleware decision in s (default 0.05)")
     p.add_argument("--alpha", type=float, default=None, help="α of eq. 7.1 (default: spec's)")
@@ -60,13 +66,15 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
                    help="mission spec name or TOML path (default image_streaming; with --peers, "
                         "peer_sharing)")
     p.add_argument("--speedup", type=float, default=1.0, help="vehicle simulation speed-up")
-    p.add_argument("--flavour", choices=("px4", "ardupilot"), default="px4")
+    p.add_argument("--flavour", choices=("px4", "ardupilot"), default="px4",
+                   help="the simulated autopilots' MAVLink habits")
     p.add_argument("--first-fix", type=float, default=2.0, metavar="S",
                    help="vehicle seconds from boot to a GPS fix; until then no position and"
                         " no arming, as on a real autopilot (default 2; `uav-sitl vehicle`"
                         " defaults to an ArduCopter-like 15)")
-    p.add_argument("--pattern", choices=("survey", "orbit"), default="survey")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--pattern", choices=("survey", "orbit"), default="survey",
+                   help="what the drones fly: survey strips or orbits")
+    p.add_argument("--seed", type=int, default=0, help="seed of the vehicles and optimisers")
     p.add_argument("--ready-timeout", type=float, default=90.0,
                    help="seconds to wait for the vehicles, the ground station's API and then "
                    "every drone to be heard, each (default 90; a loaded host is slow)")

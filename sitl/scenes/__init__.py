@@ -14,8 +14,8 @@ from pathlib import Path
 from utility_specs.files import read_scene
 from utility_specs.scene import CameraSpec, RedObject, Scene, SceneError, Target
 
-__all__ = ["CameraSpec", "RedObject", "Scene", "SceneError", "Target", "load_scene",
-           "scene_path"]
+__all__ = ["CameraSpec", "RedObject", "Scene", "SceneError", "Target", "bundled_scenes",
+           "load_scene", "scene_path"]
 
 SCENES_DIR = Path(__file__).resolve().parent
 
@@ -30,6 +30,16 @@ def scene_path(name_or_path: str | Path) -> Path:
     return p
 
 
+def bundled_scenes() -> list[str]:
+    """Names of the scenes shipped with the package (``demo``...)."""
+    return sorted(path.stem for path in SCENES_DIR.glob("*.toml"))
+
+
 def load_scene(name_or_path: str | Path) -> Scene:
-    """A bundled scene by name (``demo``) or the scene file at a path."""
-    return read_scene(scene_path(name_or_path))
+    """A bundled scene by name (``demo``) or the scene file at a path. A name that is
+    neither says which names there are (``--scene dmeo`` read as a missing file)."""
+    path = scene_path(name_or_path)
+    if path.suffix != ".toml" and not path.exists():
+        raise SceneError(f"no scene {str(name_or_path)!r}: not a bundled scene "
+                         f"({', '.join(bundled_scenes())}) nor a file")
+    return read_scene(path)

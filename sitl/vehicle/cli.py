@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import errno
 import json
 import math
 import os
@@ -18,6 +19,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from companion.cli_help import DefaultsRawFormatter
 from companion.stop_signals import EarlyStop
 from sitl.geo import Enu, GeoPoint, geo_from_enu
 
@@ -60,16 +62,21 @@ def _param(text: str) -> tuple[str, float]:
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(
-        prog="uav-sitl vehicle",
-        description="Simulated multicopters speaking MAVLink 2 on UDP (PX4- or ArduPilot-like)."
-                    " Clients send to HOST:PORT; the vehicle answers the address it heard"
-                    " from (and --out).")
+        prog="uav-sitl vehicle", formatter_class=DefaultsRawFormatter,
+        description="Simulated multicopters speaking MAVLink 2 on UDP (PX4- or ArduPilot-like).\n"
+                    "Clients send to HOST:PORT; the vehicle answers the address it heard from\n"
+                    "(and --out). Prints one READY {json} line per vehicle once bound, then\n"
+                    "runs until Ctrl-C, SIGTERM or --duration.",
+        epilog="examples:\n"
+               "  uav-sitl vehicle --port 14580 --out 127.0.0.1:14550   # a companion's udpin\n"
+               "  uav-sitl vehicle --count 4 --flavour ardupilot --pattern survey --autostart")
     p.add_argument("--port", type=int, default=14550,
                    help="UDP port of the first vehicle; vehicle i uses PORT+i (0: any free)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
     p.add_argument("--count", type=int, default=1, help="number of vehicles (default 1)")
     p.add_argument("--sysid", type=int, default=1, help="system id of the first vehicle")
-    p.add_argument("--flavour", choices=("px4", "ardupilot"), default="px4")
+    p.add_argument("--flavour", choices=("px4", "ardupilot"), default="px4",
+                   help="which autopilot's MAVLink dialect and habits it copies")
     p.add_argument("--speedup", type=float, default=1.0,
                    help="simulated seconds per wall second (default 1)")
     p.add_argument("--home", type=_home, default=None,
@@ -78,8 +85,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    help="scene name or TOML path: home, area and targets for patterns")
     p.add_argument("--pattern", nargs="+", metavar=("KIND", "FILE"), default=None,
                    help="preload a mission: survey | orbit | waypoints FILE")
-    p.add_argument("--alt", type=float, default=None, help="pattern altitude (m above home)")
-    p.add_argument("--spacing", type=float, default=None, help="survey leg spacing (m)")
+    p.add_argument("--alt", type=float, default=None,
+                   help="pattern altitude (m above home; default: the scene's)")
+    p.add_argument("--spacing", type=float, default=None,
+                   help="survey leg spacing (m; default: ~80 %% of the camera footprint)")
     p.add_argument("--radius", type=float, default=20.0, help="orbit radius (m)")
     p.add_argument("--speed", type=float, default=5.0, help="pattern cruise speed (m/s)")
     p.add_argument("--autostart", action="store_true",
@@ -96,7 +105,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    help="NAME=VALUE parameter override (repeatable)")
     p.add_argument("--wind", type=float, nargs=2, metavar=("SPEED", "FROM_DEG"),
                    default=None, help="mean wind speed (m/s) and direction it blows from")
-    p.add_argument("--duration", type=float, default=None, help="stop after S wall seconds")
+    p.add_argument("--duration", type=float, default=None,
+                   help="stop after S wall seconds (default: run until stopped)")
     p.add_argument("--seed", type=int, default=0, help="seed of the GPS noise")
     p.add_argument("--ready-file", type=Path, default=None,
                    help="write the list of READY records as JSON here once all are bound")
@@ -256,6 +266,19 @@ async def _serve(args: argparse.Namespace, stop_signals: EarlyStop) -> int:
     return 0
 
 
+def _os_problem(args: argparse.Namespace, exc: OSError) -> str:
+    """One line for a socket or serial line the vehicle cannot open; a port in use names the
+    ports and the option that moves them ("[Errno 98] Address already in use" named neither)."""
+    if args.serial:
+        return f"cannot open the serial line: {exc}"
+    if exc.errno != errno.EADDRINUSE:
+        return f"cannot bind: {exc}"
+    last = args.port + args.count - 1
+    ports = f"{args.port}" if last == args.port else f"{args.port}..{last}"
+    return (f"cannot bind UDP {args.host}:{ports}: address already in use (another vehicle or "
+            "program listens there): stop it, or pick another --port")
+
+
 def main(argv: list[str]) -> int:
     os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported anywhere
     args = parse_args(argv)
@@ -269,8 +292,7 @@ def main(argv: list[str]) -> int:
         print(f"uav-sitl vehicle: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        what = "cannot open the serial line" if args.serial else "cannot bind"
-        print(f"uav-sitl vehicle: {what}: {exc}", file=sys.stderr)
+        print(f"uav-sitl vehicle: {_os_problem(args, exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         return 0

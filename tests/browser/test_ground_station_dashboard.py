@@ -289,7 +289,9 @@ async def test_dashboard_live_tiles_and_start_mission(
             for term in ("U", "share", "ξ", "Δ", "fallback"):
                 assert f"{term}\n" in key or key.startswith(term), (term, key)
             assert await page.inner_text("#key-high") == "U 11.00"
-            assert "1 plain … 101 best (spec spec.toml)" in key
+            # U of a version: the full image's weight times its quality (eq. 4.33)
+            assert ("1 plain … 101 best (spec spec.toml), × the version sent (half size 0.5)"
+                    in key)
             # each gallery image says why it was sent; the best first: uav2's red images
             await wait_js(page, "() => document.querySelector('#gallery .why') !== null",
                           timeout_s=10.0)

@@ -111,6 +111,17 @@ CASES = [
     ("uav-sitl", "camera --scene {binary} --pose 1,2,3 --out {folder}/f", 2, "not a text file"),
     ("uav-sitl", "camera --poses {binary} --out {folder}/f", 2, "can't decode"),
     ("uav-sitl", "camera --pose 1,2,3 --out /proc/nope", 1, "cannot write to /proc/nope"),
+    # a mistyped scene name read as a missing file; now it names the scenes there are
+    ("uav-sitl", "camera --scene dmeo --pose 1,2,3 --out {folder}/f", 2,
+     "uav-sitl camera: no scene 'dmeo': not a bundled scene (demo) nor a file"),
+    ("uav-sitl", "fleet --drones 1 --duration 1 --scene dmeo --out {folder}/run", 2,
+     "uav-sitl fleet: no scene 'dmeo': not a bundled scene (demo) nor a file"),
+    ("uav-sitl", "vehicle --scene dmeo --duration 1", 2,
+     "uav-sitl vehicle: no scene 'dmeo': not a bundled scene (demo) nor a file"),
+    # was "no token ([Errno 2] No such file or directory: '.../token'); pass --token"
+    ("uav-ground-station", "shell --data-dir {folder} -c status", 2,
+     "/folder/token (no such file): give the station's --data-dir or --config (as `run` got "
+     "them), or --token"),
     ("uav-sitl", "fleet --drones 1 --duration 1 --scene {binary} --out {folder}/run", 2,
      "not a text file"),
     ("uav-sitl", "camera --pose 1,2,3 --hfov 200 --out {folder}/f", 2,
@@ -161,6 +172,20 @@ def test_bad_input_is_one_line_and_nonzero(bad: dict[str, Path], script: str, ar
     result = subprocess.run([_tool(script), *args], capture_output=True, text=True,
                             timeout=60, check=False)
     assert_one_line_error(result, code, fragment)
+
+
+def test_vehicle_on_a_busy_port_names_the_ports_and_the_flag() -> None:
+    """Was "uav-sitl vehicle: cannot bind: [Errno 98] Address already in use": which port, and
+    what to do, was left to guess (a vehicle still running from the README's `&`)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as busy:
+        busy.bind(("127.0.0.1", 0))
+        port = busy.getsockname()[1] - 1  # the second of two vehicles finds it taken
+        result = subprocess.run([_tool("uav-sitl"), "vehicle", "--port", str(port), "--count",
+                                 "2", "--duration", "1"], capture_output=True, text=True,
+                                timeout=60, check=False)
+    assert_one_line_error(result, 1, f"uav-sitl vehicle: cannot bind UDP 127.0.0.1:{port}.."
+                          f"{port + 1}: address already in use (another vehicle or program "
+                          "listens there): stop it, or pick another --port")
 
 
 def test_export_does_not_create_a_database(bad: dict[str, Path]) -> None:

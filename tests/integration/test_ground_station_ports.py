@@ -1,7 +1,8 @@
 """`uav-ground-station run` and ports it cannot have, as real subprocesses (INFO logging).
 
-* A second station on a running station's UDP port must fail with one line naming the port:
-  with SO_REUSEADDR it started, bound the same port and silently took the fleet's datagrams.
+* A second station on a running station's UDP port, or a busy dashboard port, must fail with
+  one line naming the port and the option that moves it (with SO_REUSEADDR the second
+  station started, bound the same UDP port and silently took the fleet's datagrams).
 * The "dashboard:" login link is printed only once the HTTP site listens, with the port it
   got: it was printed before binding, so a busy port handed a login code to whatever held
   it, and ``--http-port 0`` printed ``:0``.
@@ -48,8 +49,9 @@ def test_a_second_station_on_the_same_udp_port_fails(tmp_path: Path) -> None:
         assert second.returncode == 1, second.stderr
         assert "Traceback" not in second.stderr
         errors = [x for x in second.stderr.splitlines() if x.startswith("uav-ground-station")]
-        assert errors == [f"uav-ground-station: cannot serve: [Errno 98] UDP 127.0.0.1:"
-                          f"{udp_port}: Address already in use"], second.stderr
+        assert errors == [f"uav-ground-station: UDP 127.0.0.1:{udp_port} is already in use "
+                          "(another ground station?): stop it, or pick another --udp-port"
+                          ], second.stderr
         assert "dashboard:" not in second.stdout
         assert first.poll() is None
     finally:
@@ -65,7 +67,12 @@ def test_no_login_link_for_a_busy_http_port(tmp_path: Path) -> None:
                                 capture_output=True, text=True, timeout=60, check=False)
     assert result.returncode == 1, result.stderr
     assert "Traceback" not in result.stderr
-    assert "address already in use" in result.stderr
+    # one line naming the dashboard's address and the flag that moves it (aiohttp's words,
+    # "error while attempting to bind on address ('127.0.0.1', N)", named neither)
+    errors = [x for x in result.stderr.splitlines() if x.startswith("uav-ground-station")]
+    assert errors == [f"uav-ground-station: dashboard 127.0.0.1:{port} is already in use "
+                      "(another program listens there): stop it, or pick another --http-port"
+                      ], result.stderr
     assert "login=" not in result.stdout and "dashboard:" not in result.stdout
 
 
