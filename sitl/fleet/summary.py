@@ -273,9 +273,10 @@ def format_summary(summary: dict[str, Any]) -> str:
                                   summary.get("peers_age_bound_s")))
     data = summary["data"]
     lines.append(f"data: {summary['run_dir']}")
-    if summary.get("report"):
-        lines.append(f"  report   {summary['report']} (and {summary.get('dashboard', '')}"
-                     "report while the station runs)")
+    if summary.get("report"):  # printed once the station stopped: how to open it again
+        station = Path(summary["run_dir"]) / "ground_station.toml"
+        lines.append(f"  report   {summary['report']} (the dashboard's /report page again: "
+                     f"uav-ground-station run --config {station})")
     lines.append(f"  images   {data['images']}")
     lines.append(f"  database {data['ground_station_db']}")
     lines.append(f"  logs     {data['ground_station_log']} + drones/*/mission_log.jsonl")

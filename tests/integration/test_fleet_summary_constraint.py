@@ -27,3 +27,13 @@ def test_the_constraint_line_says_when_the_policy_ignores_it() -> None:
     assert line("mcts") == "constraint: adaptive"
     assert line("send_all") == "constraint: adaptive (not used: policy send_all ignores it)"
     assert line("random") == "constraint: adaptive (not used: policy random ignores it)"
+
+
+def test_the_report_line_says_how_to_open_the_stopped_dashboard_again() -> None:
+    """The summary comes after the station stopped: it offered "http://127.0.0.1:N/report while
+    the station runs", a page no longer served (a newcomer's `make demo` walk)."""
+    summary = {**_summary("mcts"), "report": "/x/utility.png",
+               "dashboard": "http://127.0.0.1:39423/"}
+    line = next(x for x in format_summary(summary).splitlines() if x.startswith("  report"))
+    assert line == ("  report   /x/utility.png (the dashboard's /report page again: "
+                    "uav-ground-station run --config /x/ground_station.toml)")
