@@ -5,14 +5,15 @@ value and what was found.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+import difflib
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from companion.protocol.wire import MAX_ID_BYTES
 from utility_specs.data_fields import is_number
 
 __all__ = ["SECRET_KEYS", "ConfigError", "Table", "described", "is_mavlink_url", "is_number",
-           "is_sender_id"]
+           "is_sender_id", "known_key_expected"]
 
 
 class ConfigError(ValueError):
@@ -22,6 +23,15 @@ class ConfigError(ValueError):
 SECRET_KEYS = frozenset({"fleet_key"})
 """Keys whose value an error names by its type only: a key written as a list or a table
 was echoed whole to stderr (a service's journal), where other users may read it."""
+
+
+def known_key_expected(name: str, known: Iterable[str]) -> str:
+    """What an error expects instead of an unknown key: the closest known name first (a typo
+    is the usual cause, and the full list is long), then all of them."""
+    names = sorted(known)
+    close = difflib.get_close_matches(name, names, n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return f"a known key{hint}, one of {names}"
 
 
 def described(name: str, got: Any) -> str:
@@ -88,8 +98,9 @@ class Table:
 
     def done(self) -> None:
         unknown = sorted(set(self.raw) - self.used)
-        if unknown:
-            self.fail(unknown[0], f"one of {sorted(self.used)}", self.raw[unknown[0]])
+        if unknown:  # the key is what is wrong: its value is no help ("got 'x'" misled)
+            raise ConfigError(f"{self.source}: {self.key(unknown[0])}: expected "
+                              f"{known_key_expected(unknown[0], self.used)}")
 
 
 def is_sender_id(value: Any) -> bool:

@@ -292,6 +292,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "keygen":
         return _keygen(args, config)
     if args.command == "token":
+        if args.url and config.http_port == 0:  # "any free port" for run: no URL to give
+            print("uav-ground-station: token --url needs the dashboard's real port: give the "
+                  "--http-port that `run` printed in its dashboard line", file=sys.stderr)
+            return 2
         problem = data_dir_problem(config.data_dir)
         if problem is not None:
             print(f"uav-ground-station: {problem}", file=sys.stderr)

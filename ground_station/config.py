@@ -13,7 +13,7 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
-from companion.config_table import described
+from companion.config_table import described, known_key_expected
 from companion.protocol.errors import LocalProtocolError
 from companion.protocol.signing import KEY_BYTES, decode_key_text
 from companion.protocol.wire import MIN_KEY_BYTES
@@ -257,7 +257,7 @@ def config_from_mapping(raw: dict[str, Any], *, file: str = "<config>") -> Groun
     value: Any
     for key, value in table.items():
         if key not in known:
-            raise ConfigError(file, key, f"one of {sorted(known)}", key)
+            raise ConfigError(file, key, known_key_expected(key, known))
         want, text = _TYPES[key]
         # bool is an int subclass: refuse true/false where a number is expected.
         if not isinstance(value, want) or (isinstance(value, bool) and want is not bool):

@@ -67,6 +67,9 @@ def test_minimal_config_takes_defaults() -> None:
         ('[drone]\nid = "d"\n[telemetry]\nposition_rate_hz = -2\n',
          "telemetry.position_rate_hz", "a number >= 0"),
         ('[drone]\nid = "d"\n[colour]\nx = 1\n', "colour", "one of"),
+        # a typo names the key it meant, not the value ("expected one of [...], got 'x'")
+        ('[drone]\nid = "d"\n[mavlink]\nulr = "x"\n', "mavlink.ulr",
+         "expected a known key (did you mean 'url'?), one of ['baud', "),
     ],
 )
 def test_errors_name_file_key_and_expectation(tmp_path: Path, text: str, key: str,

@@ -210,6 +210,7 @@ def test_config_from_toml(tmp_path: Path) -> None:
         ("alpha = true", "alpha", "a number"),
         ("fleet_key = 'short'", "fleet_key", "at least 16 bytes"),
         ("colour = 'red'", "colour", "one of"),
+        ("udp_prot = 5", "udp_prot", "expected a known key (did you mean 'udp_port'?), one of"),
         ("report_interval_s = 0", "report_interval_s", "a number > 0"),
     ],
 )

@@ -48,6 +48,8 @@ def bad(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     files["a_file"].write_text("not a folder\n")
     files["folder"].mkdir()
     files["long_id"].write_text(f'[drone]\nid = "{"d" * 40}"\n')
+    files["typo"] = root / "typo.toml"
+    files["typo"].write_text('[drone]\nid = "d1"\n[mavlink]\nulr = "udpin:127.0.0.1:14550"\n')
     files["port"].write_text('[drone]\nid = "d1"\n[mavlink]\nurl = "udpin:0.0.0.0:99999"\n')
     # The station has no built-in key: runs that are about something else get the test keys.
     write_test_keys(root / "keys")
@@ -70,6 +72,8 @@ CASES = [
     ("uav-companion", "run --config {port}", 2, "mavlink.url: expected a pymavlink URL"),
     ("uav-companion", "check --config {long_id} --skip-mavlink --skip-camera", 2,
      "drone.id: expected a printable sender id of 1..32 UTF-8 bytes"),
+    ("uav-companion", "check --config {typo}", 2,
+     "typo.toml: mavlink.ulr: expected a known key (did you mean 'url'?), one of ['baud', "),
     ("uav-companion", "run --config {long_id}", 2,
      "drone.id: expected a printable sender id of 1..32 UTF-8 bytes"),
     ("uav-companion", "install-service --dry-run --config {binary}", 2, "not a text file"),
@@ -83,6 +87,9 @@ CASES = [
      "run --config {keyed} --data-dir /proc/uav-gs-data --udp-port 0 --http-port 0", 2,
      "data dir /proc/uav-gs-data: not writable"),
     ("uav-ground-station", "token --data-dir {a_file}", 2, "is a file, not a folder"),
+    # printed http://127.0.0.1:0/?login=... (and made a token) for run's "any free port"
+    ("uav-ground-station", "token --url --http-port 0 --data-dir {no_db}", 2,
+     "token --url needs the dashboard's real port: give the --http-port that `run` printed"),
     ("uav-ground-station", "run --config {binary}", 2, "a UTF-8 TOML text file"),
     ("uav-ground-station", "run --config {deep_toml}", 2, "nested too deeply"),
     ("uav-ground-station", "run --config {folder}", 2, "a readable TOML file"),
