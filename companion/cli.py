@@ -182,13 +182,14 @@ def _check(args: argparse.Namespace) -> int:
     config = _load(args.config)
     if config is None:
         return 2
-    print(f"config: {args.config}: ok (drone {config.drone_id})")
-    try:
-        for line in check_setup(config):
-            print(line)
+    try:  # all of it before "ok": "ok" then "configuration error: no key" read as a contradiction
+        setup = check_setup(config)
     except AppSetupError as exc:
         print(f"configuration error: {exc}", file=sys.stderr)
         return 2
+    print(f"config: {args.config}: ok (drone {config.drone_id})")
+    for line in setup:
+        print(line)
     failures = 0
     snapshot = None
     if not args.skip_mavlink:

@@ -205,3 +205,14 @@ def test_structured_logs_are_one_json_object_per_line(
     assert record["level"] == "info" and record["logger"] == "companion.test"
     logging.getLogger().handlers.clear()
     logging.getLogger().setLevel(logging.WARNING)
+
+
+def test_check_without_keys_never_says_ok_first(tmp_path: Path) -> None:
+    """The example config as shipped (no key files): check printed "config: ...: ok" and then
+    "configuration error: ... fleet_key_file is not set", which read as a contradiction."""
+    config = _config(tmp_path, "udpin:127.0.0.1:1", "synthetic", keys=False)
+    result = _cli("check", "--config", str(config), "--skip-mavlink", "--skip-camera")
+    assert result.returncode == 2
+    assert result.stdout == ""
+    assert result.stderr.startswith(f"configuration error: {config}: "
+                                    "ground_station.fleet_key_file is not set")
