@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import socket
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -179,12 +180,28 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     _check_spec(p, args.spec)
     if not 0 <= args.http_port <= 65535:
         p.error(f"--http-port must be in 0..65535, got {args.http_port}")
+    if args.http_port and not args.netns and _tcp_port_taken(args.http_port):
+        p.error(f"--http-port {args.http_port} is already in use on 127.0.0.1 (another "
+                "program listens there): stop it, or pick another (0: a free one)")
     if args.constraint is None:
         shaped = args.netns or args.relay
         args.constraint = "adaptive" if shaped and args.goodput is None else "constant"
     if args.goodput is None:
         args.goodput = 40_000.0
     return args
+
+
+def _tcp_port_taken(port: int) -> bool:
+    """Whether the dashboard's 127.0.0.1:port is held. Checked before the launcher prints the
+    run's login link: it printed one for a port another program held, then the station
+    failed on it. SO_REUSEADDR as aiohttp binds, so a closing socket is not taken for one."""
+    with socket.socket() as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError:
+            return True
+    return False
 
 
 def _check_spec(p: argparse.ArgumentParser, spec: str) -> None:

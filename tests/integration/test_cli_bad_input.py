@@ -195,6 +195,23 @@ def test_vehicle_on_a_busy_port_names_the_ports_and_the_flag() -> None:
                           "listens there): stop it, or pick another --port")
 
 
+def test_fleet_on_a_busy_dashboard_port_fails_before_announcing_the_run(
+        bad: dict[str, Path]) -> None:
+    """It printed the run's dashboard login link for the busy port, started the vehicles and
+    companions, then quoted the ground station's failure (a newcomer's --http-port)."""
+    with socket.socket() as squatter:
+        squatter.bind(("127.0.0.1", 0))
+        squatter.listen()
+        port = squatter.getsockname()[1]
+        result = subprocess.run([_tool("uav-sitl"), "fleet", "--drones", "1", "--duration", "1",
+                                 "--http-port", str(port), "--out", str(bad["folder"] / "busy")],
+                                capture_output=True, text=True, timeout=60, check=False)
+    assert_one_line_error(result, 2, f"--http-port {port} is already in use on 127.0.0.1 "
+                          "(another program listens there): stop it, or pick another")
+    assert "login=" not in result.stdout
+    assert not (bad["folder"] / "busy").exists()
+
+
 def test_export_does_not_create_a_database(bad: dict[str, Path]) -> None:
     subprocess.run([_tool("uav-ground-station"), "export", "m1", "--data-dir",
                     str(bad["no_db"]), "--out", str(bad["folder"] / "y")],
