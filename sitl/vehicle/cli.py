@@ -96,6 +96,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    help="NAME=VALUE parameter override (repeatable)")
     p.add_argument("--wind", type=float, nargs=2, metavar=("SPEED", "FROM_DEG"),
                    default=None, help="mean wind speed (m/s) and direction it blows from")
+    p.add_argument("--reboot-s", type=float, default=4.0, metavar="S",
+                   help="wall seconds MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN keeps the vehicle silent"
+                        " before it boots again (default 4; ArduCopter 4.5 SITL: 2.1, shorter"
+                        " than a client's 3 s heartbeat timeout)")
     p.add_argument("--duration", type=float, default=None, help="stop after S wall seconds")
     p.add_argument("--seed", type=int, default=0, help="seed of the GPS noise")
     p.add_argument("--ready-file", type=Path, default=None,
@@ -128,6 +132,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             p.error(f"{flag} must be a finite number > 0, got {value}")
     if args.alt is not None and not math.isfinite(args.alt):
         p.error(f"--alt must be a finite number of metres, got {args.alt}")
+    if not 0 <= args.reboot_s < 1e6:
+        p.error(f"--reboot-s must be a number of seconds >= 0, got {args.reboot_s}")
     if args.duration is not None and not args.duration >= 0:
         p.error(f"--duration must be a number of seconds >= 0, got {args.duration}")
     if args.serial and args.count != 1:
@@ -188,7 +194,8 @@ def build_configs(args: argparse.Namespace) -> list[VehicleConfig]:
         fix = {} if args.first_fix is None else {"first_fix_s": args.first_fix}
         configs.append(VehicleConfig(system_id=args.sysid + i, flavour=flavour, home=home,
                                      params=params, mission=tuple(mission),
-                                     seed=args.seed + i, autostart=args.autostart, **fix))
+                                     seed=args.seed + i, autostart=args.autostart,
+                                     reboot_s=args.reboot_s, **fix))
     return configs
 
 
