@@ -18,13 +18,15 @@ import contextlib
 import os
 import termios
 import tty
+from collections.abc import Hashable
 from dataclasses import replace
 from pathlib import Path
 
 from sitl.vehicle.core import VehicleConfig, VehicleCore
-from sitl.vehicle.shell import CoreTimer, SimClock
+from sitl.vehicle.links import DEFAULT_LINK
+from sitl.vehicle.shell import CoreTimer, LinkGroup, SimClock, VehicleEndpoint, VehicleProtocol
 
-__all__ = ["PtySerialLink", "start_serial_vehicle"]
+__all__ = ["PtySerialLink", "start_serial_and_udp_vehicle", "start_serial_vehicle"]
 
 TX_BUFFER_BYTES = 4096
 _BAUD_CONSTANTS = {115200: termios.B115200, 57600: termios.B57600, 230400: termios.B230400,
@@ -36,7 +38,8 @@ class PtySerialLink:
     """One vehicle behind a pseudo-terminal; ``path`` is what a client opens."""
 
     def __init__(self, core: VehicleCore, clock: SimClock, *, baud: int = 115200,
-                 link: Path | None = None, tx_buffer_bytes: int = TX_BUFFER_BYTES) -> None:
+                 link: Path | None = None, tx_buffer_bytes: int = TX_BUFFER_BYTES,
+                 channel: Hashable = DEFAULT_LINK, group: LinkGroup | None = None) -> None:
         if baud <= 0:
             raise ValueError(f"baud must be > 0, got {baud}")
         self.core = core
@@ -67,7 +70,12 @@ class PtySerialLink:
             self.path = str(link)
         self._budget = float(tx_buffer_bytes)
         self._t_budget = clock.loop.time()
-        self._timer = CoreTimer(core, clock, self.transmit)
+        self.channel = channel
+        """The core's link this line is (``link`` is the symlink's path)."""
+        self.group = group
+        self._timer = CoreTimer(core, clock, self.transmit) if group is None else None
+        if group is not None:
+            group.members.append(self.send_pending)
         self._closed = False
 
     def start(self) -> None:
@@ -78,7 +86,10 @@ class PtySerialLink:
         if self._closed:
             return
         self._closed = True
-        self._timer.cancel()
+        if self._timer is not None:
+            self._timer.cancel()
+        if self.group is not None:
+            self.group.cancel()
         self.clock.loop.remove_reader(self._master)
         for fd in (self._master, self._slave):
             with contextlib.suppress(OSError):
@@ -97,7 +108,7 @@ class PtySerialLink:
             return
         if data:
             self.counters["rx_bytes"] += len(data)
-            self.core.receive_datagram(data, ("serial", 0), self.clock())
+            self.core.receive_datagram(data, ("serial", 0), self.clock(), self.channel)
             self.transmit()
 
     def _refill(self) -> None:
@@ -108,9 +119,23 @@ class PtySerialLink:
         self._t_budget = now
 
     def transmit(self) -> None:
+        if self.group is not None:
+            self.group.transmit()
+            return
         if self._closed:
             return
-        frames = self.core.datagrams_to_send()
+        self.send_pending()
+        if self._timer is not None:
+            self._timer.rearm()
+
+    def send_pending(self) -> None:
+        """Write this line's frames and the HEARTBEATs routed to it, within the budget."""
+        if self._closed:
+            return
+        frames = self.core.datagrams_to_send(self.channel)
+        # a line has one client: only what came on another link, never its own echo
+        frames += [frame for sender, frame in self.core.forwards_to_send(self.channel)
+                   if sender is None]
         if frames:
             self._refill()
             for frame in frames:
@@ -127,7 +152,6 @@ class PtySerialLink:
                     continue
                 self._budget -= len(frame)
                 self.counters["tx_bytes"] += len(frame)
-        self._timer.rearm()
 
 
 def start_serial_vehicle(config: VehicleConfig, *, baud: int = 115200, link: Path | None = None,
@@ -139,3 +163,28 @@ def start_serial_vehicle(config: VehicleConfig, *, baud: int = 115200, link: Pat
     serial = PtySerialLink(core, clock, baud=baud, link=link, tx_buffer_bytes=tx_buffer_bytes)
     serial.start()
     return serial
+
+
+async def start_serial_and_udp_vehicle(
+        config: VehicleConfig, *, baud: int = 115200, link: Path | None = None,
+        speedup: float = 1.0, host: str = "127.0.0.1", port: int = 0,
+        out: tuple[str, int] | None = None) -> tuple[PtySerialLink, VehicleEndpoint]:
+    """One vehicle on two links, as a flight controller with TELEM2 wired to the companion's
+    UART and its radio (or USB) to a GCS: a pseudo-terminal and a UDP port, each link with its
+    own streams (sitl.vehicle.links)."""
+    loop = asyncio.get_running_loop()
+    clock = SimClock(loop, speedup)
+    core = VehicleCore(replace(config, speedup=speedup), now=clock(), links=("serial", "udp"))
+    group = LinkGroup(core, clock)
+    serial = PtySerialLink(core, clock, baud=baud, link=link, channel="serial", group=group)
+    protocol = VehicleProtocol(core, clock, out=out, link="udp", group=group)
+    try:
+        transport, _ = await loop.create_datagram_endpoint(lambda: protocol,
+                                                           local_addr=(host, port))
+    except BaseException:
+        serial.close()
+        raise
+    sock = transport.get_extra_info("sockname")
+    serial.start()
+    return serial, VehicleEndpoint(core=core, protocol=protocol, transport=transport,
+                                   address=(str(sock[0]), int(sock[1])))

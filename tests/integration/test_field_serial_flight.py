@@ -7,6 +7,13 @@ Real processes: ``uav-ground-station run``, ``uav-sitl vehicle`` (both flavours)
 pulls it, a new socat on the same path plugs it back), bridged to the vehicle's UDP port,
 where a pymavlink GCS (system 255, HEARTBEAT at 1 Hz, as QGroundControl) also talks. The
 ground station's ``/api/fleet`` is what the dashboard draws.
+
+Two wirings: ArduPilot with TELEM2 on the companion's UART and the GCS on its own link
+(``uav-sitl vehicle --serial --gcs-port``: each link its own streams, as ArduPilot keeps them
+per channel; socat joins the vehicle's pty to the companion's), and PX4 with the companion
+and the GCS on one link (socat bridges the companion's pty to the vehicle's UDP port, as a
+router sharing one TELEM port would): there the GCS sees the companion's stream requests
+act, e.g. ``RC_CHANNELS = 0``.
 """
 
 from __future__ import annotations
@@ -36,10 +43,11 @@ pytestmark = pytest.mark.skipif(SOCAT is None, reason="socat is not installed (a
                                 "that stands in for the serial cable")
 
 
-def _cable(tty: Path, vehicle_port: int) -> subprocess.Popen[bytes]:
-    """A serial cable: a pty at ``tty`` (57600 baud, raw) bridged to the vehicle's UDP port."""
-    proc = subprocess.Popen([str(SOCAT), f"PTY,link={tty},raw,echo=0,b57600",
-                             f"UDP:127.0.0.1:{vehicle_port}"], stderr=subprocess.PIPE)
+def _cable(tty: Path, vehicle_end: str) -> subprocess.Popen[bytes]:
+    """A serial cable: a pty at ``tty`` (57600 baud, raw) joined to ``vehicle_end`` (socat's
+    address of the vehicle's own pty, or of its UDP port)."""
+    proc = subprocess.Popen([str(SOCAT), f"PTY,link={tty},raw,echo=0,b57600", vehicle_end],
+                            stderr=subprocess.PIPE)
     deadline = time.monotonic() + 10
     while not tty.exists():
         assert proc.poll() is None and time.monotonic() < deadline, "socat made no pty"
@@ -83,8 +91,9 @@ class Flight:
     companion_log: Path
     gcs: Autopilot
     tty: Path
-    vehicle_port: int
+    vehicle_end: str
     cable: subprocess.Popen[bytes]
+    shared_link: bool
 
     def tile(self) -> dict[str, Any]:
         fleet = station_api(f"http://127.0.0.1:{self.station.port}", self.station.token,
@@ -121,24 +130,31 @@ def _fresh_position(tile: dict[str, Any]) -> bool:
     return tile.get("lat_deg") is not None and "position" not in tile["stale"]
 
 
-@pytest.fixture(params=["ardupilot", "px4"])
+@pytest.fixture(params=["ardupilot-own-link", "px4-shared-link"])
 def flight(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Flight]:
-    flavour = str(request.param)
+    flavour = str(request.param).split("-")[0]
+    shared = str(request.param).endswith("shared-link")
     with running_station(tmp_path) as station:
         gs_port = int(re.findall(r"receiving fleet \d+ on udp://127.0.0.1:(\d+)",
                                  station.log_text())[0])
         vehicle_port = free_port()
+        fc = tmp_path / "fc"  # the vehicle's own serial port (--serial-link)
+        link = (["--port", str(vehicle_port)] if shared else
+                ["--serial", "--serial-link", str(fc), "--baud", "57600", "--gcs-port",
+                 str(vehicle_port)])
         # The fix 6 simulated s after each boot; a reboot silent for 2 s, as ArduCopter 4.5
         # SITL's (docs/companion.md): shorter than the companion's 3 s heartbeat timeout.
         vehicle = subprocess.Popen(
-            [console_script("uav-sitl"), "vehicle", "--flavour", flavour, "--port",
-             str(vehicle_port), "--first-fix", "6", "--reboot-s", "2", "--pattern", "orbit"],
+            [console_script("uav-sitl"), "vehicle", "--flavour", flavour, *link,
+             "--first-fix", "6", "--reboot-s", "2", "--pattern", "orbit"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         assert vehicle.stdout is not None
         ready = vehicle.stdout.readline()
         assert ready.startswith("READY "), vehicle.communicate()[1][-2000:]
         tty = tmp_path / "ttyAMA0"
-        cable = _cable(tty, vehicle_port)
+        vehicle_end = (f"UDP:127.0.0.1:{vehicle_port}" if shared
+                       else f"GOPEN:{fc},raw,echo=0")
+        cable = _cable(tty, vehicle_end)
         config = _companion_config(tmp_path, tty, gs_port, tmp_path / "data" / "keys")
         log = tmp_path / "companion.log"
         with open(log, "wb") as out:
@@ -148,7 +164,7 @@ def flight(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Flight]:
                 env={**os.environ, "PYTHONUNBUFFERED": "1"})
         gcs = Autopilot.connect(f"udpout:127.0.0.1:{vehicle_port}")
         try:
-            flight = Flight(station, companion, log, gcs, tty, vehicle_port, cable)
+            flight = Flight(station, companion, log, gcs, tty, vehicle_end, cable, shared)
             yield flight
         finally:
             gcs.conn.close()
@@ -182,13 +198,21 @@ def test_a_serial_flight_with_a_gcs_a_pulled_cable_and_a_reboot(flight: Flight) 
     assert gcs.command(m.MAV_CMD_COMPONENT_ARM_DISARM, 1) == m.MAV_RESULT_ACCEPTED
     gcs.heartbeat(gcs.armed, 5, "armed")
     flight.until("armed", lambda t: t["armed"] is True, 2.5)
+    if not flight.shared_link:
+        # The GCS stops every stream of its link (REQUEST_DATA_STREAM ALL, stop): the
+        # companion's link streams on, as ArduPilot keeps rates per channel.
+        gcs.conn.mav.request_data_stream_send(gcs.sysid, 1, m.MAV_DATA_STREAM_ALL, 0, 0)
+        time.sleep(4.0)  # longer than the companion's 3 s stream-silence check
+        tile = flight.until("positions still fresh", _fresh_position, 1)
+        assert tile["ages"]["position"] < 2.0, tile
+        assert "none of the requested streams" not in flight.log()
 
     # The cable is pulled mid-flight: unknown, not the last values, then back as it is.
     _unplug(flight.cable)
     assert not flight.tty.exists(), "socat removes the pty's link when it ends"
     flight.until("the link lost", lambda t: t["autopilot_connected"] is False
                  and (t["mode"], t["armed"], t["gps_fix"]) == (None, None, None), 6)
-    flight.cable = _cable(flight.tty, flight.vehicle_port)
+    flight.cable = _cable(flight.tty, flight.vehicle_end)
     flight.until("the link back with the truth", lambda t: t["autopilot_connected"]
                  and t["armed"] is True and t["gps_fix"] == 3 and _fresh_position(t), 10)
 
@@ -204,7 +228,7 @@ def test_a_serial_flight_with_a_gcs_a_pulled_cable_and_a_reboot(flight: Flight) 
     # last one struck through on the dashboard for the rest of the flight.
     flight.until("positions from the new boot", lambda t: t["gps_fix"] == 3
                  and _fresh_position(t) and t["t"] - t["ages"]["position"] > booted, 25)
-    if not ardupilot:
+    if flight.shared_link:
         # PX4 streams its defaults again after a boot: the companion's "RC_CHANNELS = 0"
         # must be asked for again (it was: 5 Hz of RC_CHANNELS forever on a 57600 line).
         gcs.collect(2.0)  # what waited in the GCS's socket since the reboot
