@@ -25,11 +25,16 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["REBOOT_TOLERANCE_MS", "StreamWatch"]
+__all__ = ["BOOT_CLOCK_MESSAGES", "REBOOT_TOLERANCE_MS", "StreamWatch"]
 
 REBOOT_TOLERANCE_MS = 1000
 """``time_boot_ms`` may step back this much without meaning a reboot (messages of one
 autopilot share its clock; a little slack for one stamped before another was sent)."""
+
+BOOT_CLOCK_MESSAGES = frozenset({"SYSTEM_TIME", "ATTITUDE", "GLOBAL_POSITION_INT"})
+"""Whose ``time_boot_ms`` is read: ones the companion asks for and both stacks stamp with
+their boot clock. Others are not trusted with it (a stack may leave a field it does not
+fill at 0, which would read as a reboot at every such message)."""
 
 
 @dataclass(kw_only=True)
@@ -56,6 +61,8 @@ class StreamWatch:
         if msg.get_type() in self.wanted:
             self.t_last_stream = now
             self.told = False
+        if msg.get_type() not in BOOT_CLOCK_MESSAGES:
+            return None
         boot_ms = getattr(msg, "time_boot_ms", None)
         if not isinstance(boot_ms, int):
             return None

@@ -25,6 +25,9 @@ def test_time_since_boot_going_back_is_a_reboot() -> None:
     assert watch.rebooted(_attitude(2_000), 2.6) is None  # the new boot's clock goes on
     heartbeat = m.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3)
     assert watch.rebooted(heartbeat, 2.7) is None  # no clock in it
+    pressure = m.MAVLink_scaled_pressure_message(0, 1013.0, 0.0, 2000)
+    assert watch.rebooted(pressure, 2.8) is None  # a clock not trusted (0: unfilled)
+    assert watch.rebooted(_attitude(2_100), 2.9) is None
 
 
 def test_silence_counts_only_wanted_streams_and_restarts_at_each_request() -> None:
