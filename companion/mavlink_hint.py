@@ -7,10 +7,11 @@ the link opens and hears nothing.
 
 from __future__ import annotations
 
+import os
 import socket
 from pathlib import Path
 
-__all__ = ["silence_hint", "udp_listeners"]
+__all__ = ["other_openers", "sharing_hint", "silence_hint", "udp_listeners"]
 
 
 def silence_hint(url: str, *, own_socket_open: bool = False) -> str:
@@ -34,7 +35,52 @@ def silence_hint(url: str, *, own_socket_open: bool = False) -> str:
                 f"mavlink-router or the SITL's --out at this port")
     if scheme in ("udpout", "udp", "tcp"):
         return f"nothing answered at {rest}: is the autopilot or SITL running there?"
-    return "the line is open but silent: check the wiring, the baud rate and SERIALn_PROTOCOL"
+    return sharing_hint(url) or ("the line is open but silent: check the wiring, the baud rate "
+                                 "and SERIALn_PROTOCOL")
+
+
+def sharing_hint(url: str) -> str | None:
+    """For a serial URL that another process also has open: what goes wrong and what to do.
+
+    Two programs reading one UART (MAVProxy or a GCS bridge started on /dev/serial0 beside
+    the companion) each get part of its bytes: both lose frames, and pyserial's read fails
+    with "device reports readiness to read but returned no data", so the companion lost its
+    link every few seconds (measured on a pty: a second pymavlink reader)."""
+    device = url.split(",")[0]
+    if not device.startswith("/"):
+        return None
+    others = other_openers(device)
+    if not others:
+        return None
+    return (f"another program also has {device} open ({', '.join(others)}): two programs "
+            "reading one serial port each get part of its bytes, and both lose frames and "
+            "the link; give the companion its own output instead (mavlink-router or MAVProxy "
+            "--out udp:127.0.0.1:14550 with url = \"udpin:127.0.0.1:14550\") or its own "
+            "TELEM port")
+
+
+def other_openers(device: str) -> list[str]:
+    """``PID (NAME)`` of the other processes that have ``device`` open (Linux ``/proc``;
+    another user's processes are visible to root only)."""
+    target = os.path.realpath(device)
+    found = []
+    try:
+        pids = [p for p in Path("/proc").iterdir() if p.name.isdigit()]
+    except OSError:  # not Linux: no hint
+        return []
+    for pid in pids:
+        if int(pid.name) == os.getpid():
+            continue
+        try:
+            links = {os.readlink(fd) for fd in (pid / "fd").iterdir()}
+            # A pseudo-terminal's provider (socat, the simulated vehicle) holds its master,
+            # /dev/ptmx: the other end of the wire, not a second reader of this end.
+            if target in links and "/dev/ptmx" not in links:
+                name = (pid / "comm").read_text().strip()
+                found.append(f"pid {pid.name}: {name}")
+        except OSError:  # gone, or not ours to read
+            continue
+    return sorted(found)
 
 
 def _ipv4(host: str) -> str:

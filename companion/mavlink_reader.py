@@ -38,7 +38,7 @@ from companion.mavlink_convert import (
     MAV_TYPE_ONBOARD_CONTROLLER,
     MavlinkConverter,
 )
-from companion.mavlink_hint import silence_hint
+from companion.mavlink_hint import sharing_hint, silence_hint
 from companion.mavlink_watch import StreamWatch
 from companion.telemetry import (
     CommandAckSample,
@@ -193,7 +193,8 @@ class MavlinkReader:
         try:
             msg = conn.recv_match(blocking=True, timeout=self.settings.recv_timeout_s)
         except OSError as exc:
-            log.warning("mavlink receive failed: %s", exc)
+            shared = sharing_hint(self.settings.url)  # a serial port another program reads
+            log.warning("mavlink receive failed: %s%s", exc, f" ({shared})" if shared else "")
             return self._lose(conn, f"receive failed: {exc}")
         now = self._clock()
         try:
