@@ -213,8 +213,10 @@ def _probe_mavlink(config: Any, timeout_s: float) -> tuple[Any, list[str], bool]
     if not snap.connected and snap.t_heartbeat is None:
         if reader.last_error is not None:
             return snap, [f"mavlink: {url}: cannot open: {reader.last_error}"], False
+        hint = silence_hint(url, unparsable=reader.counters["bad_messages"],
+                            baud=config.mavlink.baud)
         return snap, [f"mavlink: {url}: no autopilot HEARTBEAT within {timeout_s:g} s "
-                      f"({silence_hint(url)})"], False
+                      f"({hint})"], False
     lines = [f"mavlink: {url}: {snap.autopilot} autopilot, vehicle type {snap.vehicle_type}, "
              f"mode {snap.mode}, {'armed' if snap.armed else 'disarmed'}"]
     shared = sharing_hint(url)

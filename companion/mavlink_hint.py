@@ -14,11 +14,14 @@ from pathlib import Path
 __all__ = ["other_openers", "sharing_hint", "silence_hint", "udp_listeners"]
 
 
-def silence_hint(url: str, *, own_socket_open: bool = False) -> str:
+def silence_hint(url: str, *, own_socket_open: bool = False, unparsable: int = 0,
+                 baud: int | None = None) -> str:
     """What usually explains an open link that stays silent. ``own_socket_open``: our socket
     is still bound (``run``'s log), so one listener at our address is ours; `check` asks
     after closing it, so every listener is another program, also one at our very address
-    (the default ``udpin:127.0.0.1:14550`` and another companion's)."""
+    (the default ``udpin:127.0.0.1:14550`` and another companion's). ``unparsable``: bytes
+    came that made no MAVLink frame (pymavlink's BAD_DATA), on a serial line the sign of a
+    baud rate that differs from the autopilot's, or of a port set to another protocol."""
     scheme, _, rest = url.partition(":")
     if scheme == "udpin":
         host, _, port = rest.rpartition(":")
@@ -35,8 +38,17 @@ def silence_hint(url: str, *, own_socket_open: bool = False) -> str:
                 f"mavlink-router or the SITL's --out at this port")
     if scheme in ("udpout", "udp", "tcp"):
         return f"nothing answered at {rest}: is the autopilot or SITL running there?"
-    return sharing_hint(url) or ("the line is open but silent: check the wiring, the baud rate "
-                                 "and SERIALn_PROTOCOL")
+    shared = sharing_hint(url)
+    if shared is not None:
+        return shared
+    if unparsable:
+        rate = url.partition(",")[2] or baud or "the configured rate"
+        return (f"bytes arrive but no MAVLink frame parses ({unparsable} unparsable): the baud "
+                f"rate ({rate}) differs from the autopilot's (SERIALn_BAUD on ArduPilot, "
+                "SER_TELn_BAUD on PX4), or the port speaks another protocol (SERIALn_PROTOCOL "
+                "2 = MAVLink 2)")
+    return ("the line is open but silent: check the wiring (TX to RX, a common ground), the "
+            "baud rate and SERIALn_PROTOCOL")
 
 
 def sharing_hint(url: str) -> str | None:

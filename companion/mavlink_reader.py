@@ -280,7 +280,9 @@ class MavlinkReader:
             log.info("mavlink: %s on %s: closing it and reopening every ~%g s until an "
                      "autopilot HEARTBEAT arrives (%s)", reason, self.settings.url,
                      self.settings.heartbeat_timeout_s + self.settings.reconnect_delay_s,
-                     silence_hint(self.settings.url, own_socket_open=True))
+                     silence_hint(self.settings.url, own_socket_open=True,
+                                  unparsable=self.counters["bad_messages"],
+                                  baud=self.settings.baud))
         self._fail_pending(f"link lost: {reason}")
         with contextlib.suppress(OSError):
             conn.close()

@@ -4,6 +4,7 @@ way a Pixhawk on a Raspberry Pi's UART is wired. ``check`` names what is wrong p
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
@@ -157,6 +158,35 @@ def test_check_names_another_program_reading_the_serial_port(tmp_path: Path) -> 
     assert (f"another program also has {link} open (pid {reader.pid}: python):"
             in result.stdout), result.stdout
     assert "Traceback" not in result.stderr
+
+
+def test_check_says_a_line_of_noise_is_a_baud_rate_problem(tmp_path: Path) -> None:
+    """The companion at 57600 and the autopilot's TELEM port at 115200: bytes arrive, no
+    frame parses. It said "open but silent: check the wiring, ..." as for a dead line."""
+    import threading
+    import tty as termios_tty
+
+    master, slave = os.openpty()
+    termios_tty.setraw(slave)
+    link = tmp_path / "ttyS4"
+    link.symlink_to(os.ttyname(slave))
+    stop = threading.Event()
+
+    def noise() -> None:  # no MAVLink magic byte in it: nothing that could parse
+        while not stop.wait(0.05):
+            with contextlib.suppress(OSError):
+                os.write(master, bytes(range(0x20, 0xE0)))
+
+    threading.Thread(target=noise, daemon=True).start()
+    try:
+        result = _check(_mini_config(tmp_path, str(link), baud=57600), "--timeout", "2")
+    finally:
+        stop.set()
+        os.close(master)
+        os.close(slave)
+    assert result.returncode == 1
+    assert "bytes arrive but no MAVLink frame parses (" in result.stdout, result.stdout
+    assert "the baud rate (57600) differs from the autopilot's" in result.stdout
 
 
 def test_check_names_a_missing_serial_device(tmp_path: Path) -> None:
