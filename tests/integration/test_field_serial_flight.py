@@ -32,7 +32,15 @@ from typing import Any
 import pytest
 
 from sitl.fleet_config import free_port
-from tests.autopilot_checks import AP_GUIDED, PX4_MISSION, Autopilot, m
+from tests.autopilot_checks import (
+    AP_GUIDED,
+    PX4_MISSION,
+    Autopilot,
+    check_first_fix_and_home,
+    check_mission_upload_download,
+    m,
+    mavutil,
+)
 from tests.companion_process import console_script, station_api
 from tests.station_process import Station, running_station
 
@@ -190,6 +198,12 @@ def test_a_serial_flight_with_a_gcs_a_pulled_cable_and_a_reboot(flight: Flight) 
         t["autopilot_connected"] and t["mode"] == boot_mode and t["gps_fix"] == 3
         and t["armed"] is False and t["battery"] is not None and _fresh_position(t)), 120)
     assert abs(first["lat_deg"] - 47.397742) < 1e-3, first
+    # The GCS asks for its streams (ArduPilot sends none on a link until asked), reads
+    # parameters and uploads a mission (and reads it back), as QGC does.
+    gcs.request_streams(4.0)
+    assert gcs.param("SYSID_THISMAV" if ardupilot else "MAV_SYS_ID") == 1
+    check_first_fix_and_home(gcs, timeout_s=30)
+    check_mission_upload_download(gcs, north_m=20.0, alt_m=10.0)
 
     # The GCS changes the mode and arms: the dashboard follows within 2 s of the HEARTBEAT.
     gcs.set_mode(AP_GUIDED if ardupilot else PX4_MISSION)
