@@ -39,7 +39,6 @@ from tests.autopilot_checks import (
     check_first_fix_and_home,
     check_mission_upload_download,
     m,
-    mavutil,
 )
 from tests.companion_process import console_script, station_api
 from tests.station_process import Station, running_station
