@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.cli_help import DefaultsFormatter, DefaultsRawFormatter
-from companion.mavlink_hint import silence_hint
+from companion.mavlink_hint import sharing_hint, silence_hint
 
 __all__ = ["main"]
 
@@ -239,10 +239,15 @@ def _probe_mavlink(config: Any, timeout_s: float) -> tuple[Any, list[str], bool]
     if not snap.connected and snap.t_heartbeat is None:
         if reader.last_error is not None:
             return snap, [f"mavlink: {url}: cannot open: {reader.last_error}"], False
+        hint = silence_hint(url, unparsable=reader.counters["bad_messages"],
+                            baud=config.mavlink.baud)
         return snap, [f"mavlink: {url}: no autopilot HEARTBEAT within {timeout_s:g} s "
-                      f"({silence_hint(url)})"], False
+                      f"({hint})"], False
     lines = [f"mavlink: {url}: {snap.autopilot} autopilot, vehicle type {snap.vehicle_type}, "
              f"mode {snap.mode}, {'armed' if snap.armed else 'disarmed'}"]
+    shared = sharing_hint(url)
+    if shared is not None:  # it answered this time; `run` would keep losing it
+        lines.append(f"mavlink: warning: {shared}")
     if snap.lat_deg is not None and snap.position_problem is None:
         lines.append(f"mavlink: position {snap.lat_deg:.7f} {snap.lon_deg:.7f} "
                      f"alt_rel {snap.alt_rel_m:.1f} m")

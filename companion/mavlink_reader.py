@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
-import errno
 import logging
 import queue
 import threading
@@ -26,6 +25,7 @@ from companion.mavlink_commands import (
     describe_connect_error,
     fail_command,
 )
+from companion.mavlink_connect import default_connect as _default_connect
 from companion.mavlink_convert import (
     MAV_AUTOPILOT_INVALID,
     MAV_CMD_COMPONENT_ARM_DISARM,
@@ -38,7 +38,8 @@ from companion.mavlink_convert import (
     MAV_TYPE_ONBOARD_CONTROLLER,
     MavlinkConverter,
 )
-from companion.mavlink_hint import silence_hint
+from companion.mavlink_hint import sharing_hint, silence_hint
+from companion.mavlink_watch import StreamWatch
 from companion.telemetry import (
     CommandAckSample,
     HeartbeatSample,
@@ -124,6 +125,9 @@ class MavlinkReader:
         self._stream_acks = 0
         self._streams_asked = 0
         self._pending: list[_Pending] = []
+        fastest = max(self.settings.stream_rates_hz.values(), default=0.0)
+        self._watch = StreamWatch(silence_s=max(self.settings.heartbeat_timeout_s,
+                                                2.5 / fastest if fastest > 0 else 0.0))
 
     def _main(self) -> None:
         conn: Any = None
@@ -189,7 +193,8 @@ class MavlinkReader:
         try:
             msg = conn.recv_match(blocking=True, timeout=self.settings.recv_timeout_s)
         except OSError as exc:
-            log.warning("mavlink receive failed: %s", exc)
+            shared = sharing_hint(self.settings.url)  # a serial port another program reads
+            log.warning("mavlink receive failed: %s%s", exc, f" ({shared})" if shared else "")
             return self._lose(conn, f"receive failed: {exc}")
         now = self._clock()
         try:
@@ -205,6 +210,14 @@ class MavlinkReader:
         if msg.get_type() == "BAD_DATA":
             self.counters["bad_messages"] += 1
             return
+        if self._connected and (msg.get_srcSystem(), msg.get_srcComponent()) == (
+                self._converter.target_system, self._converter.target_component):
+            rebooted = self._watch.rebooted(msg, now)
+            if rebooted is not None:  # its fix, origin and streams are new: start afresh
+                log.warning("mavlink: %s: asking for its streams again", rebooted)
+                self._emit(LinkStateSample(t=now, connected=False, reason=rebooted))
+                self._emit(LinkStateSample(t=now, connected=True, reason=rebooted))
+                self._request_streams(conn, now)
         sample = self._converter.convert(msg, now=now)
         if sample is None:
             return
@@ -238,6 +251,13 @@ class MavlinkReader:
         last = self._t_last_heartbeat if self._t_last_heartbeat is not None else self._t_opened
         if now - last > timeout:
             return self._lose(conn, f"no HEARTBEAT for {now - last:.1f} s")
+        if self._connected and self._watch.silent(now):
+            log.log(logging.DEBUG if self._watch.told else logging.WARNING,
+                    "mavlink: HEARTBEATs but none of the requested streams for %.1f s "
+                    "(the autopilot rebooted, or a GCS on this link stopped them): asking "
+                    "again", now - (self._watch.t_last_stream or now))
+            self._watch.told = True  # once per silence, not once per request
+            self._request_streams(conn, now)
         if self._stream_deadline is not None and now >= self._stream_deadline:
             self._stream_deadline = None
             if self._stream_acks < self._streams_asked:
@@ -260,7 +280,9 @@ class MavlinkReader:
             log.info("mavlink: %s on %s: closing it and reopening every ~%g s until an "
                      "autopilot HEARTBEAT arrives (%s)", reason, self.settings.url,
                      self.settings.heartbeat_timeout_s + self.settings.reconnect_delay_s,
-                     silence_hint(self.settings.url, own_socket_open=True))
+                     silence_hint(self.settings.url, own_socket_open=True,
+                                  unparsable=self.counters["bad_messages"],
+                                  baud=self.settings.baud))
         self._fail_pending(f"link lost: {reason}")
         with contextlib.suppress(OSError):
             conn.close()
@@ -283,6 +305,7 @@ class MavlinkReader:
             conn.mav.command_long_send(target, component, MAV_CMD_SET_MESSAGE_INTERVAL, 0,
                                        msg_id, interval_us, 0, 0, 0, 0, 0)
         self.counters["stream_requests"] += 1
+        self._watch.asked(wanted, wanted.values(), now)
         self._stream_acks = 0
         self._streams_asked = len(wanted)
         self._stream_deadline = now + self.settings.stream_ack_timeout_s
@@ -399,51 +422,3 @@ def streams_for(autopilot: str | None, rates_hz: Mapping[str, float]) -> dict[st
     return {name: rate for name, rate in rates_hz.items()
             if FAMILY_ONLY_STREAMS.get(name, autopilot) == autopilot
             or autopilot not in ("ardupilot", "px4")}
-
-
-def _default_connect(settings: MavlinkSettings) -> Any:
-    from pymavlink import mavutil
-
-    # retries=0: one connect attempt; the thread retries every reconnect_delay_s (pymavlink's
-    # default blocks 3 s per attempt and prints "... sleeping" each second).
-    conn = mavutil.mavlink_connection(
-        settings.url, baud=settings.baud, source_system=settings.source_system,
-        source_component=settings.source_component, autoreconnect=False, retries=0,
-    )
-    if isinstance(conn, mavutil.mavtcp):
-        # The peer closed the connection (ArduPilot SITL rebooting, mavlink-router restarting):
-        # pymavlink would print "EOF on TCP socket" on every read and spin until the
-        # heartbeat timeout; raise instead, so the link is lost (and reopened) at once.
-        conn.handle_eof = conn.handle_disconnect = _tcp_closed
-    elif isinstance(conn, mavutil.mavudp):
-        conn.recv = _datagram_at_a_time(conn.recv, conn.mav)
-    return conn
-
-
-def _datagram_at_a_time(recv: Callable[..., Any], parser: Any) -> Callable[..., Any]:
-    """``recv`` that drops what is left of a torn frame before a new datagram is parsed.
-
-    MAVLink over UDP sends whole frames per datagram, but pymavlink's parser is one stream
-    for every sender: 10 bytes from anyone promising a 255-byte frame took the autopilot's
-    next datagram as that frame's payload, and a sender doing it before each HEARTBEAT kept
-    the companion from ever seeing its autopilot (docs/security.md, 2026-11-24). Complete
-    frames still waiting in the buffer are kept. Uses the parser's ``buf``/``buf_index``/
-    ``expected_length`` (pymavlink's generated ``MAVLink`` class)."""
-    def recv_datagram(n: int | None = None) -> Any:
-        data = recv(n)
-        if data and parser.buf_len() > 0 and parser.expected_length > parser.buf_len():
-            parser.buf = bytearray()
-            parser.buf_index = 0
-            parser.expected_length = _HEADER_LEN_V1 + 2
-        return data
-
-    return recv_datagram
-
-
-_HEADER_LEN_V1 = 6
-"""What pymavlink's parser expects first (``HEADER_LEN_V1 + 2``, as its ``__init__`` sets)."""
-
-
-def _tcp_closed() -> None:
-    raise ConnectionResetError(errno.ECONNRESET, "the autopilot closed the TCP connection")
-

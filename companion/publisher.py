@@ -14,7 +14,13 @@ from typing import Any
 from companion.config import TelemetryConfig
 from companion.dispatch import Dispatcher
 from companion.mission import MissionWindow
-from companion.telemetry import Sample, StatusTextSample, TelemetrySnapshot, TelemetryState
+from companion.telemetry import (
+    GPS_FIX_3D,
+    Sample,
+    StatusTextSample,
+    TelemetrySnapshot,
+    TelemetryState,
+)
 
 __all__ = ["FAILSAFE_STATES", "IDLE_STATUS_PERIOD_S", "MAX_PENDING_TEXTS", "STATUSTEXT_GAP_S",
            "TelemetryPublisher", "statustext_field"]
@@ -102,7 +108,12 @@ class TelemetryPublisher:
 
     def _key(self, snap: TelemetrySnapshot) -> tuple[Any, ...]:
         failsafe = snap.system_status in FAILSAFE_STATES
-        return (snap.mode, snap.armed, failsafe, snap.connected, self._mission.state)
+        # The fix too: after a reconnection or a reboot the status went out at once with the
+        # fix unknown, and the dashboard showed "no fix" beside a fresh position until the
+        # next periodic status (5 s later). Whether it is a 3-D fix, not its exact type, so
+        # an RTK fix wavering between 5 and 6 does not send a status a second.
+        fix = None if snap.gps_fix_type is None else snap.gps_fix_type >= GPS_FIX_3D
+        return (snap.mode, snap.armed, failsafe, snap.connected, fix, self._mission.state)
 
     async def run(self) -> None:
         cfg = self._settings

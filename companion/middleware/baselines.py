@@ -161,6 +161,7 @@ class _Knowing(Baseline):
         self.constraint = constraint
         self.knowledge = FleetKnowledge(spec, agent=agent, default_latency_s=default_latency_s,
                                         spread_forecasts=False)
+        self.knowledge.forecaster.heartbeats = self.always_send
 
     def _commit(self, message: Message, decision: Decision, now: float) -> Decision:
         if decision.send:

@@ -69,14 +69,21 @@ class StreamForecaster:
     missing) and the period is Σ gap / Σ periods. The phase is the circular mean of
     ``t_gen mod period`` (as an angle, so that phases near 0 and near the period average
     correctly instead of to period / 2).
+
+    A heartbeat type (``heartbeats``: sent whatever the optimiser decides, and at once on a
+    new state) is never dropped but has extra, early messages: its period is its long gaps
+    (:func:`_heartbeat_period`).
     """
 
-    __slots__ = ("_streams", "assume_fleet_period", "prior_period", "worth")
+    __slots__ = ("_streams", "assume_fleet_period", "heartbeats", "prior_period", "worth")
 
     def __init__(self, *, assume_fleet_period: bool = True,
-                 worth: Callable[[Message], float | None] | None = None) -> None:
+                 worth: Callable[[Message], float | None] | None = None,
+                 heartbeats: frozenset[str] = frozenset()) -> None:
         self._streams: dict[StreamKeyT, _Stream] = {}
         self.assume_fleet_period = assume_fleet_period
+        self.heartbeats = heartbeats
+        """Types every agent sends whatever it decides (the companion's status)."""
         self.worth = worth
         """What a message is worth (e.g. its utility integral over a few seconds). Given,
         the forecasts of a stream whose recent messages differ in worth carry the data of
@@ -125,6 +132,8 @@ class StreamForecaster:
         if stream is None or len(stream.times) < 2:
             return None
         times = list(stream.times)
+        if key[1] in self.heartbeats:
+            return _heartbeat_period(times)
         counts = list(stream.counts)
         if _increasing(counts):
             first, newest = counts[0], counts[-1]
@@ -285,6 +294,26 @@ class StreamForecaster:
         stale = [k for k, s in self._streams.items() if not s.times or s.times[-1] < older_than]
         for key in stale:
             del self._streams[key]
+
+
+def _heartbeat_period(times: list[float]) -> float | None:
+    """The period of a heartbeat: the median of its gaps of at least 0.4 x the longest.
+
+    A heartbeat goes every period and at once on a new state, which restarts its timer, so
+    events only shorten gaps. The p20 of the general estimate took those short gaps for the
+    period: a companion's start sends three or four statuses within 0.3 s (link up, fix,
+    optimiser ready), the gaps of 0.03 s made the status stream's period 0.03 s for the
+    next 32 statuses (a minute), and every drone that had heard them planned a status every
+    30 ms, 23 kB over the 3 s horizon, more than the window's budget: whichever drone's
+    statuses came in a burst took the link from the others (the 2-drone fig. 7.3 test's red
+    drone lost its precedence). A lost heartbeat of another agent doubles one gap; the 0.4
+    keeps the jittered single periods beside it."""
+    gaps = [b - a for a, b in itertools.pairwise(times) if b - a > 1e-9]
+    if not gaps:
+        return None
+    longest = max(gaps)
+    long_gaps = sorted(g for g in gaps if g >= 0.4 * longest)
+    return long_gaps[len(long_gaps) // 2]
 
 
 def _increasing(counts: list[int | None]) -> bool:

@@ -243,8 +243,7 @@ class Middleware:
         """Time of the first decision (``plan_unheard_s`` counts from it)."""
         self._mission_start: float | None = None
         """When the ground station last started the mission (:meth:`mission_started`)."""
-        self.always_send: frozenset[str] = frozenset()
-        """Own types sent whatever the search says (the companion's status heartbeat)."""
+        self._always_send: frozenset[str] = frozenset()
 
     @classmethod
     def from_setup(cls, setup: DeciderSetup, *, alpha: ParamValue = None,
@@ -267,6 +266,17 @@ class Middleware:
                          budget_clock=setup.budget_clock)
         middleware.always_send = frozenset(COMPANION_ALWAYS_SEND)
         return middleware
+
+    @property
+    def always_send(self) -> frozenset[str]:
+        """Own types sent whatever the search says (the companion's status heartbeat); every
+        agent's stream of them is forecast as a heartbeat."""
+        return self._always_send
+
+    @always_send.setter
+    def always_send(self, types: frozenset[str]) -> None:
+        self._always_send = frozenset(types)
+        self.knowledge.forecaster.heartbeats = self._always_send
 
     @property
     def spec(self) -> MissionSpec:

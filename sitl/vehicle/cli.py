@@ -105,6 +105,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    help="NAME=VALUE parameter override (repeatable)")
     p.add_argument("--wind", type=float, nargs=2, metavar=("SPEED", "FROM_DEG"),
                    default=None, help="mean wind speed (m/s) and direction it blows from")
+    p.add_argument("--reboot-s", type=float, default=4.0, metavar="S",
+                   help="wall seconds MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN keeps the vehicle silent"
+                        " before it boots again (default 4; ArduCopter 4.5 SITL: 2.1, shorter"
+                        " than a client's 3 s heartbeat timeout)")
     p.add_argument("--duration", type=float, default=None,
                    help="stop after S wall seconds (default: run until stopped)")
     p.add_argument("--seed", type=int, default=0, help="seed of the GPS noise")
@@ -114,6 +118,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    help="serve one vehicle on a serial line (a pseudo-terminal) instead of UDP")
     p.add_argument("--serial-link", type=Path, default=None, metavar="PATH",
                    help="with --serial: also make PATH a symlink to the /dev/pts/N device")
+    p.add_argument("--gcs-port", type=int, default=None, metavar="PORT",
+                   help="with --serial: also serve a GCS on UDP HOST:PORT (0: any free), a"
+                        " second link with its own streams, as a flight controller's radio or"
+                        " USB port beside the companion's UART")
     p.add_argument("--baud", type=int, default=115200,
                    help="with --serial: line rate in bit/s; the vehicle sends at most baud/10"
                         " bytes per second like a real UART (default 115200)")
@@ -138,10 +146,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             p.error(f"{flag} must be a finite number > 0, got {value}")
     if args.alt is not None and not math.isfinite(args.alt):
         p.error(f"--alt must be a finite number of metres, got {args.alt}")
+    if not 0 <= args.reboot_s < 1e6:
+        p.error(f"--reboot-s must be a number of seconds >= 0, got {args.reboot_s}")
     if args.duration is not None and not args.duration >= 0:
         p.error(f"--duration must be a number of seconds >= 0, got {args.duration}")
     if args.serial and args.count != 1:
         p.error("--serial serves one vehicle (--count 1)")
+    if args.gcs_port is not None and not (args.serial and 0 <= args.gcs_port <= 65535):
+        p.error("--gcs-port needs --serial and a port in 0..65535")
     if args.baud < 50 or args.baud > 12_000_000:
         p.error(f"--baud must be in 50..12000000, got {args.baud}")
     if args.pattern:
@@ -198,12 +210,17 @@ def build_configs(args: argparse.Namespace) -> list[VehicleConfig]:
         fix = {} if args.first_fix is None else {"first_fix_s": args.first_fix}
         configs.append(VehicleConfig(system_id=args.sysid + i, flavour=flavour, home=home,
                                      params=params, mission=tuple(mission),
-                                     seed=args.seed + i, autostart=args.autostart, **fix))
+                                     seed=args.seed + i, autostart=args.autostart,
+                                     reboot_s=args.reboot_s, **fix))
     return configs
 
 
 async def _serve(args: argparse.Namespace, stop_signals: EarlyStop) -> int:
-    from sitl.vehicle.serial_pty import PtySerialLink, start_serial_vehicle
+    from sitl.vehicle.serial_pty import (
+        PtySerialLink,
+        start_serial_and_udp_vehicle,
+        start_serial_vehicle,
+    )
     from sitl.vehicle.shell import VehicleEndpoint, start_vehicles
 
     configs = build_configs(args)
@@ -219,7 +236,13 @@ async def _serve(args: argparse.Namespace, stop_signals: EarlyStop) -> int:
             print("uav-sitl vehicle: give --out once or once per vehicle", file=sys.stderr)
             return 2
     endpoints: list[VehicleEndpoint | PtySerialLink]
-    if args.serial:
+    gcs: VehicleEndpoint | None = None
+    if args.serial and args.gcs_port is not None:
+        serial, gcs = await start_serial_and_udp_vehicle(
+            configs[0], baud=args.baud, link=args.serial_link, speedup=args.speedup,
+            host=args.host, port=args.gcs_port, out=outs[0] if outs else None)
+        endpoints = [serial]
+    elif args.serial:
         endpoints = [start_serial_vehicle(configs[0], baud=args.baud, link=args.serial_link,
                                           speedup=args.speedup)]
     else:
@@ -230,6 +253,8 @@ async def _serve(args: argparse.Namespace, stop_signals: EarlyStop) -> int:
         where = ({"serial": ep.path, "tty": ep.tty_path, "baud": ep.baud}
                  if isinstance(ep, PtySerialLink) else
                  {"host": ep.address[0], "port": ep.address[1]})
+        if gcs is not None:  # the second link (--gcs-port)
+            where |= {"host": gcs.address[0], "port": gcs.address[1]}
         rec = {"sysid": cfg.system_id, **where,
                "flavour": cfg.flavour.name, "home": [cfg.home.lat_deg, cfg.home.lon_deg,
                                                      cfg.home.alt_m],
@@ -242,7 +267,7 @@ async def _serve(args: argparse.Namespace, stop_signals: EarlyStop) -> int:
             tmp.write_text(json.dumps(records))
             os.replace(tmp, args.ready_file)
         except OSError as exc:
-            for ep in endpoints:
+            for ep in [*endpoints, *([gcs] if gcs else [])]:
                 ep.close()
             print(f"uav-sitl vehicle: cannot write --ready-file {args.ready_file}: "
                   f"{exc.strerror or exc}", file=sys.stderr)
@@ -256,7 +281,7 @@ async def _serve(args: argparse.Namespace, stop_signals: EarlyStop) -> int:
         else:
             await stop.wait()
     finally:
-        for ep in endpoints:
+        for ep in [*endpoints, *([gcs] if gcs else [])]:
             ep.close()
     bad: dict[str, int] = {k: v for ep in endpoints for k, v in ep.core.counters.items()}
     bad.update({f"serial_{k}": v for ep in endpoints if isinstance(ep, PtySerialLink)

@@ -48,7 +48,6 @@ class CommandHandlers:
     params: ParamTable
     counters: Counter[str]
     telemetry: Telemetry
-    _intervals: dict[int, float]
     _reboot_requested: bool
     _builders: Mapping[int, Callable[[float], Any]]  # pymavlink messages are untyped
 
@@ -60,6 +59,9 @@ class CommandHandlers:
             raise NotImplementedError
 
         def set_interval(self, msg_id: int, interval_s: float | None, now: float) -> bool:
+            raise NotImplementedError
+
+        def interval_of(self, msg_id: int) -> float | None:
             raise NotImplementedError
 
         def _geo_to_ned(self, lat_deg: float, lon_deg: float, alt_rel_m: float
@@ -154,7 +156,7 @@ class CommandHandlers:
         elif command == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
             msg_id = int_field(p[0], "message_id")
             if msg_id in self._builders:
-                iv = self._intervals.get(msg_id)
+                iv = self.interval_of(msg_id)
                 follow_up = mavlink.MAVLink_message_interval_message(
                     msg_id, -1 if iv is None else int(iv * 1e6))
                 res = CommandResult(result=ACCEPTED)
@@ -328,3 +330,14 @@ class CommandHandlers:
             lat, lon = lat_lon_field(msg.lat_int / 1e7, msg.lon_int / 1e7)
             pos = self._geo_to_ned(lat, lon, finite_field((alt_rel,), "alt")[0])
         self._guided_from_mask(msg.type_mask, pos, (msg.vx, msg.vy, msg.vz), msg.yaw, now)
+
+    # ---------------------------------------------------------------------- PING, TIMESYNC
+
+    def _on_ping(self, msg: Any, now: float) -> None:
+        if msg.target_system == 0 and msg.target_component == 0:  # a request, not a reply
+            self._send(mavlink.MAVLink_ping_message(
+                msg.time_usec, msg.seq, msg.get_srcSystem(), msg.get_srcComponent()))
+
+    def _on_timesync(self, msg: Any, now: float) -> None:
+        if msg.tc1 == 0:
+            self._send(mavlink.MAVLink_timesync_message(int(now * 1e9), msg.ts1))

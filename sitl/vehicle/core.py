@@ -15,8 +15,8 @@ SET_POSITION_TARGET_LOCAL_NED/GLOBAL_INT, TIMESYNC. Bad input is counted in ``co
 from __future__ import annotations
 
 import math
-from collections import Counter, deque
-from collections.abc import Callable, Mapping
+from collections import Counter
+from collections.abc import Callable, Hashable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -34,8 +34,10 @@ from sitl.vehicle.autopilot_events import (
     StatusText,
 )
 from sitl.vehicle.commands import CommandHandlers
+from sitl.vehicle.core_traffic import TrafficHandlers
 from sitl.vehicle.fields import BadField
 from sitl.vehicle.flavour import PX4, Flavour, Mode
+from sitl.vehicle.links import DEFAULT_LINK, LinkStreams
 from sitl.vehicle.mission import MissionItem
 from sitl.vehicle.mission_protocol import MISSION_CANCELLED, MissionProtocol, _Upload
 from sitl.vehicle.params import ParamTable
@@ -47,7 +49,7 @@ from sitl.vehicle.stream_tables import (
     STREAM_GROUPS,
 )
 from sitl.vehicle.telemetry import Telemetry
-from sitl.vehicle.traffic import TrafficAwareness, TrafficList
+from sitl.vehicle.traffic import TrafficAwareness
 
 __all__ = ["DEFAULT_FIRST_FIX_S", "DEFAULT_HOME", "VehicleConfig", "VehicleCore"]
 
@@ -111,12 +113,17 @@ class VehicleConfig:
             raise ValueError(f"reboot_s must be >= 0, got {self.reboot_s}")
 
 
-
-class VehicleCore(CommandHandlers, MissionProtocol):
+class VehicleCore(CommandHandlers, MissionProtocol, TrafficHandlers):
     """One simulated vehicle's MAVLink endpoint (see module docstring)."""
 
-    def __init__(self, config: VehicleConfig, *, now: float = 0.0) -> None:
+    def __init__(self, config: VehicleConfig, *, now: float = 0.0,
+                 links: Iterable[Hashable] = (DEFAULT_LINK,)) -> None:
         self.config = config
+        self._link_keys = tuple(links)
+        """The flight controller's links (sitl.vehicle.links): streams are per link."""
+        self._links: dict[Hashable, LinkStreams] = {}
+        self._current: Hashable | None = None
+        """The link whose message is being handled (replies go there); None: every link."""
         self.flavour = config.flavour
         sysid = config.system_id
         overrides = dict(config.params)
@@ -125,7 +132,6 @@ class VehicleCore(CommandHandlers, MissionProtocol):
         overrides.setdefault(id_param, sysid)
         self.params = ParamTable(self.flavour.params, overrides)
         self.counters: Counter[str] = Counter()
-        self._forward: deque[tuple[object, bytes]] = deque(maxlen=64)
         self._stored: dict[int, list[MissionItem]] = {0: list(config.mission), 1: [], 2: []}
         self._handlers: dict[str, Callable[[Any, float], None]] = {
             "HEARTBEAT": self._on_heartbeat,
@@ -175,12 +181,9 @@ class VehicleCore(CommandHandlers, MissionProtocol):
         self.fc.advance_to(now)
         self._tx = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
         self._rx = self._new_parser()
-        self._out: list[bytes] = []
-        self._intervals: dict[int, float] = (
-            {**DEFAULT_INTERVALS_S, **PX4_EXTRA_INTERVALS_S} if self.flavour.streams_unrequested
-            else {MSG_HEARTBEAT: 1.0}
-        )
-        self._next_due: dict[int, float] = dict.fromkeys(self._intervals, now)
+        defaults = ({**DEFAULT_INTERVALS_S, **PX4_EXTRA_INTERVALS_S}
+                    if self.flavour.streams_unrequested else {MSG_HEARTBEAT: 1.0})
+        self._links = {key: LinkStreams.fresh(defaults, now) for key in self._link_keys}
         self.telemetry = Telemetry(
             self.fc, flavour=self.flavour, system_id=sysid, home=config.home,
             boot_unix_s=config.boot_unix_s + self._boot_at, gps_sigma_h_m=config.gps_sigma_h_m,
@@ -210,18 +213,25 @@ class VehicleCore(CommandHandlers, MissionProtocol):
     def system_id(self) -> int:
         return self.config.system_id
 
-    def datagrams_to_send(self) -> list[bytes]:
-        """Pop the packed MAVLink frames produced so far (one frame per datagram)."""
-        out, self._out = self._out, []
+    def datagrams_to_send(self, link: Hashable = DEFAULT_LINK) -> list[bytes]:
+        """Pop the packed MAVLink frames produced so far for ``link`` (one frame each)."""
+        streams = self._links.get(link)
+        if streams is None:
+            return []
+        out, streams.out = streams.out, []
         return out
 
-    def forwards_to_send(self) -> list[tuple[object, bytes]]:
-        """Pop (sender, frame) of clients' HEARTBEATs for the vehicle's other clients: ArduPilot
+    def forwards_to_send(self, link: Hashable = DEFAULT_LINK) -> list[tuple[object, bytes]]:
+        """Pop (sender, frame) of clients' HEARTBEATs for ``link``'s clients: ArduPilot
         routes a component's broadcast messages to its other links, so a GCS sees the
         companion's HEARTBEAT (same system id, component 191; measured on ArduCopter 4.5
-        SITL). A shell with one client drops them (at most 64 are kept)."""
-        out = list(self._forward)
-        self._forward.clear()
+        SITL). ``sender`` is the client's address when it came on this link (not echoed to
+        it), else None. A shell with one client drops them (at most 64 are kept)."""
+        streams = self._links.get(link)
+        if streams is None:
+            return []
+        out = list(streams.forwards)
+        streams.forwards.clear()
         return out
 
     def get_timer(self) -> float:
@@ -229,8 +239,10 @@ class VehicleCore(CommandHandlers, MissionProtocol):
         if self.rebooting_until is not None:
             return self.rebooting_until
         deadline = min(self._last_control + CONTROL_PERIOD_S, self._next_traffic)
-        if self._next_due:
-            deadline = min(deadline, min(self._next_due.values()))
+        for streams in self._links.values():
+            due = streams.next_deadline()
+            if due is not None:
+                deadline = min(deadline, due)
         if self._upload is not None:
             deadline = min(deadline, self._upload.deadline)
         return deadline + self._boot_at
@@ -243,16 +255,20 @@ class VehicleCore(CommandHandlers, MissionProtocol):
         if now >= self._next_traffic:  # age the list, stream it as the stacks do
             self._next_traffic = now + TRAFFIC_PERIOD_S * self.config.speedup
             self._traffic_tick(now)
-        for msg_id, due in list(self._next_due.items()):
-            if due <= now + 1e-9:
-                interval = self._intervals[msg_id] * self.config.speedup
-                built = self._builders[msg_id](now)
-                if built is not None:  # None: not available yet (no home before the fix)
-                    self._send(built)
-                # Keep the cadence, but never queue a backlog after a stall.
-                self._next_due[msg_id] = max(due + interval, now + 0.5 * interval)
+        for key, streams in self._links.items():  # each link its own streams
+            self._current = key
+            for msg_id, due in list(streams.next_due.items()):
+                if due <= now + 1e-9:
+                    interval = streams.intervals[msg_id] * self.config.speedup
+                    built = self._builders[msg_id](now)
+                    if built is not None:  # None: not available yet (no home before the fix)
+                        self._send(built)
+                    # Keep the cadence, but never queue a backlog after a stall.
+                    streams.next_due[msg_id] = max(due + interval, now + 0.5 * interval)
+        self._current = None
         up = self._upload
         if up is not None and now >= up.deadline:
+            self._current = up.link  # the uploading client's link
             up.retries += 1
             if up.retries > 5:
                 self.counters["mission_upload_timeout"] += 1
@@ -261,13 +277,23 @@ class VehicleCore(CommandHandlers, MissionProtocol):
                 self._upload = None
             else:
                 self._request_item(up, now)
+        self._current = None
 
-    def receive_datagram(self, data: bytes, addr: object, now: float) -> None:
-        """Decode and act on one datagram; bad bytes are counted, never raised."""
+    def receive_datagram(self, data: bytes, addr: object, now: float,
+                         link: Hashable = DEFAULT_LINK) -> None:
+        """Decode and act on one datagram from ``addr`` on ``link``; bad bytes are counted,
+        never raised."""
         if not self._running(now):
             self.counters["received_while_rebooting"] += 1  # nobody listens yet
             return
-        self._receive(data, addr, now - self._boot_at)
+        if link not in self._links:
+            self.counters["unknown_link"] += 1
+            return
+        self._current = link
+        try:
+            self._receive(data, addr, now - self._boot_at)
+        finally:
+            self._current = None
         if self._reboot_requested:  # the ACK is out first, as ArduPilot sends it
             self._reboot_requested = False
             self.rebooting_until = now + self.config.reboot_s * self.config.speedup
@@ -297,7 +323,9 @@ class VehicleCore(CommandHandlers, MissionProtocol):
                 self.counters["bad_data"] += 1
                 continue
             if kind == "HEARTBEAT":
-                self._forward.append((addr, bytes(msg.get_msgbuf())))
+                frame = bytes(msg.get_msgbuf())
+                for key, streams in self._links.items():
+                    streams.forwards.append((addr if key == self._current else None, frame))
             handler = self._handlers.get(kind)
             if handler is None:
                 # Known but unhandled types by name; unknown ids in one bucket (bounded keys).
@@ -334,31 +362,42 @@ class VehicleCore(CommandHandlers, MissionProtocol):
         self._drain_events(self.fc.state.t_s)
 
     def _send(self, msg: Any) -> None:
-        self._out.append(msg.pack(self._tx))
+        """To the link being served (a reply, its streams), or every link outside one."""
+        frame = msg.pack(self._tx)
         self._tx.seq = (self._tx.seq + 1) % 256
+        streams = self._links.get(self._current) if self._current is not None else None
+        for target in [streams] if streams is not None else self._links.values():
+            target.out.append(frame)
+
+    def _broadcast(self, msg: Any) -> None:
+        current, self._current = self._current, None
+        try:
+            self._send(msg)
+        finally:
+            self._current = current
 
     def statustext(self, severity: int, text: str) -> None:
-        self._send(mavlink.MAVLink_statustext_message(severity, text[:50].encode(), 0, 0))
+        self._broadcast(mavlink.MAVLink_statustext_message(severity, text[:50].encode(), 0, 0))
 
     def _drain_events(self, now: float) -> None:
         while (ev := self.fc.next_event()) is not None:
             if isinstance(ev, StatusText):
                 self.statustext(ev.severity, ev.text)
             elif isinstance(ev, ItemReached):
-                self._send(mavlink.MAVLink_mission_item_reached_message(ev.seq))
+                self._broadcast(mavlink.MAVLink_mission_item_reached_message(ev.seq))
             elif isinstance(ev, CurrentItemChanged):
-                self._send(self.telemetry.mission_current(now))
+                self._broadcast(self.telemetry.mission_current(now))
             elif isinstance(ev, ModeChanged):
-                self._send(self.telemetry.heartbeat(now))
+                self._broadcast(self.telemetry.heartbeat(now))
             elif isinstance(ev, FixAcquired):
                 # Both stacks announce home and origin to every link when they are set.
                 if self.flavour.name == "ardupilot":
                     self.statustext(6, "EKF3 IMU0 is using GPS")
                     self.statustext(6, "EKF3 IMU0 origin set")
-                self._send(self.telemetry.gps_global_origin(now))
-                self._send(self.telemetry.home_position(now))
+                self._broadcast(self.telemetry.gps_global_origin(now))
+                self._broadcast(self.telemetry.home_position(now))
             elif isinstance(ev, HomeChanged):
-                self._send(self.telemetry.home_position(now))
+                self._broadcast(self.telemetry.home_position(now))
 
     def _geo_to_ned(self, lat_deg: float, lon_deg: float, alt_rel_m: float
                     ) -> tuple[float, float, float]:
@@ -373,13 +412,19 @@ class VehicleCore(CommandHandlers, MissionProtocol):
         autopilot's loop (None stops it); False if we lack it."""
         if msg_id not in self._builders:
             return False
+        streams = self._links[DEFAULT_LINK if self._current is None else self._current]
         if interval_s is None:
-            self._intervals.pop(msg_id, None)
-            self._next_due.pop(msg_id, None)
+            streams.intervals.pop(msg_id, None)
+            streams.next_due.pop(msg_id, None)
         else:
-            self._intervals[msg_id] = max(interval_s, self.flavour.min_stream_interval_s)
-            self._next_due[msg_id] = now
+            streams.intervals[msg_id] = max(interval_s, self.flavour.min_stream_interval_s)
+            streams.next_due[msg_id] = now
         return True
+
+    def interval_of(self, msg_id: int) -> float | None:
+        """The requesting link's interval of ``msg_id`` (None: not streamed)."""
+        link = DEFAULT_LINK if self._current is None else self._current
+        return self._links[link].intervals.get(msg_id) if link in self._links else None
 
     # --------------------------------------------------------------------------- handlers
 
@@ -397,44 +442,3 @@ class VehicleCore(CommandHandlers, MissionProtocol):
             for msg_id in STREAM_GROUPS.get(group, ()):
                 on = msg.start_stop and msg.req_message_rate > 0
                 self.set_interval(msg_id, 1.0 / msg.req_message_rate if on else None, now)
-
-    # ------------------------------------------------------------ ADS-B traffic (peers)
-
-    @property
-    def traffic(self) -> TrafficList:
-        """The vehicles this autopilot knows from ADSB_VEHICLE (sitl.vehicle.traffic)."""
-        return self.awareness.traffic
-
-    def _on_adsb_vehicle(self, msg: Any, now: float) -> None:
-        self.awareness.on_adsb_vehicle(msg, now)
-        self._flush_traffic_texts()
-
-    def _flush_traffic_texts(self) -> None:
-        for severity, text in self.awareness.texts:
-            self.statustext(severity, text)
-        self.awareness.texts.clear()
-
-    def _traffic_tick(self, now: float) -> None:
-        """Expire, check avoidance, and send the list to the clients as ADSB_VEHICLE with
-        ``tslc`` = age (ArduPilot's SRn_ADSB stream, PX4's ADSB_VEHICLE stream)."""
-        self.awareness.tick(now)
-        self.awareness.check_avoidance(now)
-        self._flush_traffic_texts()
-        for vehicle in self.traffic.vehicles.values():
-            r = vehicle.report
-            self._send(mavlink.MAVLink_adsb_vehicle_message(
-                r.icao_address, round(r.lat_deg * 1e7), round(r.lon_deg * 1e7), 1,
-                round(r.alt_amsl_m * 1000), round(r.heading_deg * 100) % 36000,
-                max(0, min(65535, round(r.hor_velocity_m_s * 100))),
-                max(-32768, min(32767, round(r.ver_velocity_m_s * 100))),
-                r.callsign.encode()[:8], r.emitter_type,
-                max(0, min(255, int(vehicle.age(now)))), r.flags, r.squawk))
-
-    def _on_ping(self, msg: Any, now: float) -> None:
-        if msg.target_system == 0 and msg.target_component == 0:  # a request, not a reply
-            self._send(mavlink.MAVLink_ping_message(
-                msg.time_usec, msg.seq, msg.get_srcSystem(), msg.get_srcComponent()))
-
-    def _on_timesync(self, msg: Any, now: float) -> None:
-        if msg.tc1 == 0:
-            self._send(mavlink.MAVLink_timesync_message(int(now * 1e9), msg.ts1))

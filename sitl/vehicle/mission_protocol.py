@@ -4,6 +4,7 @@ set-current, with the retries and results of the MAVLink mission protocol."""
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Hashable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -34,6 +35,8 @@ class _Upload:
     items: list[MissionItem] = field(default_factory=list)
     deadline: float = 0.0
     retries: int = 0
+    link: Hashable = None
+    """The link the upload came on: its requests are retried there."""
 
 
 class MissionProtocol:
@@ -46,6 +49,7 @@ class MissionProtocol:
     telemetry: Telemetry
     _stored: dict[int, list[MissionItem]]
     _upload: _Upload | None
+    _current: Hashable | None
 
     if TYPE_CHECKING:  # provided by VehicleCore
         def _send(self, msg: Any) -> None:
@@ -68,7 +72,8 @@ class MissionProtocol:
             self._store(mtype, [])
             self._send(mavlink.MAVLink_mission_ack_message(*peer, MISSION_ACCEPTED, mtype))
             return
-        self._upload = _Upload(mission_type=mtype, count=msg.count, peer=peer)
+        self._upload = _Upload(mission_type=mtype, count=msg.count, peer=peer,
+                               link=self._current)
         self._request_item(self._upload, now)
 
     def _request_item(self, up: _Upload, now: float) -> None:

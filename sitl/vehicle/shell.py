@@ -11,11 +11,12 @@ must not be starved because another client talks.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, replace
 from typing import cast
 
 from sitl.vehicle.core import VehicleConfig, VehicleCore
+from sitl.vehicle.links import DEFAULT_LINK
 
 __all__ = ["SimClock", "VehicleEndpoint", "VehicleProtocol", "start_vehicles"]
 
@@ -70,18 +71,44 @@ class CoreTimer:
         self._on_fire()
 
 
+class LinkGroup:
+    """One core served on several links (a flight controller's TELEM ports, each its own
+    streams: sitl.vehicle.links) with one timer: after any input or deadline every link
+    sends what the core produced for it."""
+
+    def __init__(self, core: VehicleCore, clock: SimClock) -> None:
+        self.core = core
+        self.clock = clock
+        self.members: list[Callable[[], None]] = []
+        """Each link's ``send_pending``."""
+        self._timer = CoreTimer(core, clock, self.transmit)
+
+    def transmit(self) -> None:
+        for send_pending in self.members:
+            send_pending()
+        self._timer.rearm()
+
+    def cancel(self) -> None:
+        self._timer.cancel()
+
+
 class VehicleProtocol(asyncio.DatagramProtocol):
     """Feeds datagrams and timers into one core and sends its output."""
 
     def __init__(self, core: VehicleCore, clock: SimClock, *, out: Addr | None = None,
-                 max_peers: int = 8) -> None:
+                 max_peers: int = 8, link: Hashable = DEFAULT_LINK,
+                 group: LinkGroup | None = None) -> None:
         self.core = core
         self.clock = clock
         self.out = out
         self.max_peers = max_peers
         self.peers: dict[Addr, float] = {}
         self.transport: asyncio.DatagramTransport | None = None
-        self._timer = CoreTimer(core, clock, self.transmit)
+        self.link = link
+        self.group = group
+        self._timer = CoreTimer(core, clock, self.transmit) if group is None else None
+        if group is not None:
+            group.members.append(self.send_pending)
         self.send_errors = 0
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
@@ -95,7 +122,7 @@ class VehicleProtocol(asyncio.DatagramProtocol):
         self.peers[peer] = now_wall  # most recent last
         while len(self.peers) > self.max_peers:
             self.peers.pop(next(iter(self.peers)))
-        self.core.receive_datagram(data, peer, self.clock())
+        self.core.receive_datagram(data, peer, self.clock(), self.link)
         self.transmit()
 
     def error_received(self, exc: Exception) -> None:
@@ -103,7 +130,10 @@ class VehicleProtocol(asyncio.DatagramProtocol):
         self.send_errors += 1
 
     def connection_lost(self, exc: Exception | None) -> None:
-        self._timer.cancel()
+        if self._timer is not None:
+            self._timer.cancel()
+        if self.group is not None:
+            self.group.cancel()
 
     def destinations(self) -> list[Addr]:
         dests = list(self.peers)
@@ -112,19 +142,29 @@ class VehicleProtocol(asyncio.DatagramProtocol):
         return dests
 
     def transmit(self) -> None:
+        if self.group is not None:
+            self.group.transmit()
+            return
         if self.transport is None or self.transport.is_closing():
             return
-        frames = self.core.datagrams_to_send()
+        self.send_pending()
+        if self._timer is not None:
+            self._timer.rearm()
+
+    def send_pending(self) -> None:
+        """Send this link's frames and the HEARTBEATs routed to it (never echoed)."""
+        if self.transport is None or self.transport.is_closing():
+            return
+        frames = self.core.datagrams_to_send(self.link)
         if frames:
             dests = self.destinations()
             for frame in frames:
                 for dest in dests:
                     self.transport.sendto(frame, dest)
-        for sender, frame in self.core.forwards_to_send():  # routed, never echoed
+        for sender, frame in self.core.forwards_to_send(self.link):
             for dest in self.destinations():
                 if dest != sender:
                     self.transport.sendto(frame, dest)
-        self._timer.rearm()
 
 
 @dataclass(slots=True)

@@ -460,3 +460,31 @@ async def test_retries_of_an_untold_state_back_off_when_the_link_stays_full(
     assert len(gaps) >= 5, gaps
     assert gaps[:5] == pytest.approx([0.5, 0.5, 0.5, 0.5, 1.0], abs=0.15), gaps
     assert all(g > 1.8 for g in gaps[5:]), gaps  # 2 s, then 4 s
+
+
+async def test_a_new_fix_is_told_at_once_not_at_the_next_period(
+        vehicle: FakeVehicle, tmp_path: Path) -> None:
+    """Whether the autopilot has a 3-D fix is part of the state: after a (re)connection the
+    status went out with the fix unknown or none, and the dashboard showed "no fix" beside
+    fresh positions until the next periodic status (30 s here; 5 s by default)."""
+    vehicle.fix_after_s = 2.0  # ArduPilot after boot: the fix comes a little later
+    decider = FakeDecider()
+    config = dataclasses.replace(
+        _config(vehicle, tmp_path, enabled=False),
+        telemetry=dataclasses.replace(_config(vehicle, tmp_path).telemetry,
+                                      status_period_s=30.0))
+    app, transports = _make(config, decider)
+    task = asyncio.create_task(app.run())
+    try:
+        await _until(lambda: any(m.type == "status" for m, _ in transports[0].sent))
+        assert next(m for m, _ in transports[0].sent if m.type == "status"
+                    ).data["fix_type"] != 3
+        await _until(lambda: app.telemetry.snapshot().gps_fix_type == 3, timeout_s=10.0)
+        t_fix = time.time()
+        await _until(lambda: any(m.type == "status" and m.data["fix_type"] == 3
+                                 for m, _ in transports[0].sent), timeout_s=4.0)
+        t_told = time.time()
+    finally:
+        app.stop()
+        await asyncio.wait_for(task, 10)
+    assert t_told - t_fix < 1.5

@@ -4,12 +4,14 @@ way a Pixhawk on a Raspberry Pi's UART is wired. ``check`` names what is wrong p
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -130,6 +132,61 @@ async def test_companion_flies_the_vehicle_over_a_pty_serial_line(
         assert err.count(f"no such device {link}") == 1, err[-3000:]
     finally:
         _end(vehicle)
+
+
+def test_check_names_another_program_reading_the_serial_port(tmp_path: Path) -> None:
+    """MAVProxy started on the companion's UART too: two readers split the bytes, and the
+    companion's reads fail ("readiness to read but returned no data") and lose the link."""
+    from companion.mavlink_hint import other_openers
+
+    link = tmp_path / "ttyS3"
+    vehicle, _ = _serial_vehicle(link, "--flavour", "ardupilot")
+    reader = subprocess.Popen([sys.executable, "-c", "import serial, sys\n"
+                               "s = serial.Serial(sys.argv[1], 57600, timeout=0.1)\n"
+                               "while True: s.read(64)", str(link)])
+    try:
+        deadline = time.monotonic() + 20
+        while not other_openers(str(link)):
+            assert time.monotonic() < deadline and reader.poll() is None
+            time.sleep(0.05)
+        result = _check(_mini_config(tmp_path, str(link)), "--timeout", "5")
+    finally:
+        reader.kill()
+        reader.wait()
+        _end(vehicle)
+    # named, and only it: the vehicle holds the pty's master (the other end of the wire)
+    assert (f"another program also has {link} open (pid {reader.pid}: python):"
+            in result.stdout), result.stdout
+    assert "Traceback" not in result.stderr
+
+
+def test_check_says_a_line_of_noise_is_a_baud_rate_problem(tmp_path: Path) -> None:
+    """The companion at 57600 and the autopilot's TELEM port at 115200: bytes arrive, no
+    frame parses. It said "open but silent: check the wiring, ..." as for a dead line."""
+    import threading
+    import tty as termios_tty
+
+    master, slave = os.openpty()
+    termios_tty.setraw(slave)
+    link = tmp_path / "ttyS4"
+    link.symlink_to(os.ttyname(slave))
+    stop = threading.Event()
+
+    def noise() -> None:  # no MAVLink magic byte in it: nothing that could parse
+        while not stop.wait(0.05):
+            with contextlib.suppress(OSError):
+                os.write(master, bytes(range(0x20, 0xE0)))
+
+    threading.Thread(target=noise, daemon=True).start()
+    try:
+        result = _check(_mini_config(tmp_path, str(link), baud=57600), "--timeout", "2")
+    finally:
+        stop.set()
+        os.close(master)
+        os.close(slave)
+    assert result.returncode == 1
+    assert "bytes arrive but no MAVLink frame parses (" in result.stdout, result.stdout
+    assert "the baud rate (57600) differs from the autopilot's" in result.stdout
 
 
 def test_check_names_a_missing_serial_device(tmp_path: Path) -> None:

@@ -1,0 +1,78 @@
+"""Notices, while the autopilot's HEARTBEAT goes on, that its telemetry must be asked for again.
+
+The link-loss timeout alone misses two things a field operator meets:
+
+* **An autopilot that reboots faster than ``heartbeat_timeout_s``.** ArduCopter 4.5 SITL sent
+  its next HEARTBEAT 2.1 s after MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN (docs/companion.md); on
+  TCP the closed socket told the companion, on a UART or UDP nothing does. The rebooted
+  ArduPilot streams nothing but HEARTBEAT until asked and PX4 streams its defaults again
+  (the companion's rates and ``HIGHRES_IMU = 0`` gone), its fix and EKF origin are new, yet
+  the companion kept the old fix and never asked again: the dashboard showed the last
+  position, struck through, and the pre-reboot "3D fix" for the rest of the flight.
+  A message's ``time_boot_ms`` going back says the autopilot started again.
+* **Streams that stop** while HEARTBEATs arrive: that reboot on ArduPilot (nothing carries
+  ``time_boot_ms`` until streams are asked for again), or a GCS on the same link turning
+  streams off with REQUEST_DATA_STREAM. After ``silence_s`` without any wanted message the
+  companion asks again; it never re-asks while they flow, so it does not fight a GCS over
+  rates (one that slows a stream slows it; the companion only restarts a stopped link).
+
+Sans-I/O: the reader thread feeds it messages and the time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = ["BOOT_CLOCK_MESSAGES", "REBOOT_TOLERANCE_MS", "StreamWatch"]
+
+REBOOT_TOLERANCE_MS = 1000
+"""``time_boot_ms`` may step back this much without meaning a reboot (messages of one
+autopilot share its clock; a little slack for one stamped before another was sent)."""
+
+BOOT_CLOCK_MESSAGES = frozenset({"SYSTEM_TIME", "ATTITUDE", "GLOBAL_POSITION_INT"})
+"""Whose ``time_boot_ms`` is read: ones the companion asks for and both stacks stamp with
+their boot clock. Others are not trusted with it (a stack may leave a field it does not
+fill at 0, which would read as a reboot at every such message)."""
+
+
+@dataclass(kw_only=True)
+class StreamWatch:
+    """The autopilot's boot clock and when a wanted stream message last arrived."""
+
+    silence_s: float
+    """Wanted streams silent this long (HEARTBEATs arriving) means: ask again."""
+    wanted: frozenset[str] = field(default_factory=frozenset)
+    boot_ms: int | None = None
+    t_last_stream: float | None = None
+    """When a wanted message last arrived, or the streams were last asked for."""
+    told: bool = False
+    """The current silence was logged (a WARNING once, then DEBUG per request)."""
+
+    def asked(self, names: Iterable[str], rates_hz: Iterable[float], now: float) -> None:
+        """The streams were (re)requested at ``now``: only those with a rate are awaited."""
+        self.wanted = frozenset(n for n, r in zip(names, rates_hz, strict=True) if r > 0)
+        self.t_last_stream = now
+
+    def rebooted(self, msg: Any, now: float) -> str | None:
+        """Feed one message of the autopilot (its system and component); a reason when its
+        ``time_boot_ms`` went back, i.e. it booted again."""
+        if msg.get_type() in self.wanted:
+            self.t_last_stream = now
+            self.told = False
+        if msg.get_type() not in BOOT_CLOCK_MESSAGES:
+            return None
+        boot_ms = getattr(msg, "time_boot_ms", None)
+        if not isinstance(boot_ms, int):
+            return None
+        last, self.boot_ms = self.boot_ms, boot_ms
+        if last is not None and boot_ms + REBOOT_TOLERANCE_MS < last:
+            return (f"autopilot rebooted (time since boot went back from {last / 1e3:.1f} s "
+                    f"to {boot_ms / 1e3:.1f} s)")
+        return None
+
+    def silent(self, now: float) -> bool:
+        """True when wanted streams were asked for and none arrived for ``silence_s``."""
+        return (bool(self.wanted) and self.t_last_stream is not None
+                and now - self.t_last_stream > self.silence_s)

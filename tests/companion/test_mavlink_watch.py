@@ -1,0 +1,53 @@
+"""StreamWatch: a reboot seen in ``time_boot_ms``, and streams that stopped while the
+autopilot's HEARTBEAT goes on (companion/mavlink_watch.py)."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink.dialects.v20 import ardupilotmega as m
+
+from companion.mavlink_watch import StreamWatch
+
+
+def _attitude(boot_ms: int) -> m.MAVLink_attitude_message:
+    return m.MAVLink_attitude_message(boot_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+def test_time_since_boot_going_back_is_a_reboot() -> None:
+    watch = StreamWatch(silence_s=3.0)
+    assert watch.rebooted(_attitude(600_000), 0.0) is None
+    assert watch.rebooted(_attitude(599_500), 0.1) is None  # within the tolerance
+    assert watch.rebooted(_attitude(600_200), 0.2) is None
+    assert watch.rebooted(_attitude(1_800), 2.5) == (
+        "autopilot rebooted (time since boot went back from 600.2 s to 1.8 s)")
+    assert watch.rebooted(_attitude(2_000), 2.6) is None  # the new boot's clock goes on
+    heartbeat = m.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3)
+    assert watch.rebooted(heartbeat, 2.7) is None  # no clock in it
+    pressure = m.MAVLink_scaled_pressure_message(0, 1013.0, 0.0, 2000)
+    assert watch.rebooted(pressure, 2.8) is None  # a clock not trusted (0: unfilled)
+    assert watch.rebooted(_attitude(2_100), 2.9) is None
+
+
+def test_silence_counts_only_wanted_streams_and_restarts_at_each_request() -> None:
+    watch = StreamWatch(silence_s=3.0)
+    assert not watch.silent(100.0)  # nothing asked yet
+    watch.asked(["ATTITUDE", "RC_CHANNELS"], [10.0, 0.0], 10.0)
+    assert watch.wanted == {"ATTITUDE"}  # a stream turned off is not awaited
+    assert not watch.silent(12.9)
+    assert watch.silent(13.1)
+    watch.told = True
+    watch.rebooted(_attitude(5_000), 13.2)
+    assert not watch.silent(16.1) and watch.told is False  # it flows again
+    rc = m.MAVLink_rc_channels_message(5_100, 8, *([1500] * 18), 255)
+    watch.rebooted(rc, 20.0)
+    assert watch.silent(20.0)  # not a wanted one: the silence goes on
+    watch.asked(["ATTITUDE"], [10.0], 20.0)
+    assert not watch.silent(22.0)
+
+
+def test_nothing_wanted_is_never_silent() -> None:
+    watch = StreamWatch(silence_s=3.0)
+    watch.asked(["HIGHRES_IMU"], [0.0], 0.0)
+    assert not watch.silent(1e6)
