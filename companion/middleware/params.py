@@ -46,11 +46,11 @@ class CheckedParams:
     applied: Mapping[str, ParamValue]
 
 
-def _number(key: str, value: ParamValue) -> float | int:
+def _number(key: str, value: ParamValue, *, low: int = 0) -> float | int:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise ParamError(f"{key} must be a number, got {value!r}")
-    if key in _WHOLE and (not isinstance(value, int) or value < 0):
-        raise ParamError(f"{key} must be a whole number >= 0, got {value!r}")
+    if key in _WHOLE and (not isinstance(value, int) or value < low):
+        raise ParamError(f"{key} must be a whole number >= {low}, got {value!r}")
     return value
 
 
@@ -96,7 +96,8 @@ def check_params(config: MiddlewareConfig, constraint: GoodputConstraint,
             spec = with_alpha(spec, value)
             applied[key] = float(value)  # type: ignore[arg-type]  # checked by with_alpha
         elif key == "mcts_iterations":
-            changes["max_iterations"] = applied[key] = _number(key, value)
+            # 0 would leave every decision to the greedy fallback; the config refuses it too
+            changes["max_iterations"] = applied[key] = _number(key, value, low=1)
         elif key in LIVE_KEYS:
             changes[key] = applied[key] = _number(key, value)
         elif key.startswith("constraint."):

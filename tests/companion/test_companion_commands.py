@@ -157,7 +157,8 @@ def test_set_params_reaches_the_optimiser_and_the_constraint(tmp_path: Path) -> 
     ({"mcts_iterations": 50, "constraint.window": 1}, "unknown parameter 'constraint.window'"),
     ({"mcts_iterations": 50, "alpha": -2}, "alpha must be a number >= 0"),
     ({"mcts_iterations": "abc"}, "mcts_iterations must be a number, got 'abc'"),
-    ({"mcts_iterations": 2.5}, "mcts_iterations must be a whole number >= 0, got 2.5"),
+    ({"mcts_iterations": 2.5}, "mcts_iterations must be a whole number >= 1, got 2.5"),
+    ({"mcts_iterations": 0}, "mcts_iterations must be a whole number >= 1, got 0"),
     ({"c": "wide"}, "c must be a number, got 'wide'"),
 ])
 def test_a_rejected_key_changes_nothing_and_says_why(
