@@ -2,7 +2,9 @@
 
 It sends images (synthetic JPEGs or raw bytes) and telemetry to a ground station over UDP,
 acknowledges every COMMAND it receives with a STATUS ``ack`` and reports ``done`` at its
-execution time (as the companion does), and keeps the reports and
+execution time (as the companion does), or ``error`` where the companion refuses it (an
+unknown command; ``set_params`` that the companion's own decider, on its defaults, rejects),
+and keeps the reports and
 commands it got so a test can check them. The companion app is the real thing; this is
 the smallest honest peer for the ground station.
 """
@@ -17,6 +19,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, cast
 
+from companion.app import build_decider
+from companion.config import parse_config
 from companion.protocol import (
     EPOCH_STATUS,
     CommandReceived,
@@ -90,6 +94,10 @@ class FakeDrone(asyncio.DatagramProtocol):
         self.auto_done = auto_done
         """Like the companion: ``done`` at the command's ``t_exec``, again on a repeat."""
         self.done: set[int] = set()
+        self.errors: dict[int, str] = {}
+        """Commands refused, with the companion's reason (sent again on a repeat)."""
+        self._decider: Any = None
+        """The companion's default decider, built at the first ``set_params`` (its checks)."""
         self.epoch = epoch if epoch is not None else secrets.randbits(63) + 1
         self.encoder = Encoder(fleet_id, drone_id, key)
         self.decoder = Decoder(fleet_id, key, local_id=drone_id,
@@ -137,6 +145,10 @@ class FakeDrone(asyncio.DatagramProtocol):
         if cid in self.done:
             self.send_status("done", command_id=cid, info={"name": command.name})
             return
+        if cid in self.errors:
+            self.send_status("error", command_id=cid,
+                             info={"name": command.name, "error": self.errors[cid]})
+            return
         self.send_status("ack", command_id=cid)
         if not self.auto_done or any(c.command.command_id == cid for c in self.commands[:-1]):
             return
@@ -144,9 +156,26 @@ class FakeDrone(asyncio.DatagramProtocol):
         asyncio.get_running_loop().call_later(delay, self._execute, command)
 
     def _execute(self, command: Any) -> None:
-        self.done.add(command.command_id)
+        error = self._refusal(command)
+        info: dict[str, Any] = {"name": command.name}
+        if error is None:
+            self.done.add(command.command_id)
+        else:
+            self.errors[command.command_id] = info["error"] = error
         if self.transport is not None and not self.transport.is_closing():
-            self.send_status("done", command_id=command.command_id, info={"name": command.name})
+            self.send_status("done" if error is None else "error",
+                             command_id=command.command_id, info=info)
+
+    def _refusal(self, command: Any) -> str | None:
+        """Why the companion would refuse ``command`` (None: it would run it)."""
+        if command.name in ("start", "end", "request_report"):
+            return None
+        if command.name != "set_params":
+            return f"unknown command {command.name!r}"
+        if self._decider is None:  # ~10 ms
+            self._decider = build_decider(parse_config({"drone": {"id": self.drone_id}}))
+        result = self._decider.set_params(dict(command.args), self.clock())
+        return None if result.ok else str(result.error)
 
     # -- sending --------------------------------------------------------------------------
     def sendto(self, datagram: bytes) -> None:

@@ -86,18 +86,19 @@ async def shell_output(station: TestClient[Any, Any], lines: list[str], timeout_
 async def test_results_per_drone_in_the_api_and_the_shell(
         station: TestClient[Any, Any]) -> None:
     drones = await fleet(station)
-    reject_when_commanded(drones[1], "unknown parameter 'warp'")
+    reject_when_commanded(drones[1], "alpha: no information type of the mission uses alpha")
     t0 = time.monotonic()
-    text = await shell_output(station, ["params warp=9"], timeout_s=10.0)
+    text = await shell_output(station, ["params alpha=3"], timeout_s=10.0)
     assert time.monotonic() - t0 < 5.0  # ends at the reply timeout, not the wait timeout
     assert "#" in text and "set_params: done 1/3, error 1, no reply 1" in text
-    assert "  picky: error (unknown parameter 'warp')" in text
+    assert "  picky: error (alpha: no information type of the mission uses alpha)" in text
     assert "  silent: no reply (no result 0.6 s after execution)" in text
     mission = await (await station.get("/api/mission", headers=AUTH)).json()
     [command] = mission["commands"]
     assert {d: e["result"] for d, e in command["results"].items()} == {
         "ok": "done", "picky": "error", "silent": "no reply"}
-    assert command["results"]["picky"]["reason"] == "unknown parameter 'warp'"
+    assert command["results"]["picky"]["reason"] == \
+        "alpha: no information type of the mission uses alpha"
     assert command["summary"] == {"done": 1, "error": 1, "no reply": 1, "waiting": 0,
                                   "total": 3}
     assert command["finished"] is True
@@ -109,7 +110,7 @@ async def test_results_per_drone_in_the_api_and_the_shell(
     assert "done 2/3, error 1" in text  # r / wait without a name: the last command
     # scripted (-c), a failed command is a failed script; all done is success
     out = io.StringIO()
-    code = await run_shell(str(station.make_url("")), TOKEN, lines=["params warp=1"], out=out,
+    code = await run_shell(str(station.make_url("")), TOKEN, lines=["params alpha=3"], out=out,
                            wait_timeout_s=5.0)
     assert code == 1 and "error 1" in out.getvalue()
     drones[1].datagram_received = FakeDrone.datagram_received.__get__(drones[1])  # type: ignore[method-assign]
@@ -119,6 +120,23 @@ async def test_results_per_drone_in_the_api_and_the_shell(
     assert code == 0, out.getvalue()
     for drone in drones:
         drone.close()
+
+
+async def test_the_fake_drone_refuses_what_the_companion_refuses(
+        station: TestClient[Any, Any]) -> None:
+    """The fake answers set_params as the companion's own decider on its defaults does: a
+    bad value or an unknown name is an error with the companion's reason, not 'done'."""
+    ok = (await fleet(station))[0]
+    text = await shell_output(station, ["params alpha=abc"], timeout_s=10.0)
+    assert "  ok: error (alpha must be a number >= 0, got 'abc')" in text, text
+    text = await shell_output(station, ["params mcts_iterations=0"], timeout_s=10.0)
+    assert "  ok: error (mcts_iterations must be a whole number >= 1, got 0)" in text, text
+    text = await shell_output(station, ["params bogus=1"], timeout_s=10.0)
+    assert "  ok: error (unknown parameter 'bogus'" in text, text
+    text = await shell_output(station, ["params alpha=3, mcts_iterations=40"], timeout_s=10.0)
+    assert "set_params: done 1/3" in text and "  ok: error" not in text, text
+    assert len(ok.done) == 1 and len(ok.errors) == 3
+    print(text)
 
 
 async def test_every_wait_ends_and_names_who_did_not_answer(
