@@ -61,6 +61,23 @@ def test_report_schedule_repeat_and_echo() -> None:
 
 
 # -- fleet view ----------------------------------------------------------------------------
+def test_fps_of_a_drone_with_an_image_every_few_seconds_is_steady() -> None:
+    """One image every 5 s (the demo's narrow link): the tile says 0.2 between images, not
+    0.0 / 0.2 by turns; a drone heard for less than the window is counted over its time."""
+    fv = FleetView(high_utility=3.0, link_lost_s=2.0)
+    for k in range(13):
+        t = T0 + 5.0 * k
+        fv.on_message(msg(k, t_gen=t - 0.2, t_rcv=t, size=300), now=t, utility=1.0)
+    readings = [fv.drone_json(fv.drones["d1"], now=T0 + 60.0 + dt)["fps"]
+                for dt in (0.5, 1.5, 2.5, 3.5, 4.5)]
+    assert readings == pytest.approx([0.2] * 5)
+    early = FleetView(high_utility=3.0, link_lost_s=2.0)
+    for k in range(3):
+        early.on_message(msg(k, t_gen=T0 + 5.0 * k, t_rcv=T0 + 5.0 * k, size=300),
+                         now=T0 + 5.0 * k, utility=1.0)
+    assert early.drone_json(early.drones["d1"], now=T0 + 14.0)["fps"] == pytest.approx(3 / 14)
+
+
 def test_fleet_rates_share_latency_and_link_loss() -> None:
     fv = FleetView(high_utility=3.0, link_lost_s=2.0)
     for k in range(10):
