@@ -52,9 +52,10 @@ __all__ = ["MISSION_KEYS", "Decision", "Middleware", "MiddlewareConfig", "Middle
 ROSTER_UNHEARD_S = 5.0
 """With a roster and no ``plan_unheard_s``: how long unheard roster streams are planned for."""
 
-MISSION_KEYS = ("fleet_size",)
+MISSION_KEYS = ("fleet_size", "price_rate_s")
 """``MiddlewareConfig`` fields the ``[middleware]`` table sets besides :data:`LIVE_KEYS`;
-fixed for a mission, so not live: ``fleet_size`` acts only in the first seconds of it."""
+fixed for a mission, so not live: ``fleet_size`` acts only in the first seconds of it,
+``price_rate_s`` is the relay fleet's (docs/adaptive.md)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -155,6 +156,13 @@ class MiddlewareConfig:
     """How long the mission-start share lasts; None: off (the fleet is declared only for
     ``plan_unheard_s``, which the start share costs in the fig. 5.7 fleets, round 8)."""
 
+    price_rate_s: float | None = None
+    """Opt-in (the relay fleet's, docs/adaptive.md "The decider's lag"): the price per byte
+    (``price_bytes``) counts another agent's messages with versions only up to the bytes
+    it is expected to send over the horizon, at the rate it was heard to send over this
+    many seconds (:func:`~companion.middleware.gate.price_per_byte`, ``expected``). None:
+    every forecast frame counts."""
+
     roster: Roster | None = None  # issue 18 round 9
     """Which agent generates which types (the mission's declared fleet; None: the spec's
     ``roster``, if any). With one, nothing is guessed: the streams of the roster nobody has
@@ -199,6 +207,8 @@ class MiddlewareConfig:
             raise MiddlewareError("time_budget_s must be > 0 or None")
         if self.small_share is not None and not 0 < self.small_share <= 1:
             raise MiddlewareError("small_share must be in (0, 1] or None")
+        if self.price_rate_s is not None and not self.price_rate_s > 0:
+            raise MiddlewareError("price_rate_s must be > 0 or None")
 
 
 def _dense_enough(problem: Problem, level: int, lam: float) -> bool:
@@ -354,8 +364,8 @@ class Middleware:
         else:
             option, reason = result.option, "mcts-exact" if result.exhausted else "mcts"
             if self.config.price_bytes and message.versions:  # issue 18 rounds 5-6, gate.py
-                option = priced_option(problem, level, option,
-                                       price_per_byte(problem, level=level))
+                option = priced_option(problem, level, option, price_per_byte(
+                    problem, level=level, expected=self._expected_bytes(now, lag)))
             small = self.config.small_share
             if small is not None and option == 0 and message.size <= small * budget:
                 option = self._small_option(problem, level, search.lam, now=now,
@@ -409,6 +419,16 @@ class Middleware:
                                            reason="status-heartbeat")
         self._after(message, decision, now)
         return decision
+
+    def _expected_bytes(self, now: float, lag: float) -> dict[str, float] | None:
+        """Per other agent, the bytes it is expected to send over the horizon: its rate
+        over the ``price_rate_s`` before the last ``lag`` (what has had time to be
+        reported) times the horizon; None without ``price_rate_s``."""
+        span = self.config.price_rate_s
+        if span is None:
+            return None
+        rates = self.knowledge.sender_rates(now=now, lag_s=lag, window_s=span)
+        return {sender: rate * self.config.horizon_s for sender, (rate, _) in rates.items()}
 
     def _small_option(self, problem: Problem, level: int, lam: float, *, now: float,
                       budget: float, window_s: float) -> int:
@@ -498,7 +518,8 @@ class Middleware:
                 self.counters["over_budget"] += 1
             self.knowledge.on_sent(sent, now=now)
             self.constraint.on_sent(sent.size, now=now)
-        horizon = max(self.constraint.window_s, self.config.horizon_s)
+        horizon = max(self.constraint.window_s, self.config.horizon_s,
+                      self.config.price_rate_s or 0.0)  # the rates' window (_expected_bytes)
         self.knowledge.forget(now=now, keep_s=horizon + 4.0 * self.knowledge.latency.high_s)
 
     def on_delivered(self, messages: Iterable[Message], now: float) -> None:
