@@ -90,7 +90,10 @@ def price_per_byte(problem: Problem, *, level: int | None = None,
     a narrow link sends one in five or fewer. Counted all, each of them denser than this
     agent's frame (their bases age as its own does), the price rose above every drone's
     own frame whenever the fleet was silent, and the whole demo fleet sent no image for
-    10-14 s with the link empty (docs/adaptive.md, "The decider's lag").
+    8-18 s with the link empty (docs/adaptive.md, "The decider's lag"). The bytes heard
+    are the versions sent (half frames, ~8 kB), those counted the densest versions (often
+    the full frame, ~30 kB): a drone heard sending a half frame a second counts about one
+    frame per 3 s horizon, not three.
     """
     n = problem.n
     if n == 0:

@@ -50,7 +50,7 @@ def _sends_while_the_peers_are_silent(price_rate_s: float | None, quiet_s: float
 def test_a_drone_whose_peers_fell_silent_sends_where_every_forecast_frame_kept_it_silent(
         ) -> None:
     """Counting the silent peers' 45 forecast frames as sends, the agent sent one frame in
-    2 s with the link empty (the demo fleet: no image for 10-14 s); counting only what
+    2 s with the link empty (the demo fleet: no image for 8-18 s); counting only what
     they were heard to send over the last 3 s, it sends a second one 1.6 s after the
     first."""
     assert _sends_while_the_peers_are_silent(None, 2.0) == 1

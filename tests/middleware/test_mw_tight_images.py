@@ -230,7 +230,7 @@ def _best_density(problem: Any, level: int) -> float:
 def test_a_silent_fleet_prices_every_half_frame_out_unless_expected_sends_count() -> None:
     """Four plain drones silent for 2 s: counted all, the others' 45 forecast frames (each
     as its stream's only send) price the drone's half frame out, and the same holds for
-    every drone: the demo fleet sent no image for 10-14 s with the link empty. Counting
+    every drone: the demo fleet sent no image for 8-18 s with the link empty. Counting
     each other drone's frames only up to the bytes it is expected to send over the horizon
     (here one half frame's, less than half of their densest version, the 30 kB full
     frame: none of theirs counts), the half frame earns the price; expected to send
