@@ -18,6 +18,7 @@ the shell must not record it a second time.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -51,6 +52,13 @@ __all__ = ["MISSION_KEYS", "Decision", "Middleware", "MiddlewareConfig", "Middle
 
 ROSTER_UNHEARD_S = 5.0
 """With a roster and no ``plan_unheard_s``: how long unheard roster streams are planned for."""
+
+RISEN_WORTH = 1.25
+"""With ``price_rate_s``: another agent whose recent messages of a type are worth this many
+times their history's median (``StreamForecaster.risen``) is counted in the price at its
+generation rate, not its heard one. Not 2: the demo's red drone, heard sending half
+frames, rose 1.3-1.4x in its first 4 s over red and 2-3x later, the plain drones stayed at
+1.0 (debug log, 2026-11-25; per unit of quality: a half frame after quarters was 2.0x)."""
 
 MISSION_KEYS = ("fleet_size", "price_rate_s")
 """``MiddlewareConfig`` fields the ``[middleware]`` table sets besides :data:`LIVE_KEYS`;
@@ -160,8 +168,10 @@ class MiddlewareConfig:
     """Opt-in (the relay fleet's, docs/adaptive.md "The decider's lag"): the price per byte
     (``price_bytes``) counts another agent's messages with versions only up to the bytes
     it is expected to send over the horizon, at the rate it was heard to send over this
-    many seconds (:func:`~companion.middleware.gate.price_per_byte`, ``expected``). None:
-    every forecast frame counts."""
+    many seconds (:func:`~companion.middleware.gate.price_per_byte`, ``expected``), unless
+    its recent worth rose :data:`RISEN_WORTH` times over its history (the red drone); and
+    every stream is forecast from its observations of the last this many seconds
+    (``StreamForecaster.pool_span_s``). None: every forecast frame counts."""
 
     roster: Roster | None = None  # issue 18 round 9
     """Which agent generates which types (the mission's declared fleet; None: the spec's
@@ -243,6 +253,7 @@ class Middleware:
         self.knowledge = FleetKnowledge(
             config.spec, agent=config.agent, default_latency_s=config.default_latency_s
         )
+        self.knowledge.forecaster.pool_span_s = config.price_rate_s
         self.counters: Counter[str] = Counter()
         self.margin = OvershootMargin()
         self.last_problem: Problem | None = None
@@ -365,7 +376,7 @@ class Middleware:
             option, reason = result.option, "mcts-exact" if result.exhausted else "mcts"
             if self.config.price_bytes and message.versions:  # issue 18 rounds 5-6, gate.py
                 option = priced_option(problem, level, option, price_per_byte(
-                    problem, level=level, expected=self._expected_bytes(now, lag)))
+                    problem, level=level, expected=self._expected_bytes(message, now, lag)))
             small = self.config.small_share
             if small is not None and option == 0 and message.size <= small * budget:
                 option = self._small_option(problem, level, search.lam, now=now,
@@ -420,15 +431,27 @@ class Middleware:
         self._after(message, decision, now)
         return decision
 
-    def _expected_bytes(self, now: float, lag: float) -> dict[str, float] | None:
+    def _expected_bytes(self, message: Message, now: float, lag: float
+                        ) -> dict[str, float] | None:
         """Per other agent, the bytes it is expected to send over the horizon: its rate
         over the ``price_rate_s`` before the last ``lag`` (what has had time to be
-        reported) times the horizon; None without ``price_rate_s``."""
+        reported) times the horizon; None without ``price_rate_s``. An agent whose recent
+        ``message.type`` messages are worth :data:`RISEN_WORTH` times its history's median
+        or more (the red drone, seen from a plain one) is expected to send them all: counted
+        at its past rate, just when its worth rose, its frames left the plain drones' price
+        and they took its windows (docs/adaptive.md, "The red drone's precedence")."""
         span = self.config.price_rate_s
         if span is None:
             return None
         rates = self.knowledge.sender_rates(now=now, lag_s=lag, window_s=span)
-        return {sender: rate * self.config.horizon_s for sender, (rate, _) in rates.items()}
+        out = {sender: rate * self.config.horizon_s for sender, (rate, _) in rates.items()}
+        forecaster = self.knowledge.forecaster
+        for sender, kind in forecaster.streams():
+            rise = forecaster.risen((sender, kind))
+            if kind == message.type and sender != self.config.agent and rise is not None \
+                    and rise >= RISEN_WORTH:
+                out[sender] = math.inf
+        return out
 
     def _small_option(self, problem: Problem, level: int, lam: float, *, now: float,
                       budget: float, window_s: float) -> int:
