@@ -375,8 +375,12 @@ class Middleware:
         else:
             option, reason = result.option, "mcts-exact" if result.exhausted else "mcts"
             if self.config.price_bytes and message.versions:  # issue 18 rounds 5-6, gate.py
-                option = priced_option(problem, level, option, price_per_byte(
-                    problem, level=level, expected=self._expected_bytes(message, now, lag)))
+                price = price_per_byte(problem, level=level,
+                                       expected=self._expected_bytes(message, now, lag))
+                tree_option, option = option, priced_option(problem, level, option, price)
+                if tree_option and not option and self.config.price_rate_s is not None:
+                    option = self._fitting_option(problem, level, price, now=now,
+                                                  budget=budget, window_s=window_s)
             small = self.config.small_share
             if small is not None and option == 0 and message.size <= small * budget:
                 option = self._small_option(problem, level, search.lam, now=now,
@@ -452,6 +456,21 @@ class Middleware:
                     and rise >= RISEN_WORTH:
                 out[sender] = math.inf
         return out
+
+    def _fitting_option(self, problem: Problem, level: int, price: float, *, now: float,
+                        budget: float, window_s: float) -> int:
+        """With ``price_rate_s``: the tree chose to send but no option as small as its
+        earns the price; the most valuable option that earns it and fits the window (no
+        violated window among the sends known), else 0. Over red the red drone's tree
+        chose its quarter frame, worth 0 over its base, with the window empty, and the
+        price dropped it: about one red frame a second went out with the others silent."""
+        gain, size = problem.gain[level, :, 0], problem.size[level]
+        earning = [o for o in range(1, int(problem.nopt[level]))
+                   if float(gain[o]) > 0 and float(gain[o]) >= price * max(1, int(size[o]))
+                   and not creates_violation(self.knowledge.known_sends(), now=now,
+                                             size=int(problem.size[level, o]),
+                                             window_s=window_s, budget_bytes=budget)]
+        return max(earning, key=lambda o: float(problem.gain[level, o, 0]), default=0)
 
     def _small_option(self, problem: Problem, level: int, lam: float, *, now: float,
                       budget: float, window_s: float) -> int:
