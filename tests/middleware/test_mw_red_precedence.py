@@ -75,3 +75,28 @@ def test_a_plain_drone_leaves_the_red_drone_its_windows(monkeypatch: pytest.Monk
     capped = _plain_sends_while_the_peer_is_red(risen=float("inf"))
     counted = _plain_sends_while_the_peer_is_red(risen=1.25)
     assert (capped, counted) == (3, 1)
+
+
+def test_the_fit_sends_the_most_valuable_option_that_earns_the_price_and_fits() -> None:
+    """``_fitting_option``: of the options earning the price, the most valuable that adds
+    no violated window to the known sends (the red drone's half frame, where its tree
+    chose the worthless quarter); none when the window is full."""
+    mw = Middleware(MiddlewareConfig(spec=builtin_spec("image_streaming"), agent="a",
+                                     max_iterations=100, price_rate_s=3.0),
+                    rng=np.random.default_rng(1),
+                    constraint=ConstantConstraint(limit_bytes_per_s=30_000.0, window_s=0.5))
+    mw.decide(_frame("a", 0, 0.0, red=0.3), 0.0)
+    frame = _frame("a", 10, 2.0, red=0.3)
+    mw.decide(frame, 2.0)
+    problem = mw.last_problem
+    assert problem is not None
+    level = problem.decided_level
+    gain = [float(problem.gain[level, o, 0]) for o in (1, 2, 3)]
+    assert gain[0] > gain[1] > gain[2] > 0
+    args = {"now": 2.0, "budget": 15_000.0, "window_s": 0.5}
+    assert mw._fitting_option(problem, level, 0.0, **args) == 2  # the full frame does not fit
+    half_density = gain[1] / 8_400
+    assert mw._fitting_option(problem, level, 0.99 * half_density, **args) == 2
+    assert mw._fitting_option(problem, level, 1.01 * half_density, **args) == 0  # quarter: 5 µ/B
+    mw.knowledge.on_sent(_frame("b", 5, 1.9).with_version(1), now=1.9)  # 8.4 kB in window
+    assert mw._fitting_option(problem, level, 0.0, **args) == 3
