@@ -177,6 +177,9 @@ class FleetPlan:
     """mcts: write ``[middleware] fleet_size`` = the number of drones (the share of the
     budget at the mission start, issue 18): measured on the demo fleet, the first seconds'
     full frames no longer overflow the relay's queue (docs/middleware.md, round 7)."""
+    price_rate_s: float | None = None
+    """mcts: write ``[middleware] price_rate_s`` (the relay fleet's: the price counts the
+    other drones' frames they are expected to send, docs/adaptive.md); None: not written."""
     peers_medium: str | None = None
     """the shared medium of ``--peers`` (sitl.fleet_peers); None: unicast."""
     link_rate_bytes_per_s: float = 0.0
@@ -266,6 +269,8 @@ def companion_toml(plan: FleetPlan, drone: DroneSlot) -> str:
         | ({"policy": plan.policy} if plan.policy != "mcts" else {})
         | ({"fleet_size": len(plan.drones)} if plan.fleet_share and plan.policy == "mcts"
            else {})
+        | ({"price_rate_s": plan.price_rate_s} if plan.price_rate_s is not None
+           and plan.policy == "mcts" else {})
         | ({"drop_probability": plan.drop_probability, "any_version": True}
            if plan.policy == "random_drop" else {}),
     }

@@ -75,7 +75,8 @@ class StreamForecaster:
     (:func:`_heartbeat_period`).
     """
 
-    __slots__ = ("_streams", "assume_fleet_period", "heartbeats", "prior_period", "worth")
+    __slots__ = ("_streams", "assume_fleet_period", "heartbeats", "pool_span_s", "prior_period",
+                 "worth")
 
     def __init__(self, *, assume_fleet_period: bool = True,
                  worth: Callable[[Message], float | None] | None = None,
@@ -89,6 +90,13 @@ class StreamForecaster:
         the forecasts of a stream whose recent messages differ in worth carry the data of
         those messages, one quantile each, instead of the last message's data (see
         :meth:`forecast`). None: every forecast carries the last data (the thesis' model)."""
+        self.pool_span_s: float | None = None
+        """Spread only over the observations generated within this many seconds of a
+        stream's newest one (None: its last :data:`_HISTORY`). Another drone's stream is
+        heard a frame a second or less, so its 32 observations span the mission: when the
+        red drone's frames turned red, the others still drew its forecasts mostly from its
+        plain frames, worth ~0 over its red base, and took the window (docs/adaptive.md,
+        "The red drone's precedence")."""
         self.prior_period: float | None = None
         """Median period of the streams seen at least twice (refreshed by :meth:`refresh`);
         a stream heard of only once is assumed to repeat at it (``assume_fleet_period``)."""
@@ -125,6 +133,21 @@ class StreamForecaster:
 
     def streams(self) -> list[StreamKeyT]:
         return list(self._streams)
+
+    def risen(self, key: StreamKeyT) -> float | None:
+        """The mean worth of the stream's observations within :attr:`pool_span_s` of its
+        newest over the median of all it keeps: how far its recent messages rose above its
+        history (the red drone's frames, seen by the others); None when unvalued."""
+        stream = self._streams.get(key)
+        if stream is None or len(stream.pool) < _SPREAD_MIN:
+            return None
+        since = stream.pool[-1][1].t_gen - (self.pool_span_s or math.inf)
+        # per unit of the carried version's quality: another drone's half frame after its
+        # quarter ones is not a rise (seen: 2.0x, and the plain drones held back 2 s)
+        worths = [(w / m.quality if m.quality > 0 else w, m) for w, m in stream.pool]
+        recent = [w for w, m in worths if m.t_gen >= since]
+        history = sorted(w for w, _ in worths)[(len(worths) - 1) // 2]
+        return sum(recent) / len(recent) / history if history > 0 else None
 
     def period(self, key: StreamKeyT) -> float | None:
         """Estimated period in seconds, ``None`` before two observations."""
@@ -222,7 +245,14 @@ class StreamForecaster:
         if self.worth is None or len(stream.pool) < _SPREAD_MIN:
             return None
         if stream.ranked is None:
-            ranked = sorted(stream.pool, key=lambda wm: wm[0])
+            pool = list(stream.pool)
+            if self.pool_span_s is not None:
+                since = pool[-1][1].t_gen - self.pool_span_s
+                pool = [wm for wm in pool if wm[1].t_gen >= since]
+            if len(pool) < _SPREAD_MIN:
+                stream.ranked = []
+                return None
+            ranked = sorted(pool, key=lambda wm: wm[0])
             lo = ranked[int(0.1 * (len(ranked) - 1))][0]
             mid = ranked[(len(ranked) - 1) // 2][0]
             hi = ranked[int(0.9 * (len(ranked) - 1))][0]

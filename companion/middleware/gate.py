@@ -22,7 +22,7 @@ This module also holds the window check that decides whether a send is a planned
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 
@@ -67,7 +67,8 @@ def creates_violation(sends: Iterable[tuple[float, int]], *, now: float, size: i
     return False
 
 
-def price_per_byte(problem: Problem, *, level: int | None = None) -> float:
+def price_per_byte(problem: Problem, *, level: int | None = None,
+                   expected: Mapping[str, float] | None = None) -> float:
     """The utility per byte at which the horizon's messages, densest first, fill the budget
     over the horizon: each message counted in its densest version, with that version's
     bytes (the density and the bytes of one and the same option).
@@ -82,6 +83,17 @@ def price_per_byte(problem: Problem, *, level: int | None = None) -> float:
     The other drones' streams stay independent: pricing each of their frames at what it
     adds after the previous one (as if all were sent) let plain drones take 1/3 of a
     2-drone link that the red drone should mostly have (round 11, not kept).
+
+    With ``expected`` (sender -> the bytes it is expected to send over the horizon, from
+    its reported rate), another agent's messages with versions count only up to those
+    bytes, its densest first: the forecast has a frame per camera period, but a drone on
+    a narrow link sends one in five or fewer. Counted all, each of them denser than this
+    agent's frame (their bases age as its own does), the price rose above every drone's
+    own frame whenever the fleet was silent, and the whole demo fleet sent no image for
+    8-18 s with the link empty (docs/adaptive.md, "The decider's lag"). The bytes heard
+    are the versions sent (half frames, ~8 kB), those counted the densest versions (often
+    the full frame, ~30 kB): a drone heard sending a half frame a second counts about one
+    frame per 3 s horizon, not three.
     """
     n = problem.n
     if n == 0:
@@ -101,8 +113,34 @@ def price_per_byte(problem: Problem, *, level: int | None = None) -> float:
             if int(problem.stream[i]) == own:
                 gain = float(problem.gain[i, int(best[i]) + 1, after])
                 density[i] = max(0.0, gain / nbytes[i])
+    if expected is not None:
+        density = _expected_only(problem, density, nbytes, expected, level=level)
     span = float(problem.send_t[-1] - problem.send_t[0])
     capacity = problem.budget_bytes * max(1.0, span / problem.window_s)
     order = np.lexsort((nbytes, density))[::-1]  # densest first; ties: larger first
+    order = order[np.isfinite(density[order])]  # not left out (``expected``)
     over = np.nonzero(np.cumsum(nbytes[order]) > capacity)[0]
     return float(density[order[over[0]]]) if len(over) else 0.0
+
+
+def _expected_only(problem: Problem, density: np.ndarray, nbytes: np.ndarray,
+                   expected: Mapping[str, float], *, level: int | None) -> np.ndarray:
+    """``density`` with the versioned messages of other agents beyond their ``expected``
+    bytes set to -inf (left out of the price): per sender, densest first, a message counts
+    while the sender's counted bytes stay within half a message of its expected bytes."""
+    own = problem.items[level].message.sender if level is not None and 0 <= level < problem.n \
+        else None
+    out = density.copy()
+    by_sender: dict[str, list[int]] = {}
+    for i, item in enumerate(problem.items):
+        sender = item.message.sender
+        if sender != own and item.message.versions and i != level:
+            by_sender.setdefault(sender, []).append(i)
+    for sender, idx in by_sender.items():
+        room = float(expected.get(sender, 0.0))
+        for i in sorted(idx, key=lambda j: (-density[j], -nbytes[j])):
+            if room >= 0.5 * nbytes[i]:
+                room -= nbytes[i]
+            else:
+                out[i] = -np.inf
+    return out

@@ -18,6 +18,7 @@ the shell must not record it a second time.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -52,9 +53,17 @@ __all__ = ["MISSION_KEYS", "Decision", "Middleware", "MiddlewareConfig", "Middle
 ROSTER_UNHEARD_S = 5.0
 """With a roster and no ``plan_unheard_s``: how long unheard roster streams are planned for."""
 
-MISSION_KEYS = ("fleet_size",)
+RISEN_WORTH = 1.25
+"""With ``price_rate_s``: another agent whose recent messages of a type are worth this many
+times their history's median (``StreamForecaster.risen``) is counted in the price at its
+generation rate, not its heard one. Not 2: the demo's red drone, heard sending half
+frames, rose 1.3-1.4x in its first 4 s over red and 2-3x later, the plain drones stayed at
+1.0 (debug log, 2026-11-25; per unit of quality: a half frame after quarters was 2.0x)."""
+
+MISSION_KEYS = ("fleet_size", "price_rate_s")
 """``MiddlewareConfig`` fields the ``[middleware]`` table sets besides :data:`LIVE_KEYS`;
-fixed for a mission, so not live: ``fleet_size`` acts only in the first seconds of it."""
+fixed for a mission, so not live: ``fleet_size`` acts only in the first seconds of it,
+``price_rate_s`` is the relay fleet's (docs/adaptive.md)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -155,6 +164,15 @@ class MiddlewareConfig:
     """How long the mission-start share lasts; None: off (the fleet is declared only for
     ``plan_unheard_s``, which the start share costs in the fig. 5.7 fleets, round 8)."""
 
+    price_rate_s: float | None = None
+    """Opt-in (the relay fleet's, docs/adaptive.md "The decider's lag"): the price per byte
+    (``price_bytes``) counts another agent's messages with versions only up to the bytes
+    it is expected to send over the horizon, at the rate it was heard to send over this
+    many seconds (:func:`~companion.middleware.gate.price_per_byte`, ``expected``), unless
+    its recent worth rose :data:`RISEN_WORTH` times over its history (the red drone); and
+    every stream is forecast from its observations of the last this many seconds
+    (``StreamForecaster.pool_span_s``). None: every forecast frame counts."""
+
     roster: Roster | None = None  # issue 18 round 9
     """Which agent generates which types (the mission's declared fleet; None: the spec's
     ``roster``, if any). With one, nothing is guessed: the streams of the roster nobody has
@@ -199,6 +217,8 @@ class MiddlewareConfig:
             raise MiddlewareError("time_budget_s must be > 0 or None")
         if self.small_share is not None and not 0 < self.small_share <= 1:
             raise MiddlewareError("small_share must be in (0, 1] or None")
+        if self.price_rate_s is not None and not self.price_rate_s > 0:
+            raise MiddlewareError("price_rate_s must be > 0 or None")
 
 
 def _dense_enough(problem: Problem, level: int, lam: float) -> bool:
@@ -233,6 +253,7 @@ class Middleware:
         self.knowledge = FleetKnowledge(
             config.spec, agent=config.agent, default_latency_s=config.default_latency_s
         )
+        self.knowledge.forecaster.pool_span_s = config.price_rate_s
         self.counters: Counter[str] = Counter()
         self.margin = OvershootMargin()
         self.last_problem: Problem | None = None
@@ -364,8 +385,12 @@ class Middleware:
         else:
             option, reason = result.option, "mcts-exact" if result.exhausted else "mcts"
             if self.config.price_bytes and message.versions:  # issue 18 rounds 5-6, gate.py
-                option = priced_option(problem, level, option,
-                                       price_per_byte(problem, level=level))
+                price = price_per_byte(problem, level=level,
+                                       expected=self._expected_bytes(message, now, lag))
+                tree_option, option = option, priced_option(problem, level, option, price)
+                if tree_option and not option and self.config.price_rate_s is not None:
+                    option = self._fitting_option(problem, level, price, now=now,
+                                                  budget=budget, window_s=window_s)
             small = self.config.small_share
             if small is not None and option == 0 and message.size <= small * budget:
                 option = self._small_option(problem, level, search.lam, now=now,
@@ -419,6 +444,43 @@ class Middleware:
                                            reason="status-heartbeat")
         self._after(message, decision, now)
         return decision
+
+    def _expected_bytes(self, message: Message, now: float, lag: float
+                        ) -> dict[str, float] | None:
+        """Per other agent, the bytes it is expected to send over the horizon: its rate
+        over the ``price_rate_s`` before the last ``lag`` (what has had time to be
+        reported) times the horizon; None without ``price_rate_s``. An agent whose recent
+        ``message.type`` messages are worth :data:`RISEN_WORTH` times its history's median
+        or more (the red drone, seen from a plain one) is expected to send them all: counted
+        at its past rate, just when its worth rose, its frames left the plain drones' price
+        and they took its windows (docs/adaptive.md, "The red drone's precedence")."""
+        span = self.config.price_rate_s
+        if span is None:
+            return None
+        rates = self.knowledge.sender_rates(now=now, lag_s=lag, window_s=span)
+        out = {sender: rate * self.config.horizon_s for sender, (rate, _) in rates.items()}
+        forecaster = self.knowledge.forecaster
+        for sender, kind in forecaster.streams():
+            rise = forecaster.risen((sender, kind))
+            if kind == message.type and sender != self.config.agent and rise is not None \
+                    and rise >= RISEN_WORTH:
+                out[sender] = math.inf
+        return out
+
+    def _fitting_option(self, problem: Problem, level: int, price: float, *, now: float,
+                        budget: float, window_s: float) -> int:
+        """With ``price_rate_s``: the tree chose to send but no option as small as its
+        earns the price; the most valuable option that earns it and fits the window (no
+        violated window among the sends known), else 0. Over red the red drone's tree
+        chose its quarter frame, worth 0 over its base, with the window empty, and the
+        price dropped it: about one red frame a second went out with the others silent."""
+        gain, size = problem.gain[level, :, 0], problem.size[level]
+        earning = [o for o in range(1, int(problem.nopt[level]))
+                   if float(gain[o]) > 0 and float(gain[o]) >= price * max(1, int(size[o]))
+                   and not creates_violation(self.knowledge.known_sends(), now=now,
+                                             size=int(problem.size[level, o]),
+                                             window_s=window_s, budget_bytes=budget)]
+        return max(earning, key=lambda o: float(problem.gain[level, o, 0]), default=0)
 
     def _small_option(self, problem: Problem, level: int, lam: float, *, now: float,
                       budget: float, window_s: float) -> int:
@@ -508,7 +570,8 @@ class Middleware:
                 self.counters["over_budget"] += 1
             self.knowledge.on_sent(sent, now=now)
             self.constraint.on_sent(sent.size, now=now)
-        horizon = max(self.constraint.window_s, self.config.horizon_s)
+        horizon = max(self.constraint.window_s, self.config.horizon_s,
+                      self.config.price_rate_s or 0.0)  # the rates' window (_expected_bytes)
         self.knowledge.forget(now=now, keep_s=horizon + 4.0 * self.knowledge.latency.high_s)
 
     def on_delivered(self, messages: Iterable[Message], now: float) -> None:

@@ -32,6 +32,12 @@ RELAY_QUEUE_BYTES = 20_000
 RELAY_BACKGROUND_SHARE = 0.4
 """Default background step on the relay: this share of its rate from mid-mission."""
 
+RELAY_PRICE_RATE_S = 3.0
+"""The relay fleet's ``[middleware] price_rate_s``: the price per byte counts the other
+drones' frames only as many as they were heard to send over the last 3 s (without it the
+demo fleet sent no image for 8-18 s at a time with the link empty; docs/adaptive.md), all
+of a drone's whose worth rose (the red one), and forecasts draw on each stream's last 3 s."""
+
 
 @dataclass(frozen=True, slots=True)
 class Background:

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sitl.fleet.link import relay_constraint_params
+from sitl.fleet.link import RELAY_PRICE_RATE_S, relay_constraint_params
 from sitl.fleet_config import DroneSlot, FleetPlan, free_port, mission_spec_path
 
 POLICIES = ("mcts", "random", "send_all")
@@ -57,6 +57,7 @@ def make_plan(args: argparse.Namespace, run_dir: Path, *, netns: bool = False) -
         constraint=args.constraint, constraint_params=params, alpha=args.alpha, seed=args.seed,
         policy=COMPANION_POLICY[args.policy], drop_probability=args.drop_probability,
         fleet_share=args.fleet_share,
+        price_rate_s=RELAY_PRICE_RATE_S if relay and args.constraint != "constant" else None,
         # every shaped link paces each message at its rate: a camera frame larger than the
         # relay's queue only gets through paced, and two drones' frames at once fill half
         # as much of it (docs/protocol.md, pacing; docs/adaptive.md, the narrow link)

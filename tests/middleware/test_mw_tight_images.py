@@ -120,13 +120,13 @@ def _frames(sender: str, reds: list[float], times: list[float], *, counted: bool
             for k, (red, t) in enumerate(zip(reds, times, strict=True))]
 
 
-def _fleet_problem(decided: str, *, counted: bool = True) -> tuple[Any, int]:
+def _fleet_problem(decided: str, *, counted: bool = True, red: float = 0.5) -> tuple[Any, int]:
     """A red drone (red 0.5) and three plain ones, 3 frames/s each over 3 s, 10 kB/s over a
     2 s window (the slow fleet test's link), every stream's last half frame a second old;
     ``decided`` is the sender of the frame decided at t = 0."""
     spec = builtin_spec("image_streaming")
     times = [k / 3 for k in range(9)]
-    senders = {"red": 0.5, "plain": 0.0, "plain2": 0.0, "plain3": 0.0}
+    senders = {"red": red, "plain": 0.0, "plain2": 0.0, "plain3": 0.0}
     frames: list[Message] = []
     fixed = []
     for j, (name, red) in enumerate(senders.items()):
@@ -188,3 +188,76 @@ def test_in_a_fleet_the_red_frame_earns_its_price_and_a_plain_one_does_not() -> 
     assert red_price > 0.0 and plain_price > 0.0
     assert _density(red, red_level, 2) >= red_price
     assert _density(plain, plain_level, 2) < plain_price
+
+
+# -- the relay fleet's price: the others' frames they are expected to send ---------------------
+
+DEMO_FULL = Version(name="full", size=30_000, quality=1.0)
+DEMO_HALF = Version(name="half", size=8_500, quality=0.5)
+DEMO_QUARTER = Version(name="quarter", size=2_500, quality=0.25)
+
+
+def _demo_problem(decided: str, reds: dict[str, float], *, age_s: float) -> tuple[Any, int]:
+    """The demo fleet's numbers: every drone's camera at 5 frames/s over the 3 s horizon,
+    frames of 30 / 8.5 / 2.5 kB, ξ·T = 15 kB over T = 0.5 s; each stream's last half frame
+    ``age_s`` old (the fleet silent since)."""
+    spec = builtin_spec("image_streaming")
+    versions = (DEMO_FULL, DEMO_HALF, DEMO_QUARTER)
+    frames: list[Message] = []
+    fixed = []
+    for j, (name, red) in enumerate(reds.items()):
+        for k in range(-1, 15):
+            t = -age_s if k < 0 else k / 5 + 0.01 * j
+            m = Message(sender=name, seq=100 + k, type="image", t_gen=t, size=DEMO_FULL.size,
+                        data={"red": red, "frame": 100 + k}, versions=versions, version=0)
+            if k < 0:
+                fixed.append(FixedItem(message=m.with_version(1), send_t=t, rcv_t=t + 0.15))
+            else:
+                frames.append(m)
+    frames.sort(key=lambda m: m.t_gen)
+    decide = next(m for m in frames if m.sender == decided)
+    items = [PlanItem(message=m, send_t=m.t_gen, rcv_t=m.t_gen + 0.15,
+                      kind="decide" if m is decide else "forecast") for m in frames]
+    level = next(i for i, it in enumerate(items) if it.kind == "decide")
+    return build_problem(spec, items=items, fixed=fixed, horizon_end=3.0,
+                         budget_bytes=15_000.0, window_s=0.5), level
+
+
+def _best_density(problem: Any, level: int) -> float:
+    return max(_density(problem, level, o) for o in range(1, int(problem.nopt[level])))
+
+
+def test_a_silent_fleet_prices_every_half_frame_out_unless_expected_sends_count() -> None:
+    """Four plain drones silent for 2 s: counted all, the others' 45 forecast frames (each
+    as its stream's only send) price the drone's half frame out, and the same holds for
+    every drone: the demo fleet sent no image for 8-18 s with the link empty. Counting
+    each other drone's frames only up to the bytes it is expected to send over the horizon
+    (here one half frame's, less than half of their densest version, the 30 kB full
+    frame: none of theirs counts), the half frame earns the price; expected to send
+    without bound, they price it out again."""
+    plain = {"a": 0.0, "b": 0.0, "c": 0.0, "d": 0.0}
+    problem, level = _demo_problem("a", plain, age_s=2.0)
+    half = _density(problem, level, 2)
+    assert half < price_per_byte(problem, level=level)
+    one_half_frame = {name: float(DEMO_HALF.size) for name in "bcd"}
+    priced = price_per_byte(problem, level=level, expected=one_half_frame)
+    assert 0.0 < priced <= 0.1 * half
+    assert price_per_byte(problem, level=level, expected={}) <= priced  # nothing expected
+    assert price_per_byte(problem, level=level, expected={n: 9e9 for n in "bcd"}) > half
+
+
+def test_with_expected_sends_the_red_drone_keeps_its_precedence() -> None:
+    """A red drone (red 0.4) heard sending two full frames' bytes per horizon, the plain
+    ones one: its frames raise the plain drone's price over what it is with the red drone
+    expected to send nothing, the red drone's own frame earns its price four times over
+    and the plain drone's only just (within 1 %)."""
+    reds = {"a": 0.0, "r": 0.4, "c": 0.0, "d": 0.0}
+    plain, level = _demo_problem("a", reds, age_s=1.0)
+    one = float(DEMO_FULL.size)
+    expected = {"r": 2.0 * one, "c": one, "d": one}
+    price = price_per_byte(plain, level=level, expected=expected)
+    assert price > price_per_byte(plain, level=level, expected=expected | {"r": 0.0})
+    assert price <= _best_density(plain, level) < 1.01 * price
+    red, red_level = _demo_problem("r", reds, age_s=1.0)
+    red_price = price_per_byte(red, level=red_level, expected={n: one for n in "acd"})
+    assert _best_density(red, red_level) >= 4.0 * red_price
