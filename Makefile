@@ -16,7 +16,7 @@ help:
 	@echo "make demo   - create .venv, install, run the SITL fleet and the ground station"
 	@echo "              (until Ctrl-C; DEMO_DURATION=120 stops after 120 s, DEMO_DRONES=4)"
 	@echo "make test   - create .venv, install with test extras, run ruff, mypy and pytest"
-	@echo "              (about 12 min on two cores; as root it also apt-installs chromium,"
+	@echo "              (about 10 min on two cores; as root it also apt-installs chromium,"
 	@echo "              iperf3 and iproute2 for the browser and link tests)"
 	@echo "make bench  - run the benchmarks in benchmarks/ (each prints a table)"
 	@echo "make plots  - draw the thesis figures of the utility model into out/plots"
