@@ -461,9 +461,10 @@ class Middleware:
         out = {sender: rate * self.config.horizon_s for sender, (rate, _) in rates.items()}
         forecaster = self.knowledge.forecaster
         for sender, kind in forecaster.streams():
+            if kind != message.type or sender == self.config.agent:
+                continue
             rise = forecaster.risen((sender, kind))
-            if kind == message.type and sender != self.config.agent and rise is not None \
-                    and rise >= RISEN_WORTH:
+            if rise is not None and rise >= RISEN_WORTH:
                 out[sender] = math.inf
         return out
 
@@ -476,11 +477,13 @@ class Middleware:
         price dropped it: about one red frame a second went out with the others silent."""
         gain, size = problem.gain[level, :, 0], problem.size[level]
         earning = [o for o in range(1, int(problem.nopt[level]))
-                   if float(gain[o]) > 0 and float(gain[o]) >= price * max(1, int(size[o]))
-                   and not creates_violation(self.knowledge.known_sends(), now=now,
-                                             size=int(problem.size[level, o]),
-                                             window_s=window_s, budget_bytes=budget)]
-        return max(earning, key=lambda o: float(problem.gain[level, o, 0]), default=0)
+                   if float(gain[o]) > 0 and float(gain[o]) >= price * max(1, int(size[o]))]
+        sends = self.knowledge.known_sends()
+        for o in sorted(earning, key=lambda o: -float(gain[o])):  # most valuable that fits
+            if not creates_violation(sends, now=now, size=int(size[o]), window_s=window_s,
+                                     budget_bytes=budget):
+                return o
+        return 0
 
     def _small_option(self, problem: Problem, level: int, lam: float, *, now: float,
                       budget: float, window_s: float) -> int:
