@@ -6,24 +6,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from companion.app import build_decider
-from companion.config import load_config
-from companion.middleware import Middleware
-from sitl.fleet import make_plan, parse_args
 from sitl.fleet.link import RELAY_PRICE_RATE_S
-from sitl.fleet_config import write_run_configs
+from tests.sitl.fleet_written import middleware_values
 
 
 def _price_rates(tmp_path: Path, *argv: str) -> list[float | None]:
-    plan = make_plan(parse_args(["--drones", "2", *argv]), tmp_path / "run")
-    write_run_configs(plan)
-    rates = []
-    for slot in plan.drones:
-        config = load_config(slot.config_path)
-        decider = build_decider(config)  # the companion accepts what the fleet wrote
-        rates.append(decider.config.price_rate_s if isinstance(decider, Middleware) else None)
-        assert ("price_rate_s" in config.middleware) == (rates[-1] is not None)
-    return rates
+    return middleware_values(tmp_path, "price_rate_s", "--drones", "2", *argv)
 
 
 def test_the_relay_fleet_prices_the_others_frames_by_their_rates(tmp_path: Path) -> None:

@@ -5,23 +5,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from companion.app import build_decider
-from companion.config import load_config
-from companion.middleware import Middleware
-from sitl.fleet import make_plan, parse_args
-from sitl.fleet_config import write_run_configs
+from tests.sitl.fleet_written import middleware_values
 
 
 def _fleet_sizes(tmp_path: Path, *argv: str) -> list[int | None]:
-    plan = make_plan(parse_args(["--goodput", "20000", *argv]), tmp_path / "run")
-    write_run_configs(plan)
-    sizes = []
-    for slot in plan.drones:
-        config = load_config(slot.config_path)
-        decider = build_decider(config)  # the companion accepts what the fleet wrote
-        sizes.append(decider.config.fleet_size if isinstance(decider, Middleware) else None)
-        assert ("fleet_size" in config.middleware) == (sizes[-1] is not None)
-    return sizes
+    return middleware_values(tmp_path, "fleet_size", "--goodput", "20000", *argv)
 
 
 def test_the_fleet_declares_its_number_of_drones_by_default(tmp_path: Path) -> None:
