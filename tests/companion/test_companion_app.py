@@ -399,15 +399,19 @@ class DropStatusesOf(FakeDecider):
         return FakeDecision(True, None, "ok", 1.0)
 
 
+def _status_config(vehicle: FakeVehicle, tmp_path: Path, *, period_s: float) -> Any:
+    """The camera off and a periodic status every ``period_s``: what a status test watches."""
+    config = _config(vehicle, tmp_path, enabled=False)
+    return dataclasses.replace(
+        config, telemetry=dataclasses.replace(config.telemetry, status_period_s=period_s))
+
+
 async def test_a_new_state_carries_since_and_is_offered_again_until_sent(
         vehicle: FakeVehicle, tmp_path: Path) -> None:
     """Issue 17: a dropped status of a new state is retried every 0.5 s, not only each
     period (5 s here), and every status of one state carries the same ``since``."""
     decider = DropStatusesOf("GUIDED", 2)
-    config = dataclasses.replace(
-        _config(vehicle, tmp_path, enabled=False),
-        telemetry=dataclasses.replace(_config(vehicle, tmp_path).telemetry,
-                                      status_period_s=5.0))
+    config = _status_config(vehicle, tmp_path, period_s=5.0)
     app, transports = _make(config, decider)
     task = asyncio.create_task(app.run())
     try:
@@ -438,10 +442,7 @@ async def test_retries_of_an_untold_state_back_off_when_the_link_stays_full(
         vehicle: FakeVehicle, tmp_path: Path) -> None:
     """Four retries 0.5 s apart, then 1 s, 2 s...: a dead link costs few decisions."""
     decider = DropStatusesOf("GUIDED", 1000)
-    config = dataclasses.replace(
-        _config(vehicle, tmp_path, enabled=False),
-        telemetry=dataclasses.replace(_config(vehicle, tmp_path).telemetry,
-                                      status_period_s=30.0))
+    config = _status_config(vehicle, tmp_path, period_s=30.0)
     app, transports = _make(config, decider)
     task = asyncio.create_task(app.run())
     try:
@@ -469,10 +470,7 @@ async def test_a_new_fix_is_told_at_once_not_at_the_next_period(
     fresh positions until the next periodic status (30 s here; 5 s by default)."""
     vehicle.fix_after_s = 2.0  # ArduPilot after boot: the fix comes a little later
     decider = FakeDecider()
-    config = dataclasses.replace(
-        _config(vehicle, tmp_path, enabled=False),
-        telemetry=dataclasses.replace(_config(vehicle, tmp_path).telemetry,
-                                      status_period_s=30.0))
+    config = _status_config(vehicle, tmp_path, period_s=30.0)
     app, transports = _make(config, decider)
     task = asyncio.create_task(app.run())
     try:
