@@ -248,11 +248,15 @@ def tables(rows: Sequence[dict[str, Any]], reference: str | None = None) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="uav-sitl study mcts-vs-baselines",
                                      description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("artifacts/baselines"))
-    parser.add_argument("--quick", action="store_true", help="3 seeds, 20 s missions")
-    parser.add_argument("--scenarios", nargs="+",
+    parser.add_argument("--out", type=Path, default=Path("artifacts/baselines"),
+                        help="output directory for baselines.csv and baselines.md "
+                             "(default artifacts/baselines)")
+    parser.add_argument("--quick", action="store_true",
+                        help="3 seeds, 20 s missions (default 5 seeds, 40 s)")
+    parser.add_argument("--scenarios", nargs="+", metavar="SCENARIO",
                         default=["mostly-low", "uniform", "mostly-high", "images"],
-                        choices=["mostly-low", "uniform", "mostly-high", "images"])
+                        choices=["mostly-low", "uniform", "mostly-high", "images"],
+                        help="any of mostly-low, uniform, mostly-high, images (default all)")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     cfg = plan(args.quick)

@@ -301,11 +301,14 @@ def plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="uav-sitl study peers",
                                      description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("artifacts/peers"))
+    parser.add_argument("--out", type=Path, default=Path("artifacts/peers"),
+                        help="output directory (default artifacts/peers)")
     parser.add_argument("--quick", action="store_true", help="1 seed, 8 s missions")
     parser.add_argument("--seeds", type=int, default=None, help="how many seeds (default 5)")
-    parser.add_argument("--t-end", type=float, default=None, help="mission length, s")
-    parser.add_argument("--drones", type=int, default=4)
+    parser.add_argument("--t-end", type=float, default=None,
+                        help="mission length, s (default 40, 8 with --quick)")
+    parser.add_argument("--drones", type=int, default=4,
+                        help="drones in the fleet, at least 2 (default 4)")
     args = parser.parse_args(argv)
     if args.drones < 2:
         parser.error("--drones: at least 2 (peers need someone to share with)")

@@ -188,7 +188,8 @@ def main(argv: list[str]) -> int:
                     "on a packet-level link model; with --real also on a kernel link.",
     )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
-    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--seed", type=int, default=1,
+                        help="seed of the simulated link's noise (default 1)")
     parser.add_argument("--time-scale", type=float, default=1.0,
                         help="compress the RFC 8867 schedule (0.5: 50 s instead of 100 s)")
     parser.add_argument("--real", action="store_true",
