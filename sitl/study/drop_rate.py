@@ -46,9 +46,11 @@ __all__ = [
     "REFERENCE_MCTS",
     "REFERENCE_RANDOM",
     "SCENARIOS",
+    "OfflineOptimum",
     "Run",
     "main",
     "make_agents",
+    "offline_optimum_run",
     "optimum_gap",
     "run_mission",
 ]
@@ -193,6 +195,52 @@ def run_mission(
     return run, result, spec
 
 
+@dataclass(frozen=True, slots=True)
+class OfflineOptimum:
+    """The best plan of a whole mission held to the window budget, with full knowledge."""
+
+    utility_pct: float
+    sends: tuple[tuple[float, int], ...]
+    """(send time, bytes) of every message the plan sends."""
+    drop_share: float
+    states: int
+
+    @property
+    def delivered_bytes(self) -> int:
+        return sum(size for _, size in self.sends)
+
+
+def offline_optimum_run(
+    scenario: str, messages_per_window: float, *, seed: int, t_end: float, n_agents: int = 10,
+    max_states: int = 500_000,
+) -> OfflineOptimum:
+    """The exact optimum of the mission under the budget (``offline_optimum``'s DP): it knows
+    every message in advance and plans with the channel's unloaded latency, so no policy held
+    to the same budget gets more. Raises ``MiddlewareError`` where the DP outgrows
+    ``max_states`` (the fig. 5.7 missions above about 6 messages per window)."""
+    spec, agents = make_agents(scenario, policy_factory("send_all", 0.0, seed=seed), seed=seed,
+                               n_agents=n_agents)
+    full = simulate(agents, channel=CHANNEL, t_end=t_end, rng=np.random.default_rng([seed, 3]))
+    latency = (SIZE + CHANNEL.overhead_bytes) / CHANNEL.capacity_bytes_per_s + CHANNEL.propagation_s
+    items = [PlanItem(message=m, send_t=m.t_gen, rcv_t=m.t_gen + latency, kind="forecast")
+             for m in full.generated]
+    problem = build_problem(spec, items=items, fixed=[], horizon_end=t_end,
+                            budget_bytes=budget_bytes(messages_per_window), window_s=WINDOW_S)
+    best = offline_optimum(problem, max_states=max_states)
+    chosen = [
+        (it, option_message(it.message, o).delivered(receiver="ground", t_rcv=it.rcv_t))
+        for it, o in zip(problem.items, best.choices, strict=True) if o != 0
+    ]
+    got = evaluate([m for _, m in chosen], spec, t_end=t_end).total
+    ideal = evaluate(ideal_copies(full.generated), spec, t_end=t_end).total
+    return OfflineOptimum(
+        utility_pct=100.0 * got / ideal if ideal > 0 else 100.0,
+        sends=tuple((float(it.send_t), int(m.size)) for it, m in chosen),
+        drop_share=1.0 - len(chosen) / len(full.generated) if full.generated else 0.0,
+        states=best.states,
+    )
+
+
 def optimum_gap(
     scenario: str, messages_per_window: float, *, seed: int, t_end: float, n_agents: int,
     iterations: int = 1500, horizon_s: float = HORIZON_S,
@@ -203,23 +251,9 @@ def optimum_gap(
     """
     run, _, _ = run_mission(scenario, f"mcts{iterations}", messages_per_window, seed=seed,
                             t_end=t_end, n_agents=n_agents, horizon_s=horizon_s)
-    spec, agents = make_agents(scenario, policy_factory("send_all", 0.0, seed=seed), seed=seed,
+    best = offline_optimum_run(scenario, messages_per_window, seed=seed, t_end=t_end,
                                n_agents=n_agents)
-    full = simulate(agents, channel=CHANNEL, t_end=t_end, rng=np.random.default_rng([seed, 3]))
-    latency = (SIZE + CHANNEL.overhead_bytes) / CHANNEL.capacity_bytes_per_s + CHANNEL.propagation_s
-    items = [PlanItem(message=m, send_t=m.t_gen, rcv_t=m.t_gen + latency, kind="forecast")
-             for m in full.generated]
-    problem = build_problem(spec, items=items, fixed=[], horizon_end=t_end,
-                            budget_bytes=budget_bytes(messages_per_window), window_s=WINDOW_S)
-    best = offline_optimum(problem)
-    chosen = [
-        option_message(it.message, o).delivered(receiver="ground", t_rcv=it.rcv_t)
-        for it, o in zip(problem.items, best.choices, strict=True) if o != 0
-    ]
-    got = evaluate(chosen, spec, t_end=t_end).total
-    ideal = evaluate(ideal_copies(full.generated), spec, t_end=t_end).total
-    opt_pct = 100.0 * got / ideal if ideal > 0 else 100.0
-    return run.utility_pct, opt_pct, 1.0 - len(chosen) / len(full.generated)
+    return run.utility_pct, best.utility_pct, best.drop_share
 
 
 def message_utilities(

@@ -147,6 +147,8 @@ RECIPES: dict[str, str] = {
         "test_study_recipes",
     "uav-sitl study mcts-vs-baselines --out out/baselines [--quick] [--scenarios images]":
         "test_baselines_study_recipe",
+    "python -m sitl.study.equal_bytes --out out/equal_bytes --quick --optimum "
+    "--budgets 9.25,5.5,2.5": "test_equal_bytes_study_recipe",
 }
 DEVELOPER = re.compile(r"^(sudo )?(\w+=\S+ )*\.venv/bin/python (-m pytest|benchmarks/)")
 """Developer commands (tests, benchmarks): checked by test_developer_recipes."""
@@ -426,6 +428,23 @@ def test_baselines_study_recipe(tmp_path: Path) -> None:
     assert len(rows) > 1 and all(r.startswith("mostly-low,") for r in rows[1:])
     table = (out / "baselines.md").read_text()
     assert "**mostly-low**" in table and "equal budget" in table and "equal bytes" in table
+
+
+@pytest.mark.timeout(300)
+def test_equal_bytes_study_recipe(tmp_path: Path) -> None:
+    """docs/middleware.md's round 13 study (35 minutes as written), on the budget and scenario
+    where the optimum's programme is fastest (about 10 s)."""
+    study = _bash(_sub(_recipe("python -m sitl.study.equal_bytes --out out/equal_bytes --quick "
+                               "--optimum --budgets 9.25,5.5,2.5"),
+                       ("--budgets 9.25,5.5,2.5", "--budgets 2.5 --scenarios uniform")),
+                  tmp_path, timeout=280)
+    assert study.returncode == 0, study.stdout[-3000:] + study.stderr[-3000:]
+    out = tmp_path / "out" / "equal_bytes"
+    rows = (out / "equal_bytes.csv").read_text().splitlines()
+    assert len(rows) == 4 and all(r.startswith("uniform,") for r in rows[1:])
+    last = (out / "equal_bytes.md").read_text().splitlines()[-1]
+    assert last.startswith("| uniform | 2.5 |") and "n/a" not in last
+    assert (out / "equal_bytes.png").stat().st_size > 10_000
 
 
 # ----------------------------------------------------------------------------- ground station
