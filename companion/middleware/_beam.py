@@ -1,0 +1,219 @@
+"""A beam dynamic programme over one decision's :class:`Problem`, compiled by numba when present.
+
+The search's default policy values a node by a greedy rollout. At tight budgets that rollout
+uses the room a drop frees badly, so the drop child's mean trails the send child's although
+the drop leads to the better plan (issue 18, round 13: 7 of 16 sends in one fig. 5.7 run were
+drops in the exact optimum of the same decision). The exact optimum
+(:func:`~companion.middleware.baselines.offline_optimum`) merges tantamount states, each
+stream's last sent message plus the sends still inside the next window (eq. 5.8,
+footnote 5), and keeps the best utility per state; this is the same programme keeping only
+the ``width`` best states of each level, so its cost is bounded: levels x width x options.
+With a width above the number of distinct states it is exact.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from companion.middleware._kernel import _hash_find, _mix
+from utility_specs.jit import jit as _jit
+
+__all__ = ["beam_plan", "canonical_slots", "plan_of"]
+
+_EPS = 1e-9
+
+
+@_jit
+def _slot_key(last: Any, n_streams: int) -> Any:
+    key = np.uint64(0)
+    for s in range(n_streams):
+        key = key ^ _mix(1, s * 1048576 + last[s])
+    return key
+
+
+@_jit
+def beam_plan(
+    stream: Any, nopt: Any, size: Any, send_t: Any, gain: Any, nslot: Any, canon: Any,
+    root_win_t: Any, root_win_b: Any, budget: float, window_s: float, n_streams: int,
+    width: int, plan: Any, force_level: int, force_send: bool,
+) -> float:
+    """Write into ``plan`` the best plan the beam keeps (one option per level); return its
+    utility (-inf: no plan). ``canon[i, slot]``: the slot with the same future as ``slot``
+    after level i. At ``force_level`` (-1: none) only sends, or only the drop, are tried."""
+    n = stream.shape[0]
+    n_root = root_win_t.shape[0]
+    max_opt = size.shape[1]
+    cap_w = n_root + n + 1
+    ns = max(n_streams, 1)
+    m = width * max_opt
+    # the current layer's states
+    last = np.zeros((width, ns), dtype=np.int64)
+    wt = np.zeros((width, cap_w), dtype=np.float64)
+    wb = np.zeros((width, cap_w), dtype=np.int64)
+    wid = np.zeros((width, cap_w), dtype=np.int64)
+    wn = np.zeros(width, dtype=np.int64)
+    u = np.zeros(width, dtype=np.float64)
+    count = 1
+    for k in range(n_root):
+        wt[0, k] = root_win_t[k]
+        wb[0, k] = root_win_b[k]
+        wid[0, k] = 16 * (n + k)
+    wn[0] = n_root
+    # the next layer's candidates
+    c_last = np.zeros((m, ns), dtype=np.int64)
+    c_wt = np.zeros((m, cap_w), dtype=np.float64)
+    c_wb = np.zeros((m, cap_w), dtype=np.int64)
+    c_wid = np.zeros((m, cap_w), dtype=np.int64)
+    c_wn = np.zeros(m, dtype=np.int64)
+    c_u = np.zeros(m, dtype=np.float64)
+    c_par = np.zeros(m, dtype=np.int64)
+    c_opt = np.zeros(m, dtype=np.int64)
+    size_h = 1
+    while size_h < 4 * m:
+        size_h *= 2
+    hkeys = np.zeros(size_h, dtype=np.uint64)
+    hvals = np.full(size_h, -1, dtype=np.int64)
+    back_par = np.zeros((max(n, 1), width), dtype=np.int64)
+    back_opt = np.zeros((max(n, 1), width), dtype=np.int64)
+    new_last = np.zeros(ns, dtype=np.int64)
+    for i in range(n):
+        lo_i = send_t[i] - window_s - _EPS
+        lo_next = send_t[i + 1] - window_s - _EPS if i + 1 < n else np.inf
+        s = stream[i]
+        for h in range(size_h):
+            hvals[h] = -1
+        cc = 0
+        for j in range(count):
+            used = 0
+            for k in range(wn[j]):
+                if wt[j, k] >= lo_i:
+                    used += wb[j, k]
+            slot = last[j, s] if s >= 0 else 0
+            for o in range(nopt[i]):
+                if i == force_level and (o != 0) != force_send:
+                    continue
+                g = 0.0
+                if o != 0:
+                    if used + size[i, o] > budget + _EPS:
+                        continue
+                    g = gain[i, o, slot]
+                for q in range(ns):
+                    new_last[q] = last[j, q]
+                if o != 0 and s >= 0:
+                    new_last[s] = nslot[i, o, slot]
+                if s >= 0:
+                    new_last[s] = canon[i, new_last[s]]
+                key = _slot_key(new_last, n_streams) ^ _mix(4, i + 1)
+                for k in range(wn[j]):
+                    if wt[j, k] >= lo_next:
+                        key = key ^ _mix(3, wid[j, k])
+                sent_inside = o != 0 and send_t[i] >= lo_next
+                if sent_inside:
+                    key = key ^ _mix(3, 16 * i + o)
+                value = u[j] + g
+                # tantamount states (same key) keep the better utility
+                h = _hash_find(key, hkeys, hvals)
+                if h >= 0:
+                    t = hvals[h]
+                    if value <= c_u[t] + _EPS * (1.0 + abs(c_u[t])):
+                        continue
+                else:
+                    t = cc
+                    cc += 1
+                    hkeys[-1 - h] = key
+                    hvals[-1 - h] = t
+                c_u[t] = value
+                c_par[t] = j
+                c_opt[t] = o
+                for q in range(ns):
+                    c_last[t, q] = new_last[q]
+                e = 0
+                for k in range(wn[j]):
+                    if wt[j, k] >= lo_next:
+                        c_wt[t, e] = wt[j, k]
+                        c_wb[t, e] = wb[j, k]
+                        c_wid[t, e] = wid[j, k]
+                        e += 1
+                if sent_inside:
+                    c_wt[t, e] = send_t[i]
+                    c_wb[t, e] = size[i, o]
+                    c_wid[t, e] = 16 * i + o
+                    e += 1
+                c_wn[t] = e
+        if cc == 0:  # only a forced send, and it fits no state
+            return -np.inf
+        # the beam: the ``width`` best states go on (all of them while they fit)
+        order = np.argsort(-c_u[:cc], kind="mergesort")[:width] if cc > width else np.arange(cc)
+        count = order.shape[0]
+        for r in range(count):
+            t = order[r]
+            u[r] = c_u[t]
+            back_par[i, r] = c_par[t]
+            back_opt[i, r] = c_opt[t]
+            for q in range(ns):
+                last[r, q] = c_last[t, q]
+            for k in range(c_wn[t]):
+                wt[r, k] = c_wt[t, k]
+                wb[r, k] = c_wb[t, k]
+                wid[r, k] = c_wid[t, k]
+            wn[r] = c_wn[t]
+    best = 0
+    for r in range(count):
+        if u[r] > u[best]:
+            best = r
+    j = best
+    for i in range(n - 1, -1, -1):
+        plan[i] = back_opt[i, j]
+        j = back_par[i, j]
+    return u[best] if n > 0 else 0.0
+
+
+@_jit
+def _canonical(stream: Any, gain_bits: Any, nslot: Any, n_streams: int, out: Any) -> None:
+    """``out[i, x]``: the smallest slot whose future after level i is the same as slot x's
+    (identical gains and transitions for every later item of the stream), from a hash of
+    those futures built backwards, one level at a time."""
+    n, max_opt, n_slots = gain_bits.shape
+    sig = np.zeros((max(n_streams, 1), n_slots), dtype=np.uint64)
+    for i in range(n - 1, -1, -1):
+        s = stream[i]
+        if s < 0:
+            for x in range(n_slots):
+                out[i, x] = x
+            continue
+        for x in range(n_slots):
+            out[i, x] = x
+            for y in range(x):
+                if sig[s, y] == sig[s, x]:
+                    out[i, x] = y
+                    break
+        for x in range(n_slots):
+            h = sig[s, x]
+            for o in range(max_opt):
+                h = (h ^ gain_bits[i, o, x]) * np.uint64(0x9E3779B97F4A7C15)
+                h = h ^ _mix(5 + o, 1 if nslot[i, o, x] == x else 0)
+            sig[s, x] = h
+
+
+def canonical_slots(problem: Any) -> Any:
+    """``baselines._canonical_slots`` as an array [level, slot], compiled."""
+    out = np.empty((max(problem.n, 1), problem.gain.shape[2]), dtype=np.int64)
+    if problem.n:
+        bits = np.ascontiguousarray(problem.gain).view(np.uint64)
+        _canonical(problem.stream, bits, problem.nslot, int(problem.n_streams), out)
+    return out
+
+
+def plan_of(problem: Any, width: int, *, force_level: int = -1,
+            force_send: bool = False) -> tuple[Any, float]:
+    """(the beam's plan, one option per level; its utility in the model, -inf if none)."""
+    plan = np.zeros(max(problem.n, 1), dtype=np.int64)
+    if problem.n == 0:
+        return plan[:0], 0.0
+    u = beam_plan(problem.stream, problem.nopt, problem.size, problem.send_t, problem.gain,
+                  problem.nslot, canonical_slots(problem), problem.root_win_t,
+                  problem.root_win_bytes, float(problem.budget_bytes), float(problem.window_s),
+                  int(problem.n_streams), int(width), plan, int(force_level), bool(force_send))
+    return plan, float(u)
