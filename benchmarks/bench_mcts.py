@@ -24,8 +24,8 @@ Like for like (``--only like-for-like``): the same checks against the thesis num
 reference code's own message sequence (data/infdist_preset0_seed0.csv), on which they were
 measured, instead of this project's draw of the scenario.
 Decision rule (``--rule``, issue 18 round 7): every MCTS of the run answers by another rule
-than the default (alg. 2's most visited path), so a candidate is measured on the same rows;
-``--rule dp`` (round 13) seeds every search with the beam dynamic programme's plan.
+than the default (alg. 2's rule seeded by the beam dynamic programme, round 13), so a
+candidate is measured on the same rows; ``--rule alg2`` is the unseeded rule of rounds 1-12.
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ RULES: dict[str, dict[str, Any]] = {
     "default": {},
     "best-plan": {"best_plan": True, "search_depth": 10},
     "veto": {"best_plan": True, "search_depth": 10, "veto": 1.5},
-    "dp": {"dp_seed": 128},
+    "alg2": {"dp_seed": None},
 }
 """``--rule``: MiddlewareConfig fields of each decision rule (docs/middleware.md, round 7)."""
 

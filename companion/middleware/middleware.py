@@ -114,15 +114,14 @@ class MiddlewareConfig:
     """Levels after the decided one that the tree searches; below them the default policy
     alone plans (None: every level). 10 with ``best_plan``: the fig. 5.7 anytime cases do
     not fall from 300 to 3000 iterations; 8 and 9 fall in mostly-low 2.5 msgs/T."""
-    dp_seed: int | None = None
-    """Opt-in (issue 18 round 13): seed the search with the plan of a beam dynamic programme
-    over the decision's tantamount states, this many kept per level
-    (:mod:`~companion.middleware._beam`); where that plan drops at least half of the
-    horizon (``mcts.DP_TIGHT``) the answer is the best complete plan evaluated, never worse
-    in the model than the programme's, else the most visited path. Width 128 passes
-    bench_mcts's like-for-like, anytime and optimum rows (96.1 %) and wins 5 of its 9
-    equal-bytes cells (the default 2); not the default until the product tier is measured
-    with it (docs/middleware.md, round 13). None: off."""
+    dp_seed: int | None = 128
+    """Seed the search with the plan of a beam dynamic programme over the decision's
+    tantamount states, this many kept per level (:mod:`~companion.middleware._beam`); where
+    that plan drops at least half of the horizon (``mcts.DP_TIGHT``) the answer is the best
+    complete plan evaluated, never worse in the model than the programme's, else the most
+    visited path (issue 18, round 13). Width 128 passes bench_mcts's like-for-like, anytime
+    and optimum rows (96.1 %) and wins 5 of its 9 equal-bytes cells (alg. 2's unseeded most
+    visited path: 2, and it misses anytime and optimum). None: alg. 2's rule alone."""
     veto: float | None = None
     """Opt-in (issue 18 round 7; with ``best_plan`` and ``search_depth``): an unbounded
     most visited tree vetoes the best plan's send when its drop child has more than this

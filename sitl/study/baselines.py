@@ -44,9 +44,9 @@ __all__ = ["KnapsackFill", "image_fleet", "main", "run_one"]
 
 POLICIES = ("mcts300", "mcts300ks", "greedy", "knapsack", "knapsack-fill", "random")
 """mcts300ks: the same MCTS seeded with the knapsack-greedy plan (``knapsack_seed``); any
-``mcts<N>[ks|dp][m][c]`` runs with ``run_one`` (dp: seeded with the beam dynamic
-programme's plan, ``dp_seed``, round 13; m: ``learn_margin``; c: forecasts are copies of each
-stream's last message, the model before the spread forecasts of round 5)."""
+``mcts<N>[ks|u][m][c]`` runs with ``run_one`` (u: without the dynamic programme's seed,
+alg. 2's rule alone, the default before round 13; m: ``learn_margin``; c: forecasts are
+copies of each stream's last message, the model before the spread forecasts of round 5)."""
 IMAGE_VERSIONS = (Version(name="full", size=40_000, quality=1.0),
                   Version(name="half", size=10_000, quality=0.5),
                   Version(name="quarter", size=2_500, quality=0.25))
@@ -93,15 +93,12 @@ def image_fleet(make_policy: Callable[[str, int], Policy], *, n: int = 4,
     return agents
 
 
-DP_WIDTH = 128
-"""Beam width of the ``dp`` policies' seed (``MiddlewareConfig.dp_seed``, round 13)."""
-
-
 def _mcts_name(name: str) -> tuple[int, str]:
-    """``mcts<iterations>[ks|dp][m][c]``: ks seeds the search with knapsack-greedy's plan, dp
-    with the beam dynamic programme's (``dp_seed``), m plans with the overshoot margin
-    (``learn_margin``), c forecasts copies of the last message."""
-    digits = name[4:].rstrip("ksdpmc")
+    """``mcts<iterations>[ks|u][m][c]``: ks seeds the search with knapsack-greedy's plan
+    instead of the dynamic programme's, u seeds it with neither (alg. 2's rule alone, the
+    default before round 13), m plans with the overshoot margin (``learn_margin``), c
+    forecasts copies of the last message."""
+    digits = name[4:].rstrip("ksumc")
     return int(digits), name[4 + len(digits):]
 
 
@@ -116,7 +113,8 @@ def _policy(name: str, param: float, *, spec: MissionSpec, agent: str, index: in
         config = MiddlewareConfig(spec=spec, agent=agent, max_iterations=iterations,
                                   horizon_s=horizon_s, knapsack_seed="ks" in suffix,
                                   learn_margin="m" in suffix.replace("ks", ""),
-                                  dp_seed=DP_WIDTH if "dp" in suffix else None,
+                                  **({"dp_seed": None} if "u" in suffix or "ks" in suffix
+                                     else {}),
                                   fleet_size=fleet_size)
         middleware = Middleware(config, rng=np.random.default_rng([seed, index]),
                                 constraint=constraint())

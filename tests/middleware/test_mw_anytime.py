@@ -111,10 +111,13 @@ def test_a_best_plan_decision_is_worth_no_less_with_more_iterations() -> None:
                {"best_plan": True, "search_depth": 10}):  # 10: round 6's opt-in setting
         got = scores(**kw)
         assert got == sorted(got), (kw, got)
-    old = scores()  # the default: the most visited path, whose score falls
+    got = scores()  # the default: seeded by the dynamic programme (round 13)
+    assert got == sorted(got), got
+    old = scores(dp_seed=None)  # alg. 2's most visited path alone, whose score falls
     assert old != sorted(old), old
 
 
-def test_the_defaults_are_alg_2s_most_visited_path() -> None:
+def test_the_defaults_are_alg_2s_rule_seeded_by_the_dynamic_programme() -> None:
     config = MiddlewareConfig(spec=builtin_spec("sim_mostly_low"), agent="agent0")
     assert config.best_plan is False and config.search_depth is None
+    assert config.dp_seed == 128

@@ -25,12 +25,15 @@ def _frame(sender: str, k: int, t: float, *, sent: bool = False) -> Message:
     return dataclasses.replace(m.with_version(1), t_sent=t + 0.01, t_rcv=t + 0.21)
 
 
-def _sends_while_the_peers_are_silent(price_rate_s: float | None, quiet_s: float) -> int:
+def _sends_while_the_peers_are_silent(price_rate_s: float | None, quiet_s: float,
+                                      dp_seed: int | None = None) -> int:
     """Agent ``a`` and three peers at 5 frames/s, each sending a half frame a second for
     6 s, ξ·T = 15 kB over T = 0.5 s (the demo's); then the peers fall silent: how many of
-    ``a``'s frames of the next ``quiet_s`` go out."""
+    ``a``'s frames of the next ``quiet_s`` go out. The unseeded search by default, the one
+    the price kept silent."""
     mw = Middleware(MiddlewareConfig(spec=builtin_spec("image_streaming"), agent="a",
-                                     max_iterations=300, price_rate_s=price_rate_s),
+                                     max_iterations=300, price_rate_s=price_rate_s,
+                                     dp_seed=dp_seed),
                     rng=np.random.default_rng(1),
                     constraint=ConstantConstraint(limit_bytes_per_s=30_000.0, window_s=0.5))
     for k in range(30):
@@ -55,6 +58,10 @@ def test_a_drone_whose_peers_fell_silent_sends_where_every_forecast_frame_kept_i
     first."""
     assert _sends_while_the_peers_are_silent(None, 2.0) == 1
     assert _sends_while_the_peers_are_silent(3.0, 2.0) == 2
+    # seeded by the dynamic programme (the default since round 13) it sends the second
+    # frame with either price
+    assert _sends_while_the_peers_are_silent(None, 2.0, 128) == 2
+    assert _sends_while_the_peers_are_silent(3.0, 2.0, 128) == 2
 
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan")])
