@@ -65,8 +65,8 @@ ROWS: list[tuple[str, str, str, bool]] = []
 
 RULES: dict[str, dict[str, Any]] = {
     "default": {},
-    "best-plan": {"best_plan": True, "search_depth": 10},
-    "veto": {"best_plan": True, "search_depth": 10, "veto": 1.5},
+    "best-plan": {"best_plan": True, "search_depth": 10, "dp_seed": None},
+    "veto": {"best_plan": True, "search_depth": 10, "veto": 1.5, "dp_seed": None},
     "alg2": {"dp_seed": None},
 }
 """``--rule``: MiddlewareConfig fields of each decision rule (docs/middleware.md, round 7)."""

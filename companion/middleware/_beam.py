@@ -55,6 +55,7 @@ def beam_plan(
     wid = np.zeros((width, cap_w), dtype=np.int64)
     wn = np.zeros(width, dtype=np.int64)
     u = np.zeros(width, dtype=np.float64)
+    skey = np.zeros(width, dtype=np.uint64)  # key of each state's last slots, kept by XOR
     count = 1
     for k in range(n_root):
         wt[0, k] = root_win_t[k]
@@ -68,6 +69,7 @@ def beam_plan(
     c_wid = np.zeros((m, cap_w), dtype=np.int64)
     c_wn = np.zeros(m, dtype=np.int64)
     c_u = np.zeros(m, dtype=np.float64)
+    c_skey = np.zeros(m, dtype=np.uint64)
     c_par = np.zeros(m, dtype=np.int64)
     c_opt = np.zeros(m, dtype=np.int64)
     size_h = 1
@@ -77,7 +79,7 @@ def beam_plan(
     hvals = np.full(size_h, -1, dtype=np.int64)
     back_par = np.zeros((max(n, 1), width), dtype=np.int64)
     back_opt = np.zeros((max(n, 1), width), dtype=np.int64)
-    new_last = np.zeros(ns, dtype=np.int64)
+    skey[0] = _slot_key(last[0], n_streams)
     for i in range(n):
         lo_i = send_t[i] - window_s - _EPS
         lo_next = send_t[i + 1] - window_s - _EPS if i + 1 < n else np.inf
@@ -87,9 +89,12 @@ def beam_plan(
         cc = 0
         for j in range(count):
             used = 0
+            win_key = skey[j] ^ _mix(4, i + 1)  # what every option of state j shares
             for k in range(wn[j]):
                 if wt[j, k] >= lo_i:
                     used += wb[j, k]
+                if wt[j, k] >= lo_next:
+                    win_key = win_key ^ _mix(3, wid[j, k])
             slot = last[j, s] if s >= 0 else 0
             for o in range(nopt[i]):
                 if i == force_level and (o != 0) != force_send:
@@ -99,16 +104,14 @@ def beam_plan(
                     if used + size[i, o] > budget + _EPS:
                         continue
                     g = gain[i, o, slot]
-                for q in range(ns):
-                    new_last[q] = last[j, q]
-                if o != 0 and s >= 0:
-                    new_last[s] = nslot[i, o, slot]
+                key = win_key
+                moved = np.uint64(0)  # the change of stream s's term of the slot key
+                new_slot = slot
                 if s >= 0:
-                    new_last[s] = canon[i, new_last[s]]
-                key = _slot_key(new_last, n_streams) ^ _mix(4, i + 1)
-                for k in range(wn[j]):
-                    if wt[j, k] >= lo_next:
-                        key = key ^ _mix(3, wid[j, k])
+                    new_slot = canon[i, nslot[i, o, slot] if o != 0 else slot]
+                    if new_slot != slot:
+                        moved = _mix(1, s * 1048576 + slot) ^ _mix(1, s * 1048576 + new_slot)
+                        key = key ^ moved
                 sent_inside = o != 0 and send_t[i] >= lo_next
                 if sent_inside:
                     key = key ^ _mix(3, 16 * i + o)
@@ -127,8 +130,11 @@ def beam_plan(
                 c_u[t] = value
                 c_par[t] = j
                 c_opt[t] = o
+                c_skey[t] = skey[j] ^ moved
                 for q in range(ns):
-                    c_last[t, q] = new_last[q]
+                    c_last[t, q] = last[j, q]
+                if s >= 0:
+                    c_last[t, s] = new_slot
                 e = 0
                 for k in range(wn[j]):
                     if wt[j, k] >= lo_next:
@@ -150,6 +156,7 @@ def beam_plan(
         for r in range(count):
             t = order[r]
             u[r] = c_u[t]
+            skey[r] = c_skey[t]
             back_par[i, r] = c_par[t]
             back_opt[i, r] = c_opt[t]
             for q in range(ns):
@@ -198,7 +205,10 @@ def _canonical(stream: Any, gain_bits: Any, nslot: Any, n_streams: int, out: Any
 
 
 def canonical_slots(problem: Any) -> Any:
-    """``baselines._canonical_slots`` as an array [level, slot], compiled."""
+    """Per level i, each slot of item i's stream mapped to the smallest slot with the same
+    future (identical gains and transitions for every later item of the stream), as an array
+    [level, slot]: messages whose utility has run out before the remaining items arrive all
+    become one state (used by this beam and by ``baselines.offline_optimum``)."""
     out = np.empty((max(problem.n, 1), problem.gain.shape[2]), dtype=np.int64)
     if problem.n:
         bits = np.ascontiguousarray(problem.gain).view(np.uint64)

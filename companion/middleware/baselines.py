@@ -15,6 +15,7 @@ from typing import Self
 
 import numpy as np
 
+from companion.middleware import _beam
 from companion.middleware.constraints.base import GoodputConstraint
 from companion.middleware.decider import (
     COMPANION_ALWAYS_SEND,
@@ -277,34 +278,6 @@ _State = tuple[tuple[int, ...], tuple[tuple[float, int], ...]]
 """(each stream's last sent slot, the sends (time, bytes) still inside the window)."""
 
 
-def _canonical_slots(problem: Problem) -> list[list[int]]:
-    """Per level i: each slot of item i's stream mapped to the smallest slot with the same
-    future (identical gains and transitions for every later item of the stream). Messages
-    whose utility has run out before the remaining items arrive all become one state."""
-    n_slots = problem.gain.shape[2]
-    identity = list(range(n_slots))
-    out: list[list[int]] = [identity] * problem.n
-    members: dict[int, list[int]] = {}
-    for i in range(problem.n):
-        s = int(problem.stream[i])
-        if s >= 0:
-            members.setdefault(s, []).append(i)
-    for idxs in members.values():
-        for k, i in enumerate(idxs):
-            future = idxs[k + 1 :]
-            if not future:
-                out[i] = [0] * n_slots
-                continue
-            rows = np.concatenate(
-                [problem.gain[future].reshape(len(future), -1, n_slots),
-                 (problem.nslot[future] == np.arange(n_slots)).astype(np.float64)],
-                axis=1,
-            ).reshape(-1, n_slots).T
-            seen: dict[bytes, int] = {}
-            out[i] = [seen.setdefault(rows[x].tobytes(), x) for x in range(n_slots)]
-    return out
-
-
 def offline_optimum(problem: Problem, *, max_states: int = 500_000) -> OptimumResult:
     """Exact optimum of the problem's model under the window constraint (eq. 5.5/5.7).
 
@@ -319,7 +292,7 @@ def offline_optimum(problem: Problem, *, max_states: int = 500_000) -> OptimumRe
     root = tuple(
         (float(t), int(b)) for t, b in zip(problem.root_win_t, problem.root_win_bytes, strict=True)
     )
-    canon = _canonical_slots(problem)
+    canon = _beam.canonical_slots(problem).tolist()
     start = (tuple([0] * problem.n_streams), root)
     layer: dict[_State, float] = {start: 0.0}
     back: list[dict[_State, tuple[_State, int]]] = []

@@ -157,7 +157,7 @@ class MCTS:
                                   float(problem.budget_bytes), float(problem.window_s),
                                   self.plan)
         tight = False
-        if dp_seed is not None and problem.n:
+        if dp_seed is not None and problem.n and not knapsack_seed:  # one seed: knapsack's wins
             if dp_seed < 1:
                 raise ValueError(f"dp_seed (beam width) must be >= 1, got {dp_seed}")
             self.plan[: problem.n] = _beam.plan_of(problem, dp_seed)[0]

@@ -121,7 +121,8 @@ class MiddlewareConfig:
     complete plan evaluated, never worse in the model than the programme's, else the most
     visited path (issue 18, round 13). Width 128 passes bench_mcts's like-for-like, anytime
     and optimum rows (96.1 %) and wins 5 of its 9 equal-bytes cells (alg. 2's unseeded most
-    visited path: 2, and it misses anytime and optimum). None: alg. 2's rule alone."""
+    visited path: 2, and it misses anytime and optimum). None: alg. 2's rule alone; ignored
+    with ``knapsack_seed``, whose plan seeds the search instead."""
     veto: float | None = None
     """Opt-in (issue 18 round 7; with ``best_plan`` and ``search_depth``): an unbounded
     most visited tree vetoes the best plan's send when its drop child has more than this

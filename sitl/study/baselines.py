@@ -113,8 +113,7 @@ def _policy(name: str, param: float, *, spec: MissionSpec, agent: str, index: in
         config = MiddlewareConfig(spec=spec, agent=agent, max_iterations=iterations,
                                   horizon_s=horizon_s, knapsack_seed="ks" in suffix,
                                   learn_margin="m" in suffix.replace("ks", ""),
-                                  **({"dp_seed": None} if "u" in suffix or "ks" in suffix
-                                     else {}),
+                                  **({"dp_seed": None} if "u" in suffix else {}),
                                   fleet_size=fleet_size)
         middleware = Middleware(config, rng=np.random.default_rng([seed, index]),
                                 constraint=constraint())

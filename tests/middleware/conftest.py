@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from companion.middleware.incremental import FixedItem, PlanItem, Problem, build_problem
 from utility_specs.message import Message, Version
 from utility_specs.spec import MissionSpec, parse_spec
@@ -65,3 +67,17 @@ def problem_of(
     ]
     return build_problem(spec, items=items, fixed=fixed or [], horizon_end=horizon_end,
                          budget_bytes=budget_bytes, window_s=window_s)
+
+
+def random_problem(spec: MissionSpec, n: int, budget: int, seed: int) -> Problem:
+    """``n`` 100-byte messages of two senders and three kinds, 0.4 s apart with jitter, a
+    window of 1 s holding ``budget`` of them."""
+    rng = np.random.default_rng(seed)
+    kinds = ["battery", "linear", "status"]
+    messages = [
+        msg(str(rng.choice(["a", "b"])), k, kinds[int(rng.integers(3))],
+            T0 + float(k) * 0.4 + float(rng.uniform(0, 0.2)), size=100)
+        for k in range(n)
+    ]
+    return problem_of(spec, messages, horizon_end=T0 + 6, budget_bytes=100 * budget,
+                      window_s=1.0)

@@ -14,21 +14,41 @@ from companion.middleware.errors import MiddlewareError
 from companion.middleware.incremental import Problem
 from companion.middleware.mcts import DP_TIGHT, MCTS
 from companion.middleware.middleware import MiddlewareConfig
-from tests.middleware.conftest import T0, msg, problem_of, small_spec
+from tests.middleware.conftest import T0, msg, problem_of, random_problem, small_spec
 
 SPEC = small_spec()
 
 
 def _problem(n: int, budget: int, seed: int) -> Problem:
-    rng = np.random.default_rng(seed)
-    kinds = ["battery", "linear", "status"]
-    messages = [
-        msg(str(rng.choice(["a", "b"])), k, kinds[int(rng.integers(3))],
-            T0 + float(k) * 0.4 + float(rng.uniform(0, 0.2)), size=100)
-        for k in range(n)
-    ]
-    return problem_of(SPEC, messages, horizon_end=T0 + 6, budget_bytes=100 * budget,
-                      window_s=1.0)
+    return random_problem(SPEC, n, budget, seed)
+
+
+def _reference_canonical_slots(problem: Problem) -> list[list[int]]:
+    """Per level i: each slot of item i's stream mapped to the smallest slot with the same
+    future (identical gains and transitions for every later item of the stream). Messages
+    whose utility has run out before the remaining items arrive all become one state."""
+    n_slots = problem.gain.shape[2]
+    identity = list(range(n_slots))
+    out: list[list[int]] = [identity] * problem.n
+    members: dict[int, list[int]] = {}
+    for i in range(problem.n):
+        s = int(problem.stream[i])
+        if s >= 0:
+            members.setdefault(s, []).append(i)
+    for idxs in members.values():
+        for k, i in enumerate(idxs):
+            future = idxs[k + 1 :]
+            if not future:
+                out[i] = [0] * n_slots
+                continue
+            rows = np.concatenate(
+                [problem.gain[future].reshape(len(future), -1, n_slots),
+                 (problem.nslot[future] == np.arange(n_slots)).astype(np.float64)],
+                axis=1,
+            ).reshape(-1, n_slots).T
+            seen: dict[bytes, int] = {}
+            out[i] = [seen.setdefault(rows[x].tobytes(), x) for x in range(n_slots)]
+    return out
 
 
 @settings(max_examples=40, deadline=None)
@@ -99,7 +119,13 @@ def test_a_beam_width_below_one_is_refused(width: int) -> None:
 @given(n=st.integers(1, 12), budget=st.integers(0, 5), seed=st.integers(0, 10_000))
 def test_the_compiled_canonical_slots_are_the_reference_ones(n: int, budget: int,
                                                              seed: int) -> None:
-    from companion.middleware.baselines import _canonical_slots
-
     problem = _problem(n, budget, seed)
-    assert np.array_equal(_beam.canonical_slots(problem), np.array(_canonical_slots(problem)))
+    assert np.array_equal(_beam.canonical_slots(problem),
+                          np.array(_reference_canonical_slots(problem)))
+
+
+def test_the_knapsack_seed_is_not_overwritten_by_the_default_dp_seed() -> None:
+    problem = _problem(8, 2, 3)
+    alone = MCTS(problem, knapsack_seed=True)
+    both = MCTS(problem, knapsack_seed=True, dp_seed=128)
+    assert np.array_equal(both.plan, alone.plan)

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from companion.middleware import _kernel
 from companion.middleware.baselines import offline_optimum
 from companion.middleware.mcts import MCTS, greedy_option
-from tests.middleware.conftest import T0, msg, problem_of, small_spec
+from tests.middleware.conftest import T0, msg, problem_of, random_problem, small_spec
 
 SPEC = small_spec()
 
@@ -129,15 +129,7 @@ def test_deterministic() -> None:
 @settings(max_examples=25, deadline=None)
 @given(n=st.integers(1, 8), budget=st.integers(0, 5), seed=st.integers(0, 10_000))
 def test_offline_optimum_is_exact_and_never_beaten(n: int, budget: int, seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    kinds = ["battery", "linear", "status"]
-    messages = [
-        msg(str(rng.choice(["a", "b"])), k, kinds[int(rng.integers(3))],
-            T0 + float(k) * 0.4 + float(rng.uniform(0, 0.2)), size=100)
-        for k in range(n)
-    ]
-    problem = problem_of(SPEC, messages, horizon_end=T0 + 6, budget_bytes=100 * budget,
-                         window_s=1.0)
+    problem = random_problem(SPEC, n, budget, seed)
     best = max(
         problem.path_gain(c)
         for c in itertools.product(*[range(int(problem.nopt[i])) for i in range(problem.n)])
