@@ -34,6 +34,29 @@ def _slot_key(last: Any, n_streams: int) -> Any:
 
 
 @_jit
+def _best(value: Any, cc: int, width: int) -> Any:
+    """The indices of the ``width`` largest of ``value[:cc]``, best first, ties in index
+    order (a stable sort's first ``width``), sorting only those."""
+    if cc <= width:
+        return np.arange(cc)
+    neg = -value[:cc]
+    cut = np.partition(neg, width - 1)[width - 1]
+    chosen = np.empty(width, dtype=np.int64)
+    r = 0
+    for t in range(cc):
+        if neg[t] < cut:
+            chosen[r] = t
+            r += 1
+    for t in range(cc):
+        if r == width:
+            break
+        if neg[t] == cut:
+            chosen[r] = t
+            r += 1
+    return chosen[np.argsort(neg[chosen], kind="mergesort")]
+
+
+@_jit
 def beam_plan(
     stream: Any, nopt: Any, size: Any, send_t: Any, gain: Any, nslot: Any, canon: Any,
     root_win_t: Any, root_win_b: Any, budget: float, window_s: float, n_streams: int,
@@ -43,35 +66,50 @@ def beam_plan(
     utility (-inf: no plan). ``canon[i, slot]``: the slot with the same future as ``slot``
     after level i. At ``force_level`` (-1: none) only sends, or only the drop, are tried."""
     n = stream.shape[0]
-    n_root = root_win_t.shape[0]
     max_opt = size.shape[1]
-    cap_w = n_root + n + 1
+    cap_w = n + 1
     ns = max(n_streams, 1)
     m = width * max_opt
-    # the current layer's states
+    # The fleet's fixed sends are the same in every state: their bytes in the window of each
+    # level are one number per level, and they need no place in a state's key.
+    root_used = np.zeros(max(n, 1), dtype=np.int64)
+    for i in range(n):
+        for k in range(root_win_t.shape[0]):
+            if root_win_t[k] >= send_t[i] - window_s - _EPS:
+                root_used[i] += root_win_b[k]
+    # the current layer's states; a state's own sends still in the window, oldest first,
+    # with their bytes and the XOR of their keys kept as running totals
     last = np.zeros((width, ns), dtype=np.int64)
     wt = np.zeros((width, cap_w), dtype=np.float64)
     wb = np.zeros((width, cap_w), dtype=np.int64)
     wid = np.zeros((width, cap_w), dtype=np.int64)
     wn = np.zeros(width, dtype=np.int64)
+    wsum = np.zeros(width, dtype=np.int64)
+    wkey = np.zeros(width, dtype=np.uint64)
     u = np.zeros(width, dtype=np.float64)
     skey = np.zeros(width, dtype=np.uint64)  # key of each state's last slots, kept by XOR
     count = 1
-    for k in range(n_root):
-        wt[0, k] = root_win_t[k]
-        wb[0, k] = root_win_b[k]
-        wid[0, k] = 16 * (n + k)
-    wn[0] = n_root
-    # the next layer's candidates
-    c_last = np.zeros((m, ns), dtype=np.int64)
-    c_wt = np.zeros((m, cap_w), dtype=np.float64)
-    c_wb = np.zeros((m, cap_w), dtype=np.int64)
-    c_wid = np.zeros((m, cap_w), dtype=np.int64)
-    c_wn = np.zeros(m, dtype=np.int64)
+    # the next layer: its states, built from the survivors only
+    n_last = np.zeros((width, ns), dtype=np.int64)
+    n_wt = np.zeros((width, cap_w), dtype=np.float64)
+    n_wb = np.zeros((width, cap_w), dtype=np.int64)
+    n_wid = np.zeros((width, cap_w), dtype=np.int64)
+    n_wn = np.zeros(width, dtype=np.int64)
+    n_wsum = np.zeros(width, dtype=np.int64)
+    n_wkey = np.zeros(width, dtype=np.uint64)
+    n_u = np.zeros(width, dtype=np.float64)
+    n_skey = np.zeros(width, dtype=np.uint64)
+    # per state of this level: where its sends still in the next window start, and what
+    # leaves (bytes, key) before it
+    keep = np.zeros(width, dtype=np.int64)
+    gone_b = np.zeros(width, dtype=np.int64)
+    gone_k = np.zeros(width, dtype=np.uint64)
+    # the candidates: a parent state and an option each, materialised if they survive
     c_u = np.zeros(m, dtype=np.float64)
-    c_skey = np.zeros(m, dtype=np.uint64)
     c_par = np.zeros(m, dtype=np.int64)
     c_opt = np.zeros(m, dtype=np.int64)
+    c_slot = np.zeros(m, dtype=np.int64)  # each candidate's entry in the hash table
+    cc = 0
     size_h = 1
     while size_h < 4 * m:
         size_h *= 2
@@ -81,20 +119,26 @@ def beam_plan(
     back_opt = np.zeros((max(n, 1), width), dtype=np.int64)
     skey[0] = _slot_key(last[0], n_streams)
     for i in range(n):
-        lo_i = send_t[i] - window_s - _EPS
         lo_next = send_t[i + 1] - window_s - _EPS if i + 1 < n else np.inf
         s = stream[i]
-        for h in range(size_h):
-            hvals[h] = -1
+        sent_inside = send_t[i] >= lo_next  # a send at level i is still in the next window
+        for t in range(cc):  # empty the hash table: only the previous level's entries
+            hvals[c_slot[t]] = -1
         cc = 0
         for j in range(count):
-            used = 0
-            win_key = skey[j] ^ _mix(4, i + 1)  # what every option of state j shares
-            for k in range(wn[j]):
-                if wt[j, k] >= lo_i:
-                    used += wb[j, k]
-                if wt[j, k] >= lo_next:
-                    win_key = win_key ^ _mix(3, wid[j, k])
+            # every own send of the window is inside level i's (they are after lo_i)
+            used = root_used[i] + wsum[j]
+            f = 0
+            gb = 0
+            gk = np.uint64(0)
+            while f < wn[j] and wt[j, f] < lo_next:
+                gb += wb[j, f]
+                gk = gk ^ _mix(3, wid[j, f])
+                f += 1
+            keep[j] = f
+            gone_b[j] = gb
+            gone_k[j] = gk
+            win_key = skey[j] ^ wkey[j] ^ gk ^ _mix(4, i + 1)  # what every option shares
             slot = last[j, s] if s >= 0 else 0
             for o in range(nopt[i]):
                 if i == force_level and (o != 0) != force_send:
@@ -105,15 +149,11 @@ def beam_plan(
                         continue
                     g = gain[i, o, slot]
                 key = win_key
-                moved = np.uint64(0)  # the change of stream s's term of the slot key
-                new_slot = slot
                 if s >= 0:
                     new_slot = canon[i, nslot[i, o, slot] if o != 0 else slot]
                     if new_slot != slot:
-                        moved = _mix(1, s * 1048576 + slot) ^ _mix(1, s * 1048576 + new_slot)
-                        key = key ^ moved
-                sent_inside = o != 0 and send_t[i] >= lo_next
-                if sent_inside:
+                        key = key ^ _mix(1, s * 1048576 + slot) ^ _mix(1, s * 1048576 + new_slot)
+                if o != 0 and sent_inside:
                     key = key ^ _mix(3, 16 * i + o)
                 value = u[j] + g
                 # tantamount states (same key) keep the better utility
@@ -127,45 +167,57 @@ def beam_plan(
                     cc += 1
                     hkeys[-1 - h] = key
                     hvals[-1 - h] = t
+                    c_slot[t] = -1 - h
                 c_u[t] = value
                 c_par[t] = j
                 c_opt[t] = o
-                c_skey[t] = skey[j] ^ moved
-                for q in range(ns):
-                    c_last[t, q] = last[j, q]
-                if s >= 0:
-                    c_last[t, s] = new_slot
-                e = 0
-                for k in range(wn[j]):
-                    if wt[j, k] >= lo_next:
-                        c_wt[t, e] = wt[j, k]
-                        c_wb[t, e] = wb[j, k]
-                        c_wid[t, e] = wid[j, k]
-                        e += 1
-                if sent_inside:
-                    c_wt[t, e] = send_t[i]
-                    c_wb[t, e] = size[i, o]
-                    c_wid[t, e] = 16 * i + o
-                    e += 1
-                c_wn[t] = e
         if cc == 0:  # only a forced send, and it fits no state
             return -np.inf
         # the beam: the ``width`` best states go on (all of them while they fit)
-        order = np.argsort(-c_u[:cc], kind="mergesort")[:width] if cc > width else np.arange(cc)
+        order = _best(c_u, cc, width)
         count = order.shape[0]
         for r in range(count):
             t = order[r]
-            u[r] = c_u[t]
-            skey[r] = c_skey[t]
-            back_par[i, r] = c_par[t]
-            back_opt[i, r] = c_opt[t]
+            j = c_par[t]
+            o = c_opt[t]
+            n_u[r] = c_u[t]
+            back_par[i, r] = j
+            back_opt[i, r] = o
             for q in range(ns):
-                last[r, q] = c_last[t, q]
-            for k in range(c_wn[t]):
-                wt[r, k] = c_wt[t, k]
-                wb[r, k] = c_wb[t, k]
-                wid[r, k] = c_wid[t, k]
-            wn[r] = c_wn[t]
+                n_last[r, q] = last[j, q]
+            n_skey[r] = skey[j]
+            if s >= 0:
+                slot = last[j, s]
+                new_slot = canon[i, nslot[i, o, slot] if o != 0 else slot]
+                n_last[r, s] = new_slot
+                if new_slot != slot:
+                    n_skey[r] = skey[j] ^ _mix(1, s * 1048576 + slot) \
+                        ^ _mix(1, s * 1048576 + new_slot)
+            e = 0
+            for k in range(keep[j], wn[j]):
+                n_wt[r, e] = wt[j, k]
+                n_wb[r, e] = wb[j, k]
+                n_wid[r, e] = wid[j, k]
+                e += 1
+            n_wsum[r] = wsum[j] - gone_b[j]
+            n_wkey[r] = wkey[j] ^ gone_k[j]
+            if o != 0 and sent_inside:
+                n_wt[r, e] = send_t[i]
+                n_wb[r, e] = size[i, o]
+                n_wid[r, e] = 16 * i + o
+                n_wsum[r] += size[i, o]
+                n_wkey[r] = n_wkey[r] ^ _mix(3, 16 * i + o)
+                e += 1
+            n_wn[r] = e
+        last, n_last = n_last, last
+        wt, n_wt = n_wt, wt
+        wb, n_wb = n_wb, wb
+        wid, n_wid = n_wid, wid
+        wn, n_wn = n_wn, wn
+        wsum, n_wsum = n_wsum, wsum
+        wkey, n_wkey = n_wkey, wkey
+        u, n_u = n_u, u
+        skey, n_skey = n_skey, skey
     best = 0
     for r in range(count):
         if u[r] > u[best]:
