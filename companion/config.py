@@ -126,7 +126,8 @@ class CompanionConfig:
     telemetry: TelemetryConfig = field(default_factory=TelemetryConfig)
     middleware: Mapping[str, Any] = field(default_factory=dict)
     """``policy`` (a name of ``companion.middleware.policies.DECIDERS``, default ``mcts``),
-    ``seed``, ``fleet_size`` (mcts: drones in the mission, checked here) and the policy's
+    ``seed``, ``fleet_size`` and ``dp_seed`` (mcts: drones in the mission, the width of
+    the search's seeding programme, 0 for none; checked here) and the policy's
     own keys (``alpha``, ``drop_probability``...), checked when the policy is built."""
     peers: PeersSettings = field(default_factory=PeersSettings)
     """The ``[peers]`` table (shared medium, ADSB_VEHICLE, /peers endpoint: docs/peers.md)."""
@@ -142,14 +143,16 @@ def _check_policy(name: Any, source: str) -> None:
                           f"{', '.join(sorted(DECIDERS))}, got {name!r}")
 
 
-def _check_fleet_size(middleware: Mapping[str, Any], source: str) -> None:
-    """``[middleware] fleet_size``: the drones the mission declares (the mcts policy's share
-    of the budget at the mission start, issue 18); a whole number >= 1."""
-    if "fleet_size" not in middleware:
+def _check_whole(middleware: Mapping[str, Any], key: str, minimum: int, source: str) -> None:
+    """A whole-number ``[middleware]`` key of the mcts policy, checked here so a bad one is a
+    one-line config error: ``fleet_size`` (>= 1, the drones the mission declares: the share
+    of the budget at the mission start, issue 18) and ``dp_seed`` (>= 0, the width of the
+    search's seeding programme; 0 turns it off, alg. 2's rule alone)."""
+    if key not in middleware:
         return
-    value = middleware["fleet_size"]
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ConfigError(f"{source}: middleware.fleet_size: expected an integer >= 1, "
+    value = middleware[key]
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ConfigError(f"{source}: middleware.{key}: expected an integer >= {minimum}, "
                           f"got {value!r}")
 
 
@@ -328,7 +331,8 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
 
     middleware = root.mapping("middleware")
     _check_policy(middleware.get("policy", "mcts"), source)
-    _check_fleet_size(middleware, source)
+    _check_whole(middleware, "fleet_size", 1, source)
+    _check_whole(middleware, "dp_seed", 0, source)
     try:
         peers = parse_peers_settings(root.mapping("peers"))
     except ValueError as exc:

@@ -60,10 +60,11 @@ generation rate, not its heard one. Not 2: the demo's red drone, heard sending h
 frames, rose 1.3-1.4x in its first 4 s over red and 2-3x later, the plain drones stayed at
 1.0 (debug log, 2026-11-25; per unit of quality: a half frame after quarters was 2.0x)."""
 
-MISSION_KEYS = ("fleet_size", "price_rate_s")
+MISSION_KEYS = ("dp_seed", "fleet_size", "price_rate_s")
 """``MiddlewareConfig`` fields the ``[middleware]`` table sets besides :data:`LIVE_KEYS`;
 fixed for a mission, so not live: ``fleet_size`` acts only in the first seconds of it,
-``price_rate_s`` is the relay fleet's (docs/adaptive.md)."""
+``price_rate_s`` is the relay fleet's (docs/adaptive.md), ``dp_seed`` (0: off, the
+unseeded search of alg. 2) how every decision is made."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -287,6 +288,8 @@ class Middleware:
                 raise UnknownParamError(key, ("alpha", *LIVE_KEYS, *MISSION_KEYS),
                                         owner="the mcts policy")
         spec = setup.spec if alpha is None else with_alpha(setup.spec, alpha)
+        if type(params.get("dp_seed")) is int and params["dp_seed"] == 0:  # TOML has no None
+            params["dp_seed"] = None
         try:
             config = MiddlewareConfig(spec=spec, agent=setup.agent,
                                       max_iterations=setup.max_iterations,
