@@ -160,7 +160,8 @@ class MCTS:
         if dp_seed is not None and problem.n and not knapsack_seed:  # one seed: knapsack's wins
             if dp_seed < 1:
                 raise ValueError(f"dp_seed (beam width) must be >= 1, got {dp_seed}")
-            self.plan[: problem.n] = _beam.plan_of(problem, dp_seed)[0]
+            self.plan[: problem.n] = _beam.plan_of(problem, dp_seed, price=self.lam,
+                                                   mix=_beam.PRICED_SHARE)[0]
             ahead = self.plan[max(0, problem.decided_level) : problem.n]
             tight = len(ahead) > 0 and float(np.mean(ahead == 0)) >= DP_TIGHT
         self.best_plan = best_plan or knapsack_seed or tight

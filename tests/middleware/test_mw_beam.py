@@ -129,3 +129,33 @@ def test_the_knapsack_seed_is_not_overwritten_by_the_default_dp_seed() -> None:
     alone = MCTS(problem, knapsack_seed=True)
     both = MCTS(problem, knapsack_seed=True, dp_seed=128)
     assert np.array_equal(both.plan, alone.plan)
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(1, 9), budget=st.integers(0, 5), seed=st.integers(0, 10_000),
+       price=st.floats(0.0, 1.0), mix=st.sampled_from([0.25, 0.75, 1.0]))
+def test_a_priced_beam_is_exact_when_wide_and_feasible_when_narrow(
+        n: int, budget: int, seed: int, price: float, mix: float) -> None:
+    """The price only orders which states a full beam drops: a wide beam keeps them all."""
+    problem = _problem(n, budget, seed)
+    opt = offline_optimum(problem)
+    plan, value = _beam.plan_of(problem, 64, price=price, mix=mix)
+    assert value == pytest.approx(opt.gain, rel=1e-9, abs=1e-9)
+    narrow, low = _beam.plan_of(problem, 2, price=price, mix=mix)
+    assert problem.feasible(list(narrow)) and low <= opt.gain + 1e-9
+    assert problem.path_gain(list(narrow)) == pytest.approx(low, rel=1e-9, abs=1e-9)
+
+
+def test_a_priced_beam_leaves_the_room_two_later_messages_need() -> None:
+    """One 200-byte message, then two of 100 bytes within the window, each worth the same:
+    kept by utility alone a one-state beam sends the first and has no room for the others;
+    priced for the window its bytes still hold, it keeps the drop and sends both."""
+    messages = [msg("a", 0, "linear", T0, size=200), msg("b", 0, "linear", T0 + 0.3, size=100),
+                msg("c", 0, "linear", T0 + 0.6, size=100)]
+    problem = problem_of(SPEC, messages, horizon_end=T0 + 6, budget_bytes=200, window_s=1.0)
+    opt = offline_optimum(problem)
+    greedy, u_greedy = _beam.plan_of(problem, 1)
+    assert list(greedy) == [1, 0, 0] and u_greedy == pytest.approx(opt.gain / 2)
+    density = opt.gain / 2 / 100  # utility per byte of the small messages
+    priced, u_priced = _beam.plan_of(problem, 1, price=density)
+    assert list(priced) == [0, 1, 1] and u_priced == pytest.approx(opt.gain)

@@ -69,13 +69,13 @@ def _plain_sends_while_the_peer_is_red(*, risen: float) -> int:
 def test_a_plain_drone_leaves_the_red_drone_its_windows(monkeypatch: pytest.MonkeyPatch
                                                         ) -> None:
     """Counted at its heard rate (a half frame a second), the red peer's frames left the
-    plain agent's price to its own: it sent 2 of its 15 frames while the peer was red (3
-    with the unseeded search); counted all while its worth is 1.25x its history or more,
-    they price all but 1 out."""
+    plain agent's price to its own: it sent 3 of its 15 frames while the peer was red (3
+    with the unseeded search, 2 with the unpriced beam of round 13); counted all while its
+    worth is 1.25x its history or more, they price every one out (1 before round 14)."""
     monkeypatch.setattr(mw_module, "RISEN_WORTH", mw_module.RISEN_WORTH)
     capped = _plain_sends_while_the_peer_is_red(risen=float("inf"))
     counted = _plain_sends_while_the_peer_is_red(risen=1.25)
-    assert (capped, counted) == (2, 1)
+    assert (capped, counted) == (3, 0)
 
 
 def test_the_fit_sends_the_most_valuable_option_that_earns_the_price_and_fits() -> None:
