@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import functools
 import itertools
 import sys
@@ -82,6 +83,21 @@ def use_rule(name: str) -> None:
     for module in (sitl.study.drop_rate, sitl.study.baselines):
         module.MiddlewareConfig = make  # type: ignore[attr-defined,misc]
     globals()["MiddlewareConfig"] = make
+
+
+def use_roster() -> None:
+    """Every fig. 5.7 and like-for-like mission declares its roster, which agent sends which
+    type (``[mission.roster]``; knapsack-greedy and the other baselines do not read it):
+    round 9's opt-in, measured with ``--roster``."""
+    import sitl.study.drop_rate
+
+    sitl.study.drop_rate.make_agents = functools.partial(
+        sitl.study.drop_rate.make_agents, roster=True)
+    globals()["ROSTER"] = True
+
+
+ROSTER = False
+"""``--roster``: the like-for-like missions declare theirs too."""
 
 
 def check(name: str, value: str, target: str, ok: bool) -> None:
@@ -196,9 +212,13 @@ def reference_sequence_agents(policy: str, param: float, *, seed: int) -> list[S
     spec = builtin_spec("sim_mostly_low")
     with REFERENCE_SEQUENCE.open(newline="") as f:
         rows = list(csv.DictReader(f))
+    senders = sorted({int(r["sender"]) for r in rows})
+    if ROSTER:
+        spec = dataclasses.replace(spec, roster={f"agent{i}": (f"battery_{i}",)
+                                                 for i in senders})
     make = policy_factory(policy, param, seed=seed)
     agents = []
-    for i in sorted({int(r["sender"]) for r in rows}):
+    for i in senders:
         mine = sorted((r for r in rows if int(r["sender"]) == i), key=lambda r: int(r["k"]))
         rho = [float(r["depletion_rate"]) for r in mine]
         stream = StreamConfig(
@@ -379,8 +399,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="run only these rows")
     parser.add_argument("--rule", choices=sorted(RULES), default="default",
                         help="decision rule of every MCTS (default: the product's)")
+    parser.add_argument("--roster", action="store_true",
+                        help="the fig. 5.7 and like-for-like missions declare which agent "
+                             "sends which type (MCTS plans for the streams not heard yet)")
     args = parser.parse_args(argv)
     use_rule(args.rule)
+    if args.roster:
+        use_roster()
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     t_end = 30.0 if args.quick else 100.0

@@ -20,7 +20,7 @@ import sys
 import time
 from collections import defaultdict
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -114,10 +114,15 @@ def make_agents(
     *,
     seed: int,
     n_agents: int = 10,
+    roster: bool = False,
 ) -> tuple[MissionSpec, list[SimAgent]]:
+    """The scenario's agents, one stream each; with ``roster`` the mission declares which
+    agent sends which type (``MissionSpec.roster``, read by MCTS only: issue 18, round 9)."""
     spec = builtin_spec(SCENARIOS[scenario])
     rng = np.random.default_rng([seed, 7])
     streams = _scenario_streams(scenario, n_agents, rng)
+    if roster:
+        spec = replace(spec, roster={f"agent{i}": (streams[i].type,) for i in range(n_agents)})
     agents = [
         SimAgent(name=f"agent{i}", policy=policy(f"agent{i}", spec), streams=[streams[i]])
         for i in range(n_agents)
