@@ -7,8 +7,14 @@ drops in the exact optimum of the same decision). The exact optimum
 (:func:`~companion.middleware.baselines.offline_optimum`) merges tantamount states, each
 stream's last sent message plus the sends still inside the next window (eq. 5.8,
 footnote 5), and keeps the best utility per state; this is the same programme keeping only
-the ``width`` best states of each level, so its cost is bounded: levels x width x options.
-With a width above the number of distinct states it is exact.
+``width`` states of each level, so its cost is bounded: levels x width x options. With a
+width above the number of distinct states it is exact.
+
+Which states a full beam keeps matters at tight budgets: a state that has sent more has more
+utility and less room, so keeping the highest utilities keeps the senders and loses the
+plans that leave room for a heavier message later (round 14). With a ``price`` (utility per
+byte of a window) most of the width is ranked by utility minus the budget the state's sends
+still hold, the rest by utility alone (:data:`PRICED_SHARE`).
 """
 
 from __future__ import annotations
@@ -83,7 +89,8 @@ def beam_plan(
 ) -> float:
     """Write into ``plan`` the best plan the beam keeps (one option per level); return its
     utility (-inf: no plan). ``canon[i, slot]``: the slot with the same future as ``slot``
-    after level i. At ``force_level`` (-1: none) only sends, or only the drop, are tried."""
+    after level i. At ``force_level`` (-1: none) only sends, or only the drop, are tried.
+    With ``price`` > 0 the share ``mix`` of the width is kept by the priced rank."""
     n = stream.shape[0]
     max_opt = size.shape[1]
     cap_w = n + 1
@@ -141,6 +148,7 @@ def beam_plan(
     back_par = np.zeros((max(n, 1), width), dtype=np.int64)
     back_opt = np.zeros((max(n, 1), width), dtype=np.int64)
     skey[0] = _slot_key(last[0], n_streams)
+    priced = min(width, int(mix * width + 0.5)) if price > 0.0 else 0  # kept by the price
     for i in range(n):
         lo_next = send_t[i + 1] - window_s - _EPS if i + 1 < n else np.inf
         s = stream[i]
@@ -210,7 +218,6 @@ def beam_plan(
         if cc == 0:  # only a forced send, and it fits no state
             return -np.inf
         # the beam: the ``width`` best states go on (all of them while they fit)
-        priced = min(width, int(round(mix * width))) if price > 0.0 else 0
         if priced == 0 or cc <= width:
             order = _best(c_u, cc, width)
         elif priced == width:
@@ -316,7 +323,9 @@ def canonical_slots(problem: Any) -> Any:
 def plan_of(problem: Any, width: int, *, force_level: int = -1,
             force_send: bool = False, price: float = 0.0, mix: float = 1.0
             ) -> tuple[Any, float]:
-    """(the beam's plan, one option per level; its utility in the model, -inf if none)."""
+    """(the beam's plan, one option per level; its utility in the model, -inf if none).
+    ``price``: utility per byte of a window the budget held by a state's sends is worth
+    (0: states kept by utility alone); ``mix``: the share of the width kept by that rank."""
     plan = np.zeros(max(problem.n, 1), dtype=np.int64)
     if problem.n == 0:
         return plan[:0], 0.0

@@ -140,6 +140,7 @@ def test_a_priced_beam_is_exact_when_wide_and_feasible_when_narrow(
     problem = _problem(n, budget, seed)
     opt = offline_optimum(problem)
     plan, value = _beam.plan_of(problem, 64, price=price, mix=mix)
+    assert problem.feasible(list(plan))
     assert value == pytest.approx(opt.gain, rel=1e-9, abs=1e-9)
     narrow, low = _beam.plan_of(problem, 2, price=price, mix=mix)
     assert problem.feasible(list(narrow)) and low <= opt.gain + 1e-9
