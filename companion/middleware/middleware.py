@@ -63,8 +63,8 @@ frames, rose 1.3-1.4x in its first 4 s over red and 2-3x later, the plain drones
 MISSION_KEYS = ("dp_seed", "fleet_size", "price_rate_s")
 """``MiddlewareConfig`` fields the ``[middleware]`` table sets besides :data:`LIVE_KEYS`;
 fixed for a mission, so not live: ``fleet_size`` acts only in the first seconds of it,
-``price_rate_s`` is the relay fleet's (docs/adaptive.md), ``dp_seed`` (0: off, the
-unseeded search of alg. 2) how every decision is made."""
+``price_rate_s`` is the relay fleet's (docs/adaptive.md), and ``dp_seed`` sets how every
+decision is made (0 there: alg. 2's unseeded search)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -120,10 +120,12 @@ class MiddlewareConfig:
     tantamount states, this many kept per level (:mod:`~companion.middleware._beam`); where
     that plan drops at least half of the horizon (``mcts.DP_TIGHT``) the answer is the best
     complete plan evaluated, never worse in the model than the programme's, else the most
-    visited path (issue 18, round 13). Width 128 passes bench_mcts's like-for-like, anytime
-    and optimum rows (96.1 %) and wins 5 of its 9 equal-bytes cells (alg. 2's unseeded most
-    visited path: 2, and it misses anytime and optimum). None: alg. 2's rule alone; ignored
-    with ``knapsack_seed``, whose plan seeds the search instead."""
+    visited path (issue 18, round 13). The beam keeps three quarters of its states by
+    utility minus the budget their sends still hold, priced at the rollout threshold (round
+    14). Width 128 passes bench_mcts's like-for-like, anytime and optimum rows (95.7 %) and
+    wins 5 of its 9 equal-bytes cells (alg. 2's unseeded most visited path: 2, and it misses
+    anytime and optimum). None: alg. 2's rule alone; ignored with ``knapsack_seed``, whose
+    plan seeds the search instead."""
     veto: float | None = None
     """Opt-in (issue 18 round 7; with ``best_plan`` and ``search_depth``): an unbounded
     most visited tree vetoes the best plan's send when its drop child has more than this
