@@ -47,6 +47,14 @@ def _slot_key(last: Any, n_streams: int) -> Any:
 
 
 @_jit
+def _moved(s: int, slot: int, new_slot: int) -> Any:
+    """The change of a state's slot key when stream ``s`` moves from ``slot`` to ``new_slot``."""
+    if new_slot == slot:
+        return np.uint64(0)
+    return _mix(1, s * 1048576 + slot) ^ _mix(1, s * 1048576 + new_slot)
+
+
+@_jit
 def _best(value: Any, cc: int, width: int) -> Any:
     """The indices of the ``width`` largest of ``value[:cc]``, best first, ties in index
     order (a stable sort's first ``width``), sorting only those."""
@@ -103,39 +111,30 @@ def beam_plan(
         for k in range(root_win_t.shape[0]):
             if root_win_t[k] >= send_t[i] - window_s - _EPS:
                 root_used[i] += root_win_b[k]
-    # the current layer's states; a state's own sends still in the window, oldest first,
-    # with their bytes and the XOR of their keys kept as running totals
-    last = np.zeros((width, ns), dtype=np.int64)
-    wt = np.zeros((width, cap_w), dtype=np.float64)
-    wb = np.zeros((width, cap_w), dtype=np.int64)
-    wid = np.zeros((width, cap_w), dtype=np.int64)
-    wn = np.zeros(width, dtype=np.int64)
-    wsum = np.zeros(width, dtype=np.int64)
-    wtsum = np.zeros(width, dtype=np.float64)  # the bytes of those sends times their times
-    wkey = np.zeros(width, dtype=np.uint64)
-    u = np.zeros(width, dtype=np.float64)
-    skey = np.zeros(width, dtype=np.uint64)  # key of each state's last slots, kept by XOR
+    # The states of two layers, [0] and [1]: the current one (``cur``) and the next, built
+    # from the survivors only. A state's own sends still in the window, oldest first: their
+    # times, bytes and key terms, with running totals of their bytes, bytes x times and keys.
+    last = np.zeros((2, width, ns), dtype=np.int64)
+    wt = np.zeros((2, width, cap_w), dtype=np.float64)
+    wb = np.zeros((2, width, cap_w), dtype=np.int64)
+    wk = np.zeros((2, width, cap_w), dtype=np.uint64)
+    wn = np.zeros((2, width), dtype=np.int64)
+    wsum = np.zeros((2, width), dtype=np.int64)
+    wtsum = np.zeros((2, width), dtype=np.float64)
+    wkey = np.zeros((2, width), dtype=np.uint64)
+    u = np.zeros((2, width), dtype=np.float64)
+    skey = np.zeros((2, width), dtype=np.uint64)  # key of each state's last slots, kept by XOR
+    cur = 0
     count = 1
-    # the next layer: its states, built from the survivors only
-    n_last = np.zeros((width, ns), dtype=np.int64)
-    n_wt = np.zeros((width, cap_w), dtype=np.float64)
-    n_wb = np.zeros((width, cap_w), dtype=np.int64)
-    n_wid = np.zeros((width, cap_w), dtype=np.int64)
-    n_wn = np.zeros(width, dtype=np.int64)
-    n_wsum = np.zeros(width, dtype=np.int64)
-    n_wtsum = np.zeros(width, dtype=np.float64)
-    n_wkey = np.zeros(width, dtype=np.uint64)
-    n_u = np.zeros(width, dtype=np.float64)
-    n_skey = np.zeros(width, dtype=np.uint64)
     # per state of this level: where its sends still in the next window start, and what
-    # leaves (bytes, key) before it
+    # leaves (bytes, key, bytes x times) before it
     keep = np.zeros(width, dtype=np.int64)
     gone_b = np.zeros(width, dtype=np.int64)
     gone_k = np.zeros(width, dtype=np.uint64)
     gone_t = np.zeros(width, dtype=np.float64)
-    c_rank = np.zeros(m, dtype=np.float64)  # what the beam keeps the best of
     # the candidates: a parent state and an option each, materialised if they survive
     c_u = np.zeros(m, dtype=np.float64)
+    c_rank = np.zeros(m, dtype=np.float64)  # utility minus the priced budget held
     c_par = np.zeros(m, dtype=np.int64)
     c_opt = np.zeros(m, dtype=np.int64)
     c_slot = np.zeros(m, dtype=np.int64)  # each candidate's entry in the hash table
@@ -147,10 +146,11 @@ def beam_plan(
     hvals = np.full(size_h, -1, dtype=np.int64)
     back_par = np.zeros((max(n, 1), width), dtype=np.int64)
     back_opt = np.zeros((max(n, 1), width), dtype=np.int64)
-    skey[0] = _slot_key(last[0], n_streams)
+    skey[cur, 0] = _slot_key(last[cur, 0], n_streams)
     priced = min(width, int(mix * width + 0.5)) if price > 0.0 else 0  # kept by the price
     for i in range(n):
-        lo_next = send_t[i + 1] - window_s - _EPS if i + 1 < n else np.inf
+        t_next = send_t[i + 1] if i + 1 < n else np.inf
+        lo_next = t_next - window_s - _EPS
         s = stream[i]
         sent_inside = send_t[i] >= lo_next  # a send at level i is still in the next window
         for t in range(cc):  # empty the hash table: only the previous level's entries
@@ -158,15 +158,15 @@ def beam_plan(
         cc = 0
         for j in range(count):
             # every own send of the window is inside level i's (they are after lo_i)
-            used = root_used[i] + wsum[j]
+            used = root_used[i] + wsum[cur, j]
             f = 0
             gb = 0
             gk = np.uint64(0)
             gt = 0.0
-            while f < wn[j] and wt[j, f] < lo_next:
-                gb += wb[j, f]
-                gk = gk ^ _mix(3, wid[j, f])
-                gt += wb[j, f] * wt[j, f]
+            while f < wn[cur, j] and wt[cur, j, f] < lo_next:
+                gb += wb[cur, j, f]
+                gk = gk ^ wk[cur, j, f]
+                gt += wb[cur, j, f] * wt[cur, j, f]
                 f += 1
             keep[j] = f
             gone_b[j] = gb
@@ -176,10 +176,10 @@ def beam_plan(
             # of the window T to come, at ``price`` per byte of a whole window
             held = 0.0
             if price > 0.0 and i + 1 < n:
-                held = price * ((wtsum[j] - gt) + (wsum[j] - gb) * (window_s - send_t[i + 1])
-                                ) / window_s
-            win_key = skey[j] ^ wkey[j] ^ gk ^ _mix(4, i + 1)  # what every option shares
-            slot = last[j, s] if s >= 0 else 0
+                held = price * ((wtsum[cur, j] - gt)
+                                + (wsum[cur, j] - gb) * (window_s - t_next)) / window_s
+            win_key = skey[cur, j] ^ wkey[cur, j] ^ gk ^ _mix(4, i + 1)  # every option's
+            slot = last[cur, j, s] if s >= 0 else 0
             for o in range(nopt[i]):
                 if i == force_level and (o != 0) != force_send:
                     continue
@@ -190,12 +190,12 @@ def beam_plan(
                     g = gain[i, o, slot]
                 key = win_key
                 if s >= 0:
-                    new_slot = canon[i, nslot[i, o, slot] if o != 0 else slot]
-                    if new_slot != slot:
-                        key = key ^ _mix(1, s * 1048576 + slot) ^ _mix(1, s * 1048576 + new_slot)
+                    key = key ^ _moved(s, slot, canon[i, nslot[i, o, slot] if o != 0 else slot])
+                rank = u[cur, j] + g - held
                 if o != 0 and sent_inside:
                     key = key ^ _mix(3, 16 * i + o)
-                value = u[j] + g
+                    rank -= price * size[i, o] * (send_t[i] + window_s - t_next) / window_s
+                value = u[cur, j] + g
                 # tantamount states (same key) keep the better utility
                 h = _hash_find(key, hkeys, hvals)
                 if h >= 0:
@@ -209,10 +209,7 @@ def beam_plan(
                     hvals[-1 - h] = t
                     c_slot[t] = -1 - h
                 c_u[t] = value
-                c_rank[t] = value - held
-                if o != 0 and sent_inside and price > 0.0:
-                    c_rank[t] -= price * size[i, o] * (send_t[i] + window_s - send_t[i + 1]
-                                                       ) / window_s
+                c_rank[t] = rank
                 c_par[t] = j
                 c_opt[t] = o
         if cc == 0:  # only a forced send, and it fits no state
@@ -224,61 +221,51 @@ def beam_plan(
             order = _best(c_rank, cc, width)
         else:
             order = _best_of_two(c_u, c_rank, cc, width, priced)
+        nxt = 1 - cur
         count = order.shape[0]
         for r in range(count):
             t = order[r]
             j = c_par[t]
             o = c_opt[t]
-            n_u[r] = c_u[t]
+            u[nxt, r] = c_u[t]
             back_par[i, r] = j
             back_opt[i, r] = o
             for q in range(ns):
-                n_last[r, q] = last[j, q]
-            n_skey[r] = skey[j]
+                last[nxt, r, q] = last[cur, j, q]
+            skey[nxt, r] = skey[cur, j]
             if s >= 0:
-                slot = last[j, s]
+                slot = last[cur, j, s]
                 new_slot = canon[i, nslot[i, o, slot] if o != 0 else slot]
-                n_last[r, s] = new_slot
-                if new_slot != slot:
-                    n_skey[r] = skey[j] ^ _mix(1, s * 1048576 + slot) \
-                        ^ _mix(1, s * 1048576 + new_slot)
+                last[nxt, r, s] = new_slot
+                skey[nxt, r] ^= _moved(s, slot, new_slot)
             e = 0
-            for k in range(keep[j], wn[j]):
-                n_wt[r, e] = wt[j, k]
-                n_wb[r, e] = wb[j, k]
-                n_wid[r, e] = wid[j, k]
+            for k in range(keep[j], wn[cur, j]):
+                wt[nxt, r, e] = wt[cur, j, k]
+                wb[nxt, r, e] = wb[cur, j, k]
+                wk[nxt, r, e] = wk[cur, j, k]
                 e += 1
-            n_wsum[r] = wsum[j] - gone_b[j]
-            n_wtsum[r] = wtsum[j] - gone_t[j]
-            n_wkey[r] = wkey[j] ^ gone_k[j]
+            wsum[nxt, r] = wsum[cur, j] - gone_b[j]
+            wtsum[nxt, r] = wtsum[cur, j] - gone_t[j]
+            wkey[nxt, r] = wkey[cur, j] ^ gone_k[j]
             if o != 0 and sent_inside:
-                n_wt[r, e] = send_t[i]
-                n_wb[r, e] = size[i, o]
-                n_wid[r, e] = 16 * i + o
-                n_wsum[r] += size[i, o]
-                n_wtsum[r] += size[i, o] * send_t[i]
-                n_wkey[r] = n_wkey[r] ^ _mix(3, 16 * i + o)
+                wt[nxt, r, e] = send_t[i]
+                wb[nxt, r, e] = size[i, o]
+                wk[nxt, r, e] = _mix(3, 16 * i + o)
+                wsum[nxt, r] += size[i, o]
+                wtsum[nxt, r] += size[i, o] * send_t[i]
+                wkey[nxt, r] ^= wk[nxt, r, e]
                 e += 1
-            n_wn[r] = e
-        last, n_last = n_last, last
-        wt, n_wt = n_wt, wt
-        wb, n_wb = n_wb, wb
-        wid, n_wid = n_wid, wid
-        wn, n_wn = n_wn, wn
-        wsum, n_wsum = n_wsum, wsum
-        wtsum, n_wtsum = n_wtsum, wtsum
-        wkey, n_wkey = n_wkey, wkey
-        u, n_u = n_u, u
-        skey, n_skey = n_skey, skey
+            wn[nxt, r] = e
+        cur = nxt
     best = 0
     for r in range(count):
-        if u[r] > u[best]:
+        if u[cur, r] > u[cur, best]:
             best = r
     j = best
     for i in range(n - 1, -1, -1):
         plan[i] = back_opt[i, j]
         j = back_par[i, j]
-    return u[best] if n > 0 else 0.0
+    return u[cur, best] if n > 0 else 0.0
 
 
 @_jit
