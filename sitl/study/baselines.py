@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import math
 import sys
 import time
@@ -40,7 +41,7 @@ from utility_specs.files import builtin_spec
 from utility_specs.message import Message, Version
 from utility_specs.spec import MissionSpec
 
-__all__ = ["KnapsackFill", "image_fleet", "main", "run_one"]
+__all__ = ["KnapsackFill", "at_bytes", "image_fleet", "main", "run_one"]
 
 POLICIES = ("mcts300", "mcts300ks", "greedy", "knapsack", "knapsack-fill", "random")
 """mcts300ks: the same MCTS seeded with the knapsack-greedy plan (``knapsack_seed``); any
@@ -113,8 +114,9 @@ def _policy(name: str, param: float, *, spec: MissionSpec, agent: str, index: in
         config = MiddlewareConfig(spec=spec, agent=agent, max_iterations=iterations,
                                   horizon_s=horizon_s, knapsack_seed="ks" in suffix,
                                   learn_margin="m" in suffix.replace("ks", ""),
-                                  **({"dp_seed": None} if "u" in suffix else {}),
                                   fleet_size=fleet_size)
+        if "u" in suffix:  # alg. 2's search alone
+            config = dataclasses.replace(config, dp_seed=None)
         middleware = Middleware(config, rng=np.random.default_rng([seed, index]),
                                 constraint=constraint())
         if suffix.endswith("c"):
@@ -193,6 +195,14 @@ def _interval(values: Sequence[float]) -> tuple[float, float]:
     return float(arr.mean()), float(t * arr.std(ddof=1) / math.sqrt(len(arr)))
 
 
+def at_bytes(curve: Sequence[tuple[float, float]], target: float) -> float | None:
+    """A policy's (delivered bytes, value) curve over its budgets, sorted by bytes, read at
+    ``target`` bytes (linear between its points: "at equal bytes"); None outside it."""
+    if len(curve) < 2 or not curve[0][0] <= target <= curve[-1][0]:
+        return None
+    return float(np.interp(target, [c[0] for c in curve], [c[1] for c in curve]))
+
+
 def tables(rows: Sequence[dict[str, Any]], reference: str | None = None) -> str:
     """Markdown tables per scenario: MCTS utility, then each baseline's utility minus MCTS's
     on the same seed (paired; negative: MCTS better) at equal budget and at equal bytes.
@@ -237,13 +247,11 @@ def tables(rows: Sequence[dict[str, Any]], reference: str | None = None) -> str:
             for p in others:
                 diffs = []
                 for s in seeds:
-                    target = ours[s]["delivered_bytes"]
                     curve = sorted((r[s]["delivered_bytes"], r[s]["utility_pct"])
                                    for k, r in runs.items() if k[0] == sc and k[1] == p and s in r)
-                    xs = [c[0] for c in curve]
-                    if len(curve) >= 2 and xs[0] <= target <= xs[-1]:
-                        diffs.append(float(np.interp(target, xs, [c[1] for c in curve]))
-                                     - ours[s]["utility_pct"])
+                    theirs = at_bytes(curve, ours[s]["delivered_bytes"])
+                    if theirs is not None:
+                        diffs.append(theirs - ours[s]["utility_pct"])
                 cells.append(cell(diffs, len(seeds)))
             out.append(f"| {b:g}{unit} | " + " | ".join(cells) + " |")
     return "\n".join(out) + "\n"

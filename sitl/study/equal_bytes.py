@@ -61,7 +61,7 @@ def run(scenario: str, policy: str, budget: float, *, seed: int, t_end: float
 
 
 def _optimum_columns(scenario: str, b: float, seed: int, t_end: float, max_states: int,
-                     curve: Sequence[tuple[int, float, float]]) -> dict[str, Any]:
+                     curve: Sequence[tuple[float, float]]) -> dict[str, Any]:
     """The offline optimum held to b, and knapsack's utility at the optimum's bytes."""
     nan = float("nan")
     try:
@@ -70,11 +70,8 @@ def _optimum_columns(scenario: str, b: float, seed: int, t_end: float, max_state
     except MiddlewareError:  # the DP outgrew max_states: not computed, said as n/a
         return {"optimum_pct": nan, "optimum_bytes": -1, "optimum_windows_over_b": -1,
                 "delta_knapsack_optimum": nan}
-    xs = [c[0] for c in curve]
-    delta = nan
-    if xs[0] <= best.delivered_bytes <= xs[-1]:
-        delta = float(np.interp(best.delivered_bytes, xs, [c[1] for c in curve])) \
-            - best.utility_pct
+    theirs = bl.at_bytes(curve, best.delivered_bytes)
+    delta = nan if theirs is None else theirs - best.utility_pct
     return {"optimum_pct": best.utility_pct, "optimum_bytes": best.delivered_bytes,
             "optimum_windows_over_b": window_violations(
                 list(best.sends), window_s=dr.WINDOW_S, budget_bytes=dr.budget_bytes(b)),
@@ -90,7 +87,8 @@ def rows_for(scenario: str, seed: int, *, t_end: float, mcts: str = "mcts300",
     ks = {b: run(scenario, "knapsack", b, seed=seed, t_end=t_end)
           for b in sorted({*BUDGETS, *budgets})}
     curve = sorted((r["delivered_bytes"], r["utility_pct"], b) for b, r in ks.items())
-    xs = [c[0] for c in curve]
+    utility = [(c[0], c[1]) for c in curve]
+    budget_for = [(c[0], c[2]) for c in curve]
     rows = []
     for b, r in ours.items():
         target = r["delivered_bytes"]
@@ -103,15 +101,15 @@ def rows_for(scenario: str, seed: int, *, t_end: float, mcts: str = "mcts300",
             "knapsack_windows_over_b": -1,
             "knapsack_curve": ";".join(f"{c[0]}:{c[1]:.4f}" for c in curve),
         }
-        if xs[0] <= target <= xs[-1]:
-            row["knapsack_budget"] = float(np.interp(target, xs, [c[2] for c in curve]))
-            row["delta_knapsack"] = float(np.interp(target, xs, [c[1] for c in curve])) \
-                - r["utility_pct"]
+        theirs = bl.at_bytes(utility, target)
+        if theirs is not None:
+            row["knapsack_budget"] = bl.at_bytes(budget_for, target)
+            row["delta_knapsack"] = theirs - r["utility_pct"]
             at = next(c[2] for c in curve if c[0] >= target)
             row["knapsack_windows_over_b"] = window_violations(
                 ks[at]["sends"], window_s=dr.WINDOW_S, budget_bytes=dr.budget_bytes(b))
         if optimum:
-            row |= _optimum_columns(scenario, b, seed, t_end, max_states, curve)
+            row |= _optimum_columns(scenario, b, seed, t_end, max_states, utility)
         rows.append(row)
     return rows
 
