@@ -13,6 +13,7 @@ A spec is a TOML file (``utility_specs/missions/*.toml``)::
     markovian = true             # only the newest message matters (eq. 5.8)
     params = { depletion_rate = 0.01 }
     receivers = ["ground"]       # who it is for: "ground", "peers" (every other drone), or both
+    period_s = 1.0               # optional: a source's nominal period (the optimiser's prior)
 
     [mission.roster]             # optional: which agent generates which types
     uav0 = ["battery"]
@@ -46,7 +47,7 @@ Receiver = Literal["ground", "peers"]
 RECEIVERS: tuple[Receiver, ...] = ("ground", "peers")
 """``ground``: the ground station; ``peers``: every other drone (over the shared medium)."""
 _TYPE_KEYS = {"utility", "aggregation", "weight", "per_sender", "markovian", "params",
-              "receivers"}
+              "receivers", "period_s"}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -61,6 +62,10 @@ class InfoType:
     markovian: bool = False
     receivers: tuple[Receiver, ...] = ("ground",)
     """Who the type is for; the utility of a message counts at each receiver (eq. 4.2)."""
+    period_s: float | None = None
+    """Nominal period of one source of the type (seconds), if the mission knows it: what
+    the optimiser assumes of a declared stream it has not heard yet (a roster's), before
+    any stream of the type has shown its period. None: not declared."""
 
     @property
     def for_peers(self) -> bool:
@@ -77,6 +82,8 @@ class InfoType:
             )
         if not (math.isfinite(self.weight) and self.weight >= 0):
             raise SpecError(f"type {self.name!r}: weight must be a finite number >= 0")
+        if self.period_s is not None and not (math.isfinite(self.period_s) and self.period_s > 0):
+            raise SpecError(f"type {self.name!r}: period_s must be a finite number > 0")
         if (not self.receivers or len(set(self.receivers)) != len(self.receivers)
                 or not set(self.receivers) <= set(RECEIVERS)):
             raise SpecError(f"type {self.name!r}: receivers must be a non-empty list of "
@@ -203,6 +210,12 @@ def _parse_type(type_name: str, table: Any, source: str) -> InfoType:
         source, f"{key}.receivers",
         '["ground"], ["peers"] or ["ground", "peers"]', receivers,
     )
+    period = table.get("period_s")
+    _expect(
+        period is None or (isinstance(period, int | float) and not isinstance(period, bool)
+                           and math.isfinite(period) and period > 0),
+        source, f"{key}.period_s", "a number > 0 (seconds)", period,
+    )
     try:
         function = make_function(cast(str, utility), params)
         return InfoType(
@@ -213,6 +226,7 @@ def _parse_type(type_name: str, table: Any, source: str) -> InfoType:
             per_sender=flags["per_sender"],
             markovian=flags["markovian"],
             receivers=cast(tuple[Receiver, ...], tuple(receivers)),
+            period_s=None if period is None else float(period),
         )
     except SpecError as exc:
         raise SpecError(f"{source}: {key}: {exc}") from None

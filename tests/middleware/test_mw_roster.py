@@ -12,6 +12,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from companion.middleware import ConstantConstraint, Middleware, MiddlewareConfig, MiddlewareError
@@ -192,3 +193,65 @@ def test_a_bad_roster_in_a_spec_file_is_one_line_from_the_cli(tmp_path: Path) ->
     result = subprocess.run([str(tool), "evaluate", "--spec", str(spec), str(log)],
                             capture_output=True, text=True, timeout=60, check=False)
     assert_one_line_error(result, 2, "mission.roster.uav0: expected types of this spec")
+
+
+def _unheard_times(mw: Middleware, sender: str) -> list[float]:
+    assert mw.last_problem is not None
+    return sorted(it.send_t for it in mw.last_problem.items if it.message.sender == sender)
+
+
+def test_an_unheard_stream_repeats_at_its_types_declared_period() -> None:
+    """Round 15: at the mission's first message no period is known; the fig. 5.7 specs
+    declare each type's nominal period (1 s), and agent9's unheard stream is forecast at it
+    from half a period on, over the 5 s horizon. Undeclared, it is once per window T (2.5 s):
+    2.5 times too few, and the first speakers filled the window."""
+    mw = agent(0, roster=TEN)
+    mw.decide(battery(0, 0, 0.5), 0.5)
+    assert _unheard_times(mw, "?agent9") == pytest.approx([1.0, 2.0, 3.0, 4.0, 5.0])
+    undeclared = {name: dataclasses.replace(info, period_s=None)
+                  for name, info in SPEC.types.items()}
+    mw = agent(0, spec=dataclasses.replace(SPEC, types=undeclared), roster=TEN)
+    mw.decide(battery(0, 0, 0.5), 0.5)
+    assert _unheard_times(mw, "?agent9") == pytest.approx([1.75, 4.25])
+
+
+def test_a_known_stream_of_the_type_outranks_the_declared_period() -> None:
+    """uav1's frames show the image period (0.2 s): uav2's unheard image stream follows it,
+    not the spec's declared 1 s."""
+    base = builtin_spec("image_streaming")
+    image = dataclasses.replace(base.types["image"], period_s=1.0)
+    spec = dataclasses.replace(base, types={**base.types, "image": image})
+    roster = {f"uav{i}": ("image",) for i in range(3)}
+    mw = Middleware(MiddlewareConfig(spec=spec, agent="uav0", max_iterations=100, horizon_s=3.0,
+                                     roster=roster),
+                    constraint=ConstantConstraint(limit_bytes_per_s=50_000, window_s=2.5))
+    frame = {"red": 0.1, "object": False}
+    for k in range(3):
+        t = 0.2 * k
+        mw.on_delivered([Message(sender="uav1", seq=k, type="image", t_gen=t, size=10_000,
+                                 data=frame, t_sent=t).delivered(receiver="ground",
+                                                                 t_rcv=t + 0.1)], t + 0.1)
+        mw.decide(Message(sender="uav0", seq=k, type="image", t_gen=t + 0.05, size=10_000,
+                          data=frame), t + 0.15)
+    times = _unheard_times(mw, "?uav2")
+    assert len(times) > 3 and np.diff(times) == pytest.approx(0.2)
+
+
+def _with_period(period: object) -> dict[str, object]:
+    return {"mission": {"name": "m"},
+            "types": {"battery": {"utility": "battery", "aggregation": "max", "period_s": period,
+                                  "params": {"depletion_rate": 0.01}}}}
+
+
+@pytest.mark.parametrize("period", [0, -1.0, "1", True, float("inf")])
+def test_a_bad_period_is_one_line(period: object) -> None:
+    with pytest.raises(SpecError) as exc:
+        parse_spec(_with_period(period), source="m.toml")
+    assert str(exc.value).startswith("m.toml: types.battery.period_s: expected a number > 0")
+    assert "\n" not in str(exc.value)
+
+
+def test_the_spec_parses_a_period() -> None:
+    assert parse_spec(_with_period(2)).types["battery"].period_s == 2.0
+    assert parse_spec(_raw(None) | {"mission": {"name": "m"}}).types["battery"].period_s is None
+    assert all(info.period_s == 1.0 for info in builtin_spec("sim_uniform").types.values())
