@@ -61,6 +61,7 @@ from sitl.study.drop_rate import (
 )
 from utility_specs.files import builtin_spec
 from utility_specs.message import Version
+from utility_specs.spec import MissionSpec
 
 ROWS: list[tuple[str, str, str, bool]] = []
 
@@ -98,6 +99,24 @@ def use_roster() -> None:
 
 ROSTER = False
 """``--roster``: the like-for-like missions declare theirs too."""
+
+
+def use_periods() -> None:
+    """Every fig. 5.7 and like-for-like mission declares its types' nominal period, 1 s
+    (``[types.X] period_s``, read by every policy's forecaster: round 15's measurement)."""
+    import sitl.study.drop_rate
+
+    shipped = builtin_spec
+
+    def declared(name: str) -> MissionSpec:
+        spec = shipped(name)
+        if not name.startswith("sim_"):  # the image missions' rates are the drones' own
+            return spec
+        return dataclasses.replace(spec, types={
+            k: dataclasses.replace(info, period_s=1.0) for k, info in spec.types.items()})
+
+    sitl.study.drop_rate.builtin_spec = declared  # type: ignore[attr-defined]
+    globals()["builtin_spec"] = declared
 
 
 def check(name: str, value: str, target: str, ok: bool) -> None:
@@ -399,6 +418,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="run only these rows")
     parser.add_argument("--rule", choices=sorted(RULES), default="default",
                         help="decision rule of every MCTS (default: the product's)")
+    parser.add_argument("--periods", action="store_true",
+                        help="the fig. 5.7 and like-for-like missions declare their types' "
+                             "nominal period (1 s), for every policy")
     parser.add_argument("--roster", action="store_true",
                         help="the fig. 5.7 and like-for-like missions declare which agent "
                              "sends which type (MCTS plans for the streams not heard yet)")
@@ -406,6 +428,8 @@ def main(argv: list[str] | None = None) -> int:
     use_rule(args.rule)
     if args.roster:
         use_roster()
+    if args.periods:
+        use_periods()
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     t_end = 30.0 if args.quick else 100.0

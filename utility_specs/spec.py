@@ -63,9 +63,9 @@ class InfoType:
     receivers: tuple[Receiver, ...] = ("ground",)
     """Who the type is for; the utility of a message counts at each receiver (eq. 4.2)."""
     period_s: float | None = None
-    """Nominal period of one source of the type (seconds), if the mission knows it: what
-    the optimiser assumes of a declared stream it has not heard yet (a roster's), before
-    any stream of the type has shown its period. None: not declared."""
+    """Nominal period of one source of the type (seconds), if the mission knows it: how
+    often the optimiser expects a stream of the type that has not shown its own period yet
+    to send (one heard of once, or a roster's stream not heard yet). None: not declared."""
 
     @property
     def for_peers(self) -> bool:

@@ -13,7 +13,7 @@ import itertools
 import math
 import zlib
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -75,14 +75,20 @@ class StreamForecaster:
     (:func:`_heartbeat_period`).
     """
 
-    __slots__ = ("_streams", "assume_fleet_period", "heartbeats", "pool_span_s", "prior_period",
-                 "worth")
+    __slots__ = ("_streams", "assume_fleet_period", "declared", "heartbeats", "pool_span_s",
+                 "prior_period", "worth")
 
     def __init__(self, *, assume_fleet_period: bool = True,
                  worth: Callable[[Message], float | None] | None = None,
-                 heartbeats: frozenset[str] = frozenset()) -> None:
+                 heartbeats: frozenset[str] = frozenset(),
+                 declared: Mapping[str, float] | None = None) -> None:
         self._streams: dict[StreamKeyT, _Stream] = {}
         self.assume_fleet_period = assume_fleet_period
+        self.declared: Mapping[str, float] = declared or {}
+        """Type -> the mission's nominal period (``[types.X] period_s``): a stream heard of
+        only once repeats at it rather than at :attr:`prior_period`, which the first
+        messages of a mission do not have yet (round 15: such a stream was not forecast at
+        all, and the next agent took the window its next message needed)."""
         self.heartbeats = heartbeats
         """Types every agent sends whatever it decides (the companion's status)."""
         self.worth = worth
@@ -207,7 +213,7 @@ class StreamForecaster:
             return []
         period, ref = self._estimate(key)
         if period is None:
-            period = self.prior_period
+            period = self.declared.get(key[1], self.prior_period)
             if period is None:
                 return []
             ref = stream.times[-1]

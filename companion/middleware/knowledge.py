@@ -75,7 +75,10 @@ class FleetKnowledge:
                  spread_forecasts: bool = True) -> None:
         self.spec = spec
         self.agent = agent
-        self.forecaster = StreamForecaster(worth=self.worth if spread_forecasts else None)
+        self.forecaster = StreamForecaster(
+            worth=self.worth if spread_forecasts else None,
+            declared={name: info.period_s for name, info in spec.types.items()
+                      if info.period_s is not None})
         """``spread_forecasts``: a stream's forecasts are drawn from its recent messages'
         worths (:meth:`StreamForecaster.forecast`), so the optimiser sees the value of
         waiting for a better frame; False: copies of the last message (the baselines)."""

@@ -528,7 +528,8 @@ class Middleware:
         96.8 / 91.1 / 68.5 %). A roster's unheard stream repeats at the period of the known
         streams of its type, else at its type's declared ``period_s``, else as above: once
         per T was 2.5 times too slow in the fig. 5.7 fleets, and the first speakers still
-        filled the window (round 15: uniform 9.25 msgs/T at equal bytes +0.1 -> -0.8)."""
+        filled the window (round 15, periods declared: uniform 9.25 msgs/T at equal bytes
+        +0.1 -> -1.0)."""
         period = self.knowledge.forecaster.prior_period
         roster = self.config.declared_roster
         if roster is not None:  # round 9: exactly the roster's unheard streams

@@ -120,6 +120,24 @@ def test_a_stream_heard_once_repeats_at_the_fleet_period() -> None:
     assert off.predict(("b", "battery"), t_from=T0, t_to=T0 + 9) == []
 
 
+def test_a_stream_heard_once_repeats_at_its_types_declared_period() -> None:
+    """Round 15: the mission's first message of a stream, before any period is known: with
+    the type's declared ``period_s`` it is forecast at once; without, it is not forecast."""
+    f = StreamForecaster(declared={"battery": 1.0})
+    f.observe(msg("b", 0, "battery", T0 + 1.2))
+    f.observe(msg("c", 0, "status", T0 + 1.2))
+    f.refresh()
+    assert f.prior_period is None
+    assert f.predict(("b", "battery"), t_from=T0 + 1.2, t_to=T0 + 4.0) == pytest.approx(
+        [T0 + 2.2, T0 + 3.2])
+    assert f.predict(("c", "status"), t_from=T0, t_to=T0 + 9) == []
+    for k in range(1, 4):  # heard three times more: its own period wins over the declared one
+        f.observe(msg("b", k, "battery", T0 + 1.2 + 0.5 * k))
+    f.refresh()
+    assert f.predict(("b", "battery"), t_from=T0 + 2.7, t_to=T0 + 4.0) == pytest.approx(
+        [T0 + 3.2, T0 + 3.7])
+
+
 def test_a_stream_that_numbers_its_frames_is_forecast_at_its_generation_rate() -> None:
     """Round 11: a drone sending one of its 3 frames/s every ~1-2 s, among telemetry that
     shares its ``seq`` counter. Its frames carry the camera's frame index (``frame``): the

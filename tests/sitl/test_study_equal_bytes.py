@@ -44,7 +44,8 @@ def test_rows_compare_knapsack_at_the_optimums_bytes_and_say_na_past_max_states(
     xs, ys = zip(*curve, strict=True)
     if xs[0] <= row["optimum_bytes"] <= xs[-1]:
         expected = float(np.interp(row["optimum_bytes"], xs, ys)) - row["optimum_pct"]
-        assert row["delta_knapsack_optimum"] == pytest.approx(expected)
+        # the curve column carries utilities to 4 decimals: the interpolation agrees to that
+        assert row["delta_knapsack_optimum"] == pytest.approx(expected, abs=1e-4)
     (tiny,) = eb.rows_for("uniform", 1, t_end=6.0, mcts="mcts30", budgets=(2.5,),
                           optimum=True, max_states=1)
     assert tiny["optimum_bytes"] == -1 and np.isnan(tiny["optimum_pct"])
