@@ -14,8 +14,11 @@ window and less), the exact offline optimum held to b (``drop_rate.offline_optim
 every message known in advance, no window over b) and compares knapsack with it at the
 optimum's bytes. That answers whether the equal-bytes cell can be won at all by a policy
 that keeps the budget: if the optimum loses it too, no policy held to b wins it.
-Writes ``equal_bytes.csv``, ``equal_bytes.md`` and ``equal_bytes.png`` (utility against
-delivered bytes).
+Each Δ is also split at the end of the first window T: what was won or lost at the mission
+start, when no agent has heard the others, and what after it (round 15: uniform 9.25
+msgs/T is lost only at the start, where knapsack's higher budget lets it send more first
+messages than MCTS's budget allows). Writes ``equal_bytes.csv``, ``equal_bytes.md`` and
+``equal_bytes.png`` (utility against delivered bytes).
 """
 
 from __future__ import annotations
@@ -31,9 +34,10 @@ import numpy as np
 
 from companion.middleware.errors import MiddlewareError
 from companion.middleware.incremental import window_violations
-from sitl.netsim import simulate
+from sitl.netsim import ideal_copies, simulate
 from sitl.study import baselines as bl
 from sitl.study import drop_rate as dr
+from utility_specs.evaluate import evaluate
 
 __all__ = ["main", "rows_for", "run"]
 
@@ -55,7 +59,12 @@ def run(scenario: str, policy: str, budget: float, *, seed: int, t_end: float
     spec, agents = dr.make_agents(scenario, make, seed=seed)
     result = simulate(agents, channel=dr.CHANNEL, t_end=t_end,
                       rng=np.random.default_rng([seed, 3]))
+    ideal = evaluate(ideal_copies(result.generated), spec, t_end=t_end).total
+    got = [m for m in result.generated if m.t_rcv is not None]
+    start = min(window_s, t_end)
+    first = evaluate(got, spec, t_end=start).total
     return {"utility_pct": dr.utility_pct(spec, result.generated, t_end),
+            "first_window_pct": 100.0 * first / ideal if ideal > 0 else 0.0,
             "delivered_bytes": sum(m.size for m in result.delivered),
             "sends": [(m.t_sent, m.size) for m in result.sent if m.t_sent is not None]}
 
@@ -89,6 +98,7 @@ def rows_for(scenario: str, seed: int, *, t_end: float, mcts: str = "mcts300",
     curve = sorted((r["delivered_bytes"], r["utility_pct"], b) for b, r in ks.items())
     utility = [(c[0], c[1]) for c in curve]
     budget_for = [(c[0], c[2]) for c in curve]
+    first = sorted((r["delivered_bytes"], r["first_window_pct"]) for r in ks.values())
     rows = []
     for b, r in ours.items():
         target = r["delivered_bytes"]
@@ -98,6 +108,7 @@ def rows_for(scenario: str, seed: int, *, t_end: float, mcts: str = "mcts300",
             "mcts_windows_over_b": window_violations(r["sends"], window_s=dr.WINDOW_S,
                                                      budget_bytes=dr.budget_bytes(b)),
             "knapsack_budget": float("nan"), "delta_knapsack": float("nan"),
+            "delta_knapsack_first_window": float("nan"),
             "knapsack_windows_over_b": -1,
             "knapsack_curve": ";".join(f"{c[0]}:{c[1]:.4f}" for c in curve),
         }
@@ -105,6 +116,9 @@ def rows_for(scenario: str, seed: int, *, t_end: float, mcts: str = "mcts300",
         if theirs is not None:
             row["knapsack_budget"] = bl.at_bytes(budget_for, target)
             row["delta_knapsack"] = theirs - r["utility_pct"]
+            theirs_first = bl.at_bytes(first, target)
+            assert theirs_first is not None  # the same bytes as ``utility``'s
+            row["delta_knapsack_first_window"] = theirs_first - r["first_window_pct"]
             at = next(c[2] for c in curve if c[0] >= target)
             row["knapsack_windows_over_b"] = window_violations(
                 ks[at]["sends"], window_s=dr.WINDOW_S, budget_bytes=dr.budget_bytes(b))
@@ -126,9 +140,10 @@ def _per_seed(values: Sequence[float], fmt: str) -> str:
 def table(rows: Sequence[dict[str, Any]]) -> str:
     optimum = any("optimum_pct" in r for r in rows)
     head = ("| scenario | budget b (msgs/T) | mcts % | Δ knapsack at equal bytes (mean, per seed) "
+            "| of it in the first window T / after it (mean) "
             "| knapsack budget for those bytes (msgs/T) | knapsack windows over b (per seed) "
             "| mcts windows over b (per seed) |")
-    rule = "|---|---|---|---|---|---|---|"
+    rule = "|---|---|---|---|---|---|---|---|"
     if optimum:
         head += (" optimum held to b % (mean, per seed) | optimum bytes / mcts bytes "
                  "| Δ knapsack at the optimum's bytes (mean, per seed) |")
@@ -141,13 +156,16 @@ def table(rows: Sequence[dict[str, Any]]) -> str:
                     key=lambda r: r["seed"])
         deltas = [r["delta_knapsack"] for r in rs]
         shown = "n/a" if any(np.isnan(deltas)) else _per_seed(deltas, "+.1f")
+        firsts = [r["delta_knapsack_first_window"] for r in rs]
+        split = "n/a" if any(np.isnan(deltas)) else \
+            f"{np.mean(firsts):+.1f} / {np.mean(deltas) - np.mean(firsts):+.1f}"
         budgets = ", ".join("n/a" if np.isnan(r["knapsack_budget"]) else
                             f"{r['knapsack_budget']:.1f}" for r in rs)
         over = ", ".join("n/a" if r["knapsack_windows_over_b"] < 0 else
                          str(r["knapsack_windows_over_b"]) for r in rs)
         mine = ", ".join(str(r["mcts_windows_over_b"]) for r in rs)
         mean = np.mean([r["mcts_pct"] for r in rs])
-        line = f"| {sc} | {b:g} | {mean:.1f} | {shown} | {budgets} | {over} | {mine} |"
+        line = f"| {sc} | {b:g} | {mean:.1f} | {shown} | {split} | {budgets} | {over} | {mine} |"
         if optimum:
             ratios = [r["optimum_bytes"] / r["mcts_bytes"] for r in rs if r["optimum_bytes"] >= 0]
             ratio = f"{np.mean(ratios):.2f}" if ratios else "n/a"

@@ -50,7 +50,7 @@ def test_rows_compare_knapsack_at_the_optimums_bytes_and_say_na_past_max_states(
                           optimum=True, max_states=1)
     assert tiny["optimum_bytes"] == -1 and np.isnan(tiny["optimum_pct"])
     text = eb.table([row])
-    assert "optimum held to b" in text and "n/a" not in text.splitlines()[-1].split("|")[8]
+    assert "optimum held to b" in text and "n/a" not in text.splitlines()[-1].split("|")[9]
     assert eb.table([tiny]).splitlines()[-1].count("n/a") >= 2
     eb.plot(rows, tmp_path / "equal_bytes.png")
     assert (tmp_path / "equal_bytes.png").stat().st_size > 10_000
@@ -63,3 +63,28 @@ def test_bad_budgets_are_a_one_line_usage_error(tmp_path: Path) -> None:
     assert done.returncode == 2
     assert "Traceback" not in done.stderr
     assert "--budgets: numbers separated by commas expected" in done.stderr.splitlines()[-1]
+
+
+def test_the_first_window_share_and_the_rest_add_up_to_the_mission() -> None:
+    """Round 15: each Δ is split at the end of the first window T, so a row says whether
+    a cell is lost at the mission start or after it; the two parts are the whole utility."""
+    r = eb.run("uniform", "knapsack", 9.25, seed=1, t_end=6.0)
+    assert 0 < r["first_window_pct"] < r["utility_pct"]
+    (row,) = eb.rows_for("uniform", 1, t_end=6.0, mcts="mcts30", budgets=(9.25,))
+    assert np.isfinite(row["delta_knapsack"]) and np.isfinite(row["delta_knapsack_first_window"])
+    line = eb.table([row]).splitlines()[-1].split("|")
+    first, after = (float(x) for x in line[5].split("/"))
+    assert first + after == pytest.approx(row["delta_knapsack"], abs=0.11)
+
+
+def test_the_first_window_is_evaluated_from_the_missions_start() -> None:
+    from sitl.netsim import ideal_copies, simulate
+    from utility_specs.evaluate import evaluate
+
+    spec, agents = dr.make_agents("uniform", dr.policy_factory("knapsack", 9.25, seed=1), seed=1)
+    result = simulate(agents, channel=dr.CHANNEL, t_end=6.0, rng=np.random.default_rng([1, 3]))
+    got = [m for m in result.generated if m.t_rcv is not None]
+    ideal = evaluate(ideal_copies(result.generated), spec, t_end=6.0).total
+    after = 100 * evaluate(got, spec, t_start=dr.WINDOW_S, t_end=6.0).total / ideal
+    r = eb.run("uniform", "knapsack", 9.25, seed=1, t_end=6.0)
+    assert r["first_window_pct"] + after == pytest.approx(r["utility_pct"])
