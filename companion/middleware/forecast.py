@@ -155,6 +155,15 @@ class StreamForecaster:
         history = sorted(w for w, _ in worths)[(len(worths) - 1) // 2]
         return sum(recent) / len(recent) / history if history > 0 else None
 
+    def type_period(self, type_name: str) -> float | None:
+        """The period a stream of ``type_name`` is expected to have before it shows its own:
+        the median of the known streams of the type, else the declared one, else None."""
+        known = sorted(p for key in self._streams if key[1] == type_name
+                       if (p := self.period(key)) is not None)
+        if known:
+            return known[len(known) // 2]
+        return self.declared.get(type_name)
+
     def period(self, key: StreamKeyT) -> float | None:
         """Estimated period in seconds, ``None`` before two observations."""
         stream = self._streams.get(key)

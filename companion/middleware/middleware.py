@@ -536,13 +536,9 @@ class Middleware:
             forecaster = self.knowledge.forecaster
 
             def period_of(type_name: str) -> float:
-                known = [p for key in forecaster.streams() if key[1] == type_name
-                         if (p := forecaster.period(key)) is not None]
-                if known:
-                    return sorted(known)[len(known) // 2]
-                declared = self.spec.types[type_name].period_s
-                if declared is not None:
-                    return declared
+                typed = forecaster.type_period(type_name)
+                if typed is not None:
+                    return typed
                 return window_s if period is None else period
 
             extra = self.unheard.roster_items(

@@ -174,9 +174,17 @@ class Run:
 
 
 def utility_pct(spec: MissionSpec, generated: Sequence[Message], t_end: float) -> float:
-    got = evaluate([m for m in generated if m.t_rcv is not None], spec, t_end=t_end).total
+    return utility_pcts(spec, generated, t_end, ends=(t_end,))[0]
+
+
+def utility_pcts(spec: MissionSpec, generated: Sequence[Message], t_end: float, *,
+                 ends: Sequence[float]) -> list[float]:
+    """The utility received over [0, e] for each e of ``ends``, in % of the whole mission's
+    ideal (every message delivered at once): what each part of a mission contributes."""
+    got = [m for m in generated if m.t_rcv is not None]
     ideal = evaluate(ideal_copies(generated), spec, t_end=t_end).total
-    return 100.0 * got / ideal if ideal > 0 else 100.0
+    return [100.0 * evaluate(got, spec, t_end=e).total / ideal if ideal > 0 else 100.0
+            for e in ends]
 
 
 def run_mission(

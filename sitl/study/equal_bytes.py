@@ -34,10 +34,9 @@ import numpy as np
 
 from companion.middleware.errors import MiddlewareError
 from companion.middleware.incremental import window_violations
-from sitl.netsim import ideal_copies, simulate
+from sitl.netsim import simulate
 from sitl.study import baselines as bl
 from sitl.study import drop_rate as dr
-from utility_specs.evaluate import evaluate
 
 __all__ = ["main", "rows_for", "run"]
 
@@ -59,12 +58,9 @@ def run(scenario: str, policy: str, budget: float, *, seed: int, t_end: float
     spec, agents = dr.make_agents(scenario, make, seed=seed)
     result = simulate(agents, channel=dr.CHANNEL, t_end=t_end,
                       rng=np.random.default_rng([seed, 3]))
-    ideal = evaluate(ideal_copies(result.generated), spec, t_end=t_end).total
-    got = [m for m in result.generated if m.t_rcv is not None]
-    start = min(window_s, t_end)
-    first = evaluate(got, spec, t_end=start).total
-    return {"utility_pct": dr.utility_pct(spec, result.generated, t_end),
-            "first_window_pct": 100.0 * first / ideal if ideal > 0 else 0.0,
+    total, first = dr.utility_pcts(spec, result.generated, t_end,
+                                   ends=(t_end, min(window_s, t_end)))
+    return {"utility_pct": total, "first_window_pct": first,
             "delivered_bytes": sum(m.size for m in result.delivered),
             "sends": [(m.t_sent, m.size) for m in result.sent if m.t_sent is not None]}
 

@@ -22,7 +22,7 @@ from tests.processes import assert_one_line_error
 from utility_specs.errors import SpecError
 from utility_specs.files import builtin_spec
 from utility_specs.message import Message
-from utility_specs.spec import parse_spec
+from utility_specs.spec import MissionSpec, parse_spec
 
 TEN = {f"agent{i}": (f"battery_{i}",) for i in range(10)}
 
@@ -31,6 +31,11 @@ def _unheard(mw: Middleware) -> set[tuple[str, str]]:
     assert mw.last_problem is not None
     return {(it.message.sender, it.message.type) for it in mw.last_problem.items
             if it.message.sender.startswith(UNHEARD_PREFIX)}
+
+
+def _unheard_times(mw: Middleware, sender: str) -> list[float]:
+    assert mw.last_problem is not None
+    return sorted(it.send_t for it in mw.last_problem.items if it.message.sender == sender)
 
 
 def test_a_roster_plans_exactly_its_unheard_streams() -> None:
@@ -62,11 +67,9 @@ def test_the_unheard_planning_ends_after_plan_unheard_s() -> None:
     assert _unheard(mw) == set()
 
 
-def test_streams_of_the_same_type_are_heard_per_agent() -> None:
-    """Every drone of the product flies the same types: hearing uav1's frames says nothing
-    about uav2's, which stay planned for (at the period of the known image stream)."""
-    spec = builtin_spec("image_streaming")
-    roster = {f"uav{i}": ("image", "position", "battery") for i in range(3)}
+def _uav0_hearing_uav1s_frames(spec: MissionSpec, roster: dict[str, tuple[str, ...]]
+                               ) -> Middleware:
+    """uav0 decides three frames of its own while it hears three of uav1's, 0.2 s apart."""
     mw = Middleware(MiddlewareConfig(spec=spec, agent="uav0", max_iterations=100, horizon_s=3.0,
                                      roster=roster),
                     constraint=ConstantConstraint(limit_bytes_per_s=50_000, window_s=2.5))
@@ -78,12 +81,19 @@ def test_streams_of_the_same_type_are_heard_per_agent() -> None:
                                                                  t_rcv=t + 0.1)], t + 0.1)
         mw.decide(Message(sender="uav0", seq=k, type="image", t_gen=t + 0.05, size=10_000,
                           data=frame), t + 0.15)
+    return mw
+
+
+def test_streams_of_the_same_type_are_heard_per_agent() -> None:
+    """Every drone of the product flies the same types: hearing uav1's frames says nothing
+    about uav2's, which stay planned for (at the period of the known image stream)."""
+    spec = builtin_spec("image_streaming")
+    roster = {f"uav{i}": ("image", "position", "battery") for i in range(3)}
+    mw = _uav0_hearing_uav1s_frames(spec, roster)
     unheard = _unheard(mw)
     assert ("?uav2", "image") in unheard and ("?uav1", "image") not in unheard
     assert ("?uav1", "position") not in unheard  # no position known: no data to plan with
-    assert mw.last_problem is not None
-    times = sorted(it.send_t for it in mw.last_problem.items
-                   if (it.message.sender, it.message.type) == ("?uav2", "image"))
+    times = _unheard_times(mw, "?uav2")
     assert times[1] - times[0] == pytest.approx(0.2)
 
 
@@ -195,11 +205,6 @@ def test_a_bad_roster_in_a_spec_file_is_one_line_from_the_cli(tmp_path: Path) ->
     assert_one_line_error(result, 2, "mission.roster.uav0: expected types of this spec")
 
 
-def _unheard_times(mw: Middleware, sender: str) -> list[float]:
-    assert mw.last_problem is not None
-    return sorted(it.send_t for it in mw.last_problem.items if it.message.sender == sender)
-
-
 def test_an_unheard_stream_repeats_at_its_types_declared_period() -> None:
     """Round 15: at the mission's first message no period is known. With each type's
     nominal period declared (1 s, the fig. 5.7 agents' rate), agent9's unheard stream is
@@ -223,17 +228,7 @@ def test_a_known_stream_of_the_type_outranks_the_declared_period() -> None:
     image = dataclasses.replace(base.types["image"], period_s=1.0)
     spec = dataclasses.replace(base, types={**base.types, "image": image})
     roster = {f"uav{i}": ("image",) for i in range(3)}
-    mw = Middleware(MiddlewareConfig(spec=spec, agent="uav0", max_iterations=100, horizon_s=3.0,
-                                     roster=roster),
-                    constraint=ConstantConstraint(limit_bytes_per_s=50_000, window_s=2.5))
-    frame = {"red": 0.1, "object": False}
-    for k in range(3):
-        t = 0.2 * k
-        mw.on_delivered([Message(sender="uav1", seq=k, type="image", t_gen=t, size=10_000,
-                                 data=frame, t_sent=t).delivered(receiver="ground",
-                                                                 t_rcv=t + 0.1)], t + 0.1)
-        mw.decide(Message(sender="uav0", seq=k, type="image", t_gen=t + 0.05, size=10_000,
-                          data=frame), t + 0.15)
+    mw = _uav0_hearing_uav1s_frames(spec, roster)
     times = _unheard_times(mw, "?uav2")
     assert len(times) > 3 and np.diff(times) == pytest.approx(0.2)
 
