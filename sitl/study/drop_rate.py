@@ -116,8 +116,7 @@ def make_agents(
     n_agents: int = 10,
     roster: bool = False,
 ) -> tuple[MissionSpec, list[SimAgent]]:
-    """The scenario's agents, one stream each; with ``roster`` the mission declares which
-    agent sends which type (``MissionSpec.roster``, read by MCTS only: issue 18, round 9)."""
+    """One stream per agent; ``roster``: the spec names who sends what (MCTS reads it)."""
     spec = builtin_spec(SCENARIOS[scenario])
     rng = np.random.default_rng([seed, 7])
     streams = _scenario_streams(scenario, n_agents, rng)
@@ -179,8 +178,7 @@ def utility_pct(spec: MissionSpec, generated: Sequence[Message], t_end: float) -
 
 def utility_pcts(spec: MissionSpec, generated: Sequence[Message], t_end: float, *,
                  ends: Sequence[float]) -> list[float]:
-    """The utility received over [0, e] for each e of ``ends``, in % of the whole mission's
-    ideal (every message delivered at once): what each part of a mission contributes."""
+    """The utility received over [0, e] per e of ``ends``, in % of the whole mission's ideal."""
     got = [m for m in generated if m.t_rcv is not None]
     ideal = evaluate(ideal_copies(generated), spec, t_end=t_end).total
     return [100.0 * evaluate(got, spec, t_end=e).total / ideal if ideal > 0 else 100.0
