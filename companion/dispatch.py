@@ -173,6 +173,9 @@ class Dispatcher:
                                                       message, now)
         except TimeoutError:
             self.counters["decide_timeouts"] += 1
+            if message.type in HEARTBEAT_TYPES:  # it always goes: the station's silence is loss
+                return self._send(message, None, {"send": True, "version": None,
+                                                  "reason": "status-heartbeat (decision timeout)"})
             self._log.write_message(message, sent=False, decision={
                 "send": False, "reason": "decision timeout"})
             return False

@@ -263,6 +263,11 @@ async def test_slow_decisions_are_bounded_and_counted(
         await asyncio.wait_for(task, 10)
     records = [json.loads(x) for x in (tmp_path / "mission.jsonl").read_text().splitlines()]
     assert any(r.get("decision", {}).get("reason") == "decision timeout" for r in records)
+    # the status heartbeat still goes out when its decision times out (make demo, a host
+    # stall of over 300 ms: three drones timed out on one decision at once, two on a status)
+    status = [r for r in records if r.get("type") == "status"]
+    assert status and all(r["t_sent"] is not None for r in status)
+    assert any(r["decision"]["reason"] == "status-heartbeat (decision timeout)" for r in status)
 
 
 async def test_reports_go_to_the_decider(vehicle: FakeVehicle, tmp_path: Path) -> None:
