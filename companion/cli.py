@@ -137,6 +137,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     return _install(args)
 
 
+def freeze_startup_heap() -> None:
+    """What is alive once the optimiser is warm (the libraries, the compiled search) lives as
+    long as the process: collected once and frozen out of the collector's reach, every later
+    full collection scans only the mission's objects. Measured after the shipped
+    ``examples/companion.toml``'s warm-up: 192 k objects, a full collection 143 ms (three
+    times the 50 ms decision budget, if it lands in a decision), then 0.01 ms. Runs in the
+    decider's thread, where the warm-up already held the interpreter."""
+    import gc
+
+    gc.collect()
+    gc.freeze()
+
+
 def _load(path: str) -> Any:
     from companion.config import ConfigError, load_config
 
@@ -164,6 +177,7 @@ def _run(args: argparse.Namespace) -> int:
         except AppSetupError as exc:
             print(f"cannot start: {exc}", file=sys.stderr)
             return 2
+        app.dispatcher.after_warm_up = freeze_startup_heap
         stop_signals.attach(asyncio.get_running_loop(), app.stop)
         await app.run()
         return 0

@@ -69,6 +69,9 @@ class Dispatcher:
         self._warming = False
         """The optimiser's warm-up (numba compilation: up to seconds on a cold cache) runs:
         only the status heartbeat goes out, so the station does not see the drone vanish."""
+        self.after_warm_up: Callable[[], None] | None = None
+        """Run in the decider's thread once its warm-up succeeded (the console script's:
+        :func:`companion.cli.freeze_startup_heap`)."""
         self.optimiser_ready = False
         """The warm-up is over (or the decider has none): the statuses say so, and the fleet
         launcher starts the mission only once every drone's optimiser is ready."""
@@ -113,7 +116,14 @@ class Dispatcher:
             return
         loop = asyncio.get_running_loop()
         t0 = loop.time()
-        work = loop.run_in_executor(self._pool, warm_up)
+        after = self.after_warm_up
+
+        def job() -> None:
+            warm_up()
+            if after is not None:
+                after()
+
+        work: asyncio.Future[Any] = loop.run_in_executor(self._pool, job)
         stop_wait = asyncio.ensure_future(stopping.wait())
         self._warming = True
         try:

@@ -64,3 +64,52 @@ async def test_statuses_go_out_while_the_optimiser_warms_up() -> None:
         decider.release.set()
         stopping.set()
         dispatcher.close()
+
+
+class FailsToWarm(SlowToWarm):
+    def warm_up(self) -> None:
+        raise RuntimeError("no compiler")
+
+
+async def _warm(decider: SlowToWarm, after: list[str]) -> Dispatcher:
+    config = parse_config({"drone": {"id": "d1"}})
+    dispatcher = Dispatcher(config, decider=decider, clock=time.time,  # type: ignore[arg-type]
+                            send_message=lambda m, p, t: 1, mission_log=MissionLogWriter(None),
+                            mission=MissionWindow("running"),
+                            counters=dict.fromkeys(COUNTERS, 0))
+    dispatcher.after_warm_up = lambda: after.append(threading.current_thread().name)
+    stopping = asyncio.Event()
+    dispatcher.bind(stopping)
+    decider.release.set()
+    try:
+        await asyncio.wait_for(dispatcher.warm_up(), 5.0)
+    finally:
+        stopping.set()
+        dispatcher.close()
+    return dispatcher
+
+
+async def test_the_after_warm_up_hook_runs_once_in_the_deciders_thread() -> None:
+    after: list[str] = []
+    dispatcher = await _warm(SlowToWarm(), after)
+    assert dispatcher.optimiser_ready
+    assert len(after) == 1 and after[0] != threading.main_thread().name
+
+
+async def test_a_failed_warm_up_skips_the_hook() -> None:
+    after: list[str] = []
+    dispatcher = await _warm(FailsToWarm(), after)
+    assert dispatcher.optimiser_ready and after == []
+
+
+def test_the_console_script_freezes_the_startup_heap_out_of_the_collectors_reach() -> None:
+    import gc
+
+    from companion.cli import freeze_startup_heap
+
+    before = gc.get_freeze_count()
+    try:
+        freeze_startup_heap()
+        assert gc.get_freeze_count() > before
+    finally:
+        gc.unfreeze()  # the test process collects as before
