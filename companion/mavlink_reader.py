@@ -39,7 +39,7 @@ from companion.mavlink_convert import (
     MavlinkConverter,
 )
 from companion.mavlink_hint import sharing_hint, silence_hint
-from companion.mavlink_watch import StreamWatch
+from companion.mavlink_watch import StreamWatch, stalled_s
 from companion.telemetry import (
     CommandAckSample,
     HeartbeatSample,
@@ -90,6 +90,7 @@ class MavlinkReader:
         self.counters: dict[str, int] = {
             "connects": 0, "connect_errors": 0, "heartbeat_losses": 0, "messages": 0,
             "samples": 0, "bad_messages": 0, "stream_requests": 0, "stream_fallbacks": 0,
+            "stalls": 0,
         }
         self._reset_link_state()
 
@@ -120,6 +121,7 @@ class MavlinkReader:
         self._connected = False
         self._t_opened = 0.0
         self._t_last_heartbeat: float | None = None
+        self._t_last_look: float | None = None
         self._t_next_heartbeat = 0.0
         self._stream_deadline: float | None = None
         self._stream_acks = 0
@@ -167,7 +169,7 @@ class MavlinkReader:
             return None
         self.last_error = None
         self.counters["connects"] += 1
-        self._t_opened = self._clock()
+        self._t_opened = self._t_last_look = self._clock()
         self._t_next_heartbeat = 0.0
         if self._silent:  # said once at INFO when the waiting began (_lose)
             log.debug("mavlink connection reopened: %s (no HEARTBEAT yet)", self.settings.url)
@@ -197,6 +199,7 @@ class MavlinkReader:
             log.warning("mavlink receive failed: %s%s", exc, f" ({shared})" if shared else "")
             return self._lose(conn, f"receive failed: {exc}")
         now = self._clock()
+        self._forgive_stall(now)
         try:
             if msg is not None:
                 self._handle(conn, msg, now)  # may answer (stream requests)
@@ -245,6 +248,26 @@ class MavlinkReader:
     def _emit(self, sample: Sample) -> None:
         self.counters["samples"] += 1
         self._post(sample)
+
+    def _forgive_stall(self, now: float) -> None:
+        """Time the reader did not run is not the link's silence (docs/companion.md): the
+        link's clocks move on by it; the HEARTBEATs of that time wait in the buffer."""
+        unseen = stalled_s(self._t_last_look, now, self.settings.recv_timeout_s)
+        self._t_last_look = now
+        if not unseen:
+            return
+        self.counters["stalls"] += 1
+        log.warning("mavlink: the reader did not run for %.1f s (this computer was busy or "
+                    "suspended): not counted as the link's silence", unseen)
+        self._t_opened += unseen
+        if self._t_last_heartbeat is not None:
+            self._t_last_heartbeat += unseen
+        if self._watch.t_last_stream is not None:
+            self._watch.t_last_stream += unseen
+        if self._stream_deadline is not None:
+            self._stream_deadline += unseen
+        for pending in self._pending:
+            pending.deadline += unseen
 
     def _check_timers(self, conn: Any, now: float) -> Any:
         timeout = self.settings.heartbeat_timeout_s

@@ -25,11 +25,16 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["BOOT_CLOCK_MESSAGES", "REBOOT_TOLERANCE_MS", "StreamWatch"]
+__all__ = ["BOOT_CLOCK_MESSAGES", "REBOOT_TOLERANCE_MS", "STALL_SLACK_S", "StreamWatch",
+           "stalled_s"]
 
 REBOOT_TOLERANCE_MS = 1000
 """``time_boot_ms`` may step back this much without meaning a reboot (messages of one
 autopilot share its clock; a little slack for one stamped before another was sent)."""
+
+STALL_SLACK_S = 1.0
+"""A receive round may take pymavlink's wait (up to 1.5 times the receive timeout) and this
+much more; a longer gap between two receives is time the reader did not run."""
 
 BOOT_CLOCK_MESSAGES = frozenset({"SYSTEM_TIME", "ATTITUDE", "GLOBAL_POSITION_INT"})
 """Whose ``time_boot_ms`` is read: ones the companion asks for and both stacks stamp with
@@ -76,3 +81,15 @@ class StreamWatch:
         """True when wanted streams were asked for and none arrived for ``silence_s``."""
         return (bool(self.wanted) and self.t_last_stream is not None
                 and now - self.t_last_stream > self.silence_s)
+
+
+def stalled_s(last_look: float | None, now: float, recv_timeout_s: float) -> float:
+    """How long the reader did not look between its receives at ``last_look`` and ``now``
+    (its machine stalled: swap, an SD card's write, a paused VM), 0.0 when it ran. None of
+    that time is the link's silence (the last HEARTBEAT may be a timeout old by the time
+    the buffer is read): a first message read after it, not a HEARTBEAT, made it "no
+    HEARTBEAT for 9.8 s" against a 3 s timeout with the HEARTBEATs waiting in the buffer."""
+    if last_look is None:
+        return 0.0
+    gap = now - last_look
+    return gap if gap - 1.5 * recv_timeout_s > STALL_SLACK_S else 0.0

@@ -290,3 +290,28 @@ def test_run_logs_who_takes_the_autopilots_datagrams(
         assert f"another program also listens on 127.0.0.1:{port}" in caplog.text, caplog.text
     else:
         assert f"nothing sent MAVLink to 127.0.0.1:{port}" in caplog.text, caplog.text
+
+
+def test_time_the_reader_did_not_run_is_not_the_links_silence(
+        vehicle: FakeVehicle, recorder: Recorder, started: list[MavlinkReader]) -> None:
+    """Between two receives the reader's clock jumps 5 s (its machine stalled) while the
+    HEARTBEATs sit in the socket: no link loss, the same connection, and commands answered
+    on it after each stall."""
+    jump = [0.0]
+    settings = MavlinkSettings(url=f"udpout:127.0.0.1:{vehicle.port}", heartbeat_timeout_s=1.0,
+                               reconnect_delay_s=0.1, recv_timeout_s=0.1,
+                               stream_ack_timeout_s=0.5)
+    reader = MavlinkReader(settings, clock=lambda: time.time() + jump[0], post=recorder.post)
+    started.append(reader)
+    reader.start()
+    assert recorder.wait(lambda: recorder.state.snapshot().lat_deg is not None)
+    jump[0] = 5.0
+    assert recorder.wait(lambda: reader.counters["stalls"] == 1, 2)
+    assert reader.submit(SetModeCommand(mode="GUIDED", timeout_s=2.0)).result(5) == "GUIDED"
+    jump[0] = 10.0
+    assert recorder.wait(lambda: reader.counters["stalls"] == 2, 2)
+    assert reader.submit(SetModeCommand(mode="LOITER", timeout_s=2.0)).result(5) == "LOITER"
+    time.sleep(1.5)
+    assert reader.counters["stalls"] == 2
+    assert reader.counters["heartbeat_losses"] == 0 and reader.counters["connects"] == 1
+    assert recorder.state.snapshot().connected

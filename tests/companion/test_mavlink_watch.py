@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import os
 
+import pytest
+
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as m
 
-from companion.mavlink_watch import StreamWatch
+from companion.mavlink_watch import StreamWatch, stalled_s
 
 
 def _attitude(boot_ms: int) -> m.MAVLink_attitude_message:
@@ -51,3 +53,13 @@ def test_nothing_wanted_is_never_silent() -> None:
     watch = StreamWatch(silence_s=3.0)
     watch.asked(["HIGHRES_IMU"], [0.0], 0.0)
     assert not watch.silent(1e6)
+
+
+def test_a_gap_between_receives_beyond_the_wait_is_a_stall() -> None:
+    # pymavlink waits up to 1.5 x the receive timeout (0.5 s: 0.75 s), then 1 s of slack
+    assert stalled_s(None, 100.0, 0.5) == 0.0  # nothing received yet
+    assert stalled_s(100.0, 100.75, 0.5) == 0.0
+    assert stalled_s(100.0, 101.75, 0.5) == 0.0  # slack: a slow round, not a stall
+    assert stalled_s(100.0, 101.76, 0.5) == pytest.approx(1.76)
+    assert stalled_s(100.0, 109.75, 0.5) == pytest.approx(9.75)  # the whole gap
+    assert stalled_s(100.0, 99.0, 0.5) == 0.0  # the clock stepped back

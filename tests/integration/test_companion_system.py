@@ -15,8 +15,10 @@ sends receiver reports back, like the ground station does.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -242,6 +244,42 @@ async def test_companion_streams_and_survives_vehicle_loss(
     decided = [r for r in records if "decision" in r]
     assert {r["type"] for r in decided} >= {"image", "position", "battery", "status"}
     assert all(r["decision"]["reason"] for r in decided)
+
+
+@pytest.mark.timeout(90)
+async def test_a_stalled_companion_does_not_call_the_link_lost(
+        receiver: tuple[Receiver, int], vehicle_proc: VehicleProcess, tmp_path: Path) -> None:
+    """The companion's process stops for 4 s (SIGSTOP: what swap, an SD card's write or a
+    paused VM do to it) while the vehicle goes on: the HEARTBEATs wait in the socket, and the
+    link is not lost, closed or shown lost (a 3 s timeout found "no HEARTBEAT for 9.8 s" on
+    a pty line in make test, and dropped it)."""
+    rx, gs_port = receiver
+    config = _write_config(
+        tmp_path / "d1.toml", drone="d1", vehicle_port=vehicle_proc.port, gs_port=gs_port,
+        frames=_frames(tmp_path / "plain", red=False, n=2), rate_hz=1.0,
+        constraint='[constraint]\nname = "constant"\nparams = { limit_bytes_per_s = 200000.0 }')
+    proc = start_companion(config, json_logs=True)
+    mission_log = tmp_path / "d1.jsonl"
+    try:
+        await until(lambda: rx.of("d1", "position"), 40, proc)
+        t_stop = time.time()
+        proc.send_signal(signal.SIGSTOP)
+        await asyncio.sleep(4.0)  # the heartbeat timeout is 1.5 s
+        proc.send_signal(signal.SIGCONT)
+        seen = len(rx.of("d1", "position"))
+        await until(lambda: len(rx.of("d1", "position")) > seen + 2, 20, proc)
+        await asyncio.sleep(1.5)  # the mission log is flushed every 1 s
+        assert proc.poll() is None
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            proc.send_signal(signal.SIGCONT)
+        code, err = stop_companion(proc)
+    assert code == 0, err[-3000:]
+    logs = [json.loads(line) for line in err.splitlines() if line.startswith("{")]
+    assert not [r["msg"] for r in logs if "link lost" in r["msg"]], err[-3000:]
+    assert any("did not run for" in r["msg"] for r in logs), err[-3000:]
+    assert "lost" not in _link_states(mission_log, after=t_stop)
+    assert sum("mavlink connection opened" in r["msg"] for r in logs) == 1
 
 
 @pytest.mark.timeout(180)
