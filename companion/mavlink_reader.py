@@ -256,9 +256,12 @@ class MavlinkReader:
         self._t_last_look = now
         if not unseen:
             return
-        self.counters["stalls"] += 1
-        log.warning("mavlink: the reader did not run for %.1f s (this computer was busy or "
-                    "suspended): not counted as the link's silence", unseen)
+        if unseen > 0:
+            self.counters["stalls"] += 1
+            log.warning("mavlink: the reader did not run for %.1f s (this computer was busy or "
+                        "suspended, or its clock was set): not the link's silence", unseen)
+        else:
+            log.warning("mavlink: the clock went back %.1f s: the link's timers too", -unseen)
         self._t_opened += unseen
         if self._t_last_heartbeat is not None:
             self._t_last_heartbeat += unseen

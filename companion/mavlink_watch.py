@@ -85,11 +85,13 @@ class StreamWatch:
 
 def stalled_s(last_look: float | None, now: float, recv_timeout_s: float) -> float:
     """How long the reader did not look between its receives at ``last_look`` and ``now``
-    (its machine stalled: swap, an SD card's write, a paused VM), 0.0 when it ran. None of
-    that time is the link's silence (the last HEARTBEAT may be a timeout old by the time
-    the buffer is read): a first message read after it, not a HEARTBEAT, made it "no
-    HEARTBEAT for 9.8 s" against a 3 s timeout with the HEARTBEATs waiting in the buffer."""
+    (its machine stalled: swap, an SD card's write, a paused VM; or the clock stepped
+    forward), 0.0 when it ran; negative when the clock stepped back. The link's timers move
+    by it: none of that time is the link's silence (a first message read after a stall, not
+    a HEARTBEAT, made it "no HEARTBEAT for 9.8 s" against a 3 s timeout with the HEARTBEATs
+    waiting in the buffer), and a clock set back an hour (a Pi without a real-time clock
+    syncing) must not hide a lost link for that hour."""
     if last_look is None:
         return 0.0
     gap = now - last_look
-    return gap if gap - 1.5 * recv_timeout_s > STALL_SLACK_S else 0.0
+    return gap if gap < 0 or gap - 1.5 * recv_timeout_s > STALL_SLACK_S else 0.0

@@ -315,3 +315,26 @@ def test_time_the_reader_did_not_run_is_not_the_links_silence(
     assert reader.counters["stalls"] == 2
     assert reader.counters["heartbeat_losses"] == 0 and reader.counters["connects"] == 1
     assert recorder.state.snapshot().connected
+
+
+def test_a_clock_set_back_does_not_hide_a_lost_link(recorder: Recorder,
+                                                    started: list[MavlinkReader]) -> None:
+    """The companion's clock is set back an hour (a Pi without a real-time clock taking the
+    time from NTP or GPS): the link stays up, and when the vehicle goes away it is lost
+    within the timeout, not an hour later."""
+    vehicle = FakeVehicle(autopilot="ardupilot").start()
+    jump = [0.0]
+    settings = MavlinkSettings(url=f"udpout:127.0.0.1:{vehicle.port}", heartbeat_timeout_s=1.0,
+                               reconnect_delay_s=0.1, recv_timeout_s=0.1,
+                               stream_ack_timeout_s=0.5)
+    reader = MavlinkReader(settings, clock=lambda: time.time() + jump[0], post=recorder.post)
+    started.append(reader)
+    reader.start()
+    assert recorder.wait(lambda: recorder.state.snapshot().lat_deg is not None)
+    jump[0] = -3600.0
+    time.sleep(1.5)
+    assert recorder.state.snapshot().connected and reader.counters["heartbeat_losses"] == 0
+    vehicle.stop()  # and the clock goes back again, before the timeout
+    jump[0] = -7200.0
+    assert recorder.wait(lambda: not recorder.state.snapshot().connected, 3)
+    assert reader.counters["heartbeat_losses"] == 1

@@ -62,4 +62,4 @@ def test_a_gap_between_receives_beyond_the_wait_is_a_stall() -> None:
     assert stalled_s(100.0, 101.75, 0.5) == 0.0  # slack: a slow round, not a stall
     assert stalled_s(100.0, 101.76, 0.5) == pytest.approx(1.76)
     assert stalled_s(100.0, 109.75, 0.5) == pytest.approx(9.75)  # the whole gap
-    assert stalled_s(100.0, 99.0, 0.5) == 0.0  # the clock stepped back
+    assert stalled_s(100.0, 99.0, 0.5) == -1.0  # the clock stepped back
