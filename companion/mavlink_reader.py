@@ -8,7 +8,7 @@ import contextlib
 import logging
 import queue
 import threading
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -39,7 +39,7 @@ from companion.mavlink_convert import (
     MavlinkConverter,
 )
 from companion.mavlink_hint import sharing_hint, silence_hint
-from companion.mavlink_watch import StreamWatch, stalled_s
+from companion.mavlink_watch import StreamWatch, stalled_s, streams_for
 from companion.telemetry import (
     CommandAckSample,
     HeartbeatSample,
@@ -122,6 +122,7 @@ class MavlinkReader:
         self._t_opened = 0.0
         self._t_last_heartbeat: float | None = None
         self._t_last_look: float | None = None
+        self._forgave = False
         self._t_next_heartbeat = 0.0
         self._stream_deadline: float | None = None
         self._stream_acks = 0
@@ -250,18 +251,20 @@ class MavlinkReader:
         self._post(sample)
 
     def _forgive_stall(self, now: float) -> None:
-        """Time the reader did not run is not the link's silence (docs/companion.md): the
-        link's clocks move on by it; the HEARTBEATs of that time wait in the buffer."""
+        """Time the reader did not run is not the link's silence (docs/companion.md); never
+        two rounds in a row, so a reader slow at every round cannot hide a dead link."""
         unseen = stalled_s(self._t_last_look, now, self.settings.recv_timeout_s)
         self._t_last_look = now
-        if not unseen:
+        if not unseen or (unseen > 0 and self._forgave):
+            self._forgave = False
             return
+        self._forgave = unseen > 0
         if unseen > 0:
             self.counters["stalls"] += 1
             log.warning("mavlink: the reader did not run for %.1f s (this computer was busy or "
                         "suspended, or its clock was set): not the link's silence", unseen)
-        else:
-            log.warning("mavlink: the clock went back %.1f s: the link's timers too", -unseen)
+        else:  # the link's timers follow the clock back
+            log.warning("mavlink: the clock went back %.1f s", -unseen)
         self._t_opened += unseen
         if self._t_last_heartbeat is not None:
             self._t_last_heartbeat += unseen
@@ -436,15 +439,3 @@ class MavlinkReader:
 
 
 _UNSET = object()
-
-FAMILY_ONLY_STREAMS = {"EKF_STATUS_REPORT": "ardupilot", "ESTIMATOR_STATUS": "px4"}
-"""Messages one autopilot family has and the other lacks. ArduCopter 4.5 answers a request
-for ESTIMATOR_STATUS DENIED with a STATUSTEXT ("No ap_message for mavlink id (230)") that
-would become the drone's latest status text on the dashboard at every connection."""
-
-
-def streams_for(autopilot: str | None, rates_hz: Mapping[str, float]) -> dict[str, float]:
-    """The streams worth asking ``autopilot`` for (an unknown family: all of them)."""
-    return {name: rate for name, rate in rates_hz.items()
-            if FAMILY_ONLY_STREAMS.get(name, autopilot) == autopilot
-            or autopilot not in ("ardupilot", "px4")}

@@ -16,17 +16,19 @@ The link-loss timeout alone misses two things a field operator meets:
   companion asks again; it never re-asks while they flow, so it does not fight a GCS over
   rates (one that slows a stream slows it; the companion only restarts a stopped link).
 
-Sans-I/O: the reader thread feeds it messages and the time.
+Also here: which streams to ask each autopilot family for (:func:`streams_for`), and how
+long the reader did not look at the link (:func:`stalled_s`). Sans-I/O: the reader
+thread feeds them messages and the time.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = ["BOOT_CLOCK_MESSAGES", "REBOOT_TOLERANCE_MS", "STALL_SLACK_S", "StreamWatch",
-           "stalled_s"]
+           "stalled_s", "streams_for"]
 
 REBOOT_TOLERANCE_MS = 1000
 """``time_boot_ms`` may step back this much without meaning a reboot (messages of one
@@ -95,3 +97,16 @@ def stalled_s(last_look: float | None, now: float, recv_timeout_s: float) -> flo
         return 0.0
     gap = now - last_look
     return gap if gap < 0 or gap - 1.5 * recv_timeout_s > STALL_SLACK_S else 0.0
+
+
+FAMILY_ONLY_STREAMS = {"EKF_STATUS_REPORT": "ardupilot", "ESTIMATOR_STATUS": "px4"}
+"""Messages one autopilot family has and the other lacks. ArduCopter 4.5 answers a request
+for ESTIMATOR_STATUS DENIED with a STATUSTEXT ("No ap_message for mavlink id (230)") that
+would become the drone's latest status text on the dashboard at every connection."""
+
+
+def streams_for(autopilot: str | None, rates_hz: Mapping[str, float]) -> dict[str, float]:
+    """The streams worth asking ``autopilot`` for (an unknown family: all of them)."""
+    return {name: rate for name, rate in rates_hz.items()
+            if FAMILY_ONLY_STREAMS.get(name, autopilot) == autopilot
+            or autopilot not in ("ardupilot", "px4")}

@@ -159,7 +159,7 @@ def test_any_mavlink_message_can_be_turned_off(tmp_path: Path) -> None:
     """PX4's onboard link streams ~400 messages/s (real PX4 SIH, 2026-11-24), HIGHRES_IMU
     among them: a Raspberry Pi's user must be able to turn off what the companion does not
     use; a name that is no MAVLink message is still a config error."""
-    from companion.mavlink_reader import streams_for
+    from companion.mavlink_watch import streams_for
 
     config = load_config(_write(tmp_path, '[drone]\nid = "d"\n[mavlink.stream_rates_hz]\n'
                                           'HIGHRES_IMU = 0\nSCALED_IMU = 0\n'))

@@ -294,27 +294,37 @@ def test_run_logs_who_takes_the_autopilots_datagrams(
 
 def test_time_the_reader_did_not_run_is_not_the_links_silence(
         vehicle: FakeVehicle, recorder: Recorder, started: list[MavlinkReader]) -> None:
-    """Between two receives the reader's clock jumps 5 s (its machine stalled) while the
-    HEARTBEATs sit in the socket: no link loss, the same connection, and commands answered
-    on it after each stall."""
-    jump = [0.0]
+    """The reader stops for a second in which its clock moves 6 s (its machine stalled)
+    while the vehicle's messages queue in the socket: no link loss, the same connection,
+    and commands answered on it after each stall. A vehicle gone during a stall is lost a
+    timeout after it."""
+    stall, offset = threading.Event(), [0.0]
+
+    def clock() -> float:
+        if stall.is_set():  # only the reader thread reads this clock
+            stall.clear()
+            time.sleep(1.0)
+            offset[0] += 5.0
+        return time.time() + offset[0]
+
     settings = MavlinkSettings(url=f"udpout:127.0.0.1:{vehicle.port}", heartbeat_timeout_s=1.0,
                                reconnect_delay_s=0.1, recv_timeout_s=0.1,
                                stream_ack_timeout_s=0.5)
-    reader = MavlinkReader(settings, clock=lambda: time.time() + jump[0], post=recorder.post)
+    reader = MavlinkReader(settings, clock=clock, post=recorder.post)
     started.append(reader)
     reader.start()
     assert recorder.wait(lambda: recorder.state.snapshot().lat_deg is not None)
-    jump[0] = 5.0
-    assert recorder.wait(lambda: reader.counters["stalls"] == 1, 2)
-    assert reader.submit(SetModeCommand(mode="GUIDED", timeout_s=2.0)).result(5) == "GUIDED"
-    jump[0] = 10.0
-    assert recorder.wait(lambda: reader.counters["stalls"] == 2, 2)
-    assert reader.submit(SetModeCommand(mode="LOITER", timeout_s=2.0)).result(5) == "LOITER"
+    for n, mode in enumerate(("GUIDED", "LOITER"), start=1):
+        stall.set()
+        assert recorder.wait(lambda n=n: reader.counters["stalls"] == n, 3)  # type: ignore[misc]
+        assert reader.submit(SetModeCommand(mode=mode, timeout_s=2.0)).result(5) == mode
     time.sleep(1.5)
-    assert reader.counters["stalls"] == 2
     assert reader.counters["heartbeat_losses"] == 0 and reader.counters["connects"] == 1
     assert recorder.state.snapshot().connected
+    vehicle.stop()
+    stall.set()
+    assert recorder.wait(lambda: not recorder.state.snapshot().connected, 4)
+    assert reader.counters["stalls"] == 3 and reader.counters["heartbeat_losses"] == 1
 
 
 def test_a_clock_set_back_does_not_hide_a_lost_link(recorder: Recorder,
