@@ -25,20 +25,36 @@ class LinkHealth:
     _pending: OrderedDict[int, float] = field(default_factory=OrderedDict)
     _settled: list[bool] = field(default_factory=list)
     """True: delivered, False: lost; the newest last."""
+    _n_settled: int = 0
+    _lost: OrderedDict[int, int] = field(default_factory=OrderedDict)
+    """Seq -> settle number of the messages counted lost that are still in the window."""
 
     def on_sent(self, seq: int, now: float) -> None:
         self._pending[seq] = now
         while len(self._pending) > self.max_pending:
-            self._pending.popitem(last=False)
-            self._settle(False)
+            lost, _ = self._pending.popitem(last=False)
+            self._settle(False, lost)
 
     def on_delivered(self, seq: int) -> None:
+        """A report names ``seq``. One later than ``grace_s`` (this drone stalled, or the
+        station did, with the reports waiting in a buffer) undoes its loss: a companion
+        stopped 4 s showed the messages of its last 3 s as lost on the dashboard."""
         if self._pending.pop(seq, None) is not None:
-            self._settle(True)
+            self._settle(True, seq)
+            return
+        number = self._lost.pop(seq, None)
+        first_kept = self._n_settled - len(self._settled)
+        if number is not None and number >= first_kept:
+            self._settled[number - first_kept] = True
 
-    def _settle(self, delivered: bool) -> None:
+    def _settle(self, delivered: bool, seq: int) -> None:
+        if not delivered:
+            self._lost[seq] = self._n_settled
+        self._n_settled += 1
         self._settled.append(delivered)
         del self._settled[:-self.window]
+        while self._lost and next(iter(self._lost.values())) < self._n_settled - self.window:
+            self._lost.popitem(last=False)
 
     def loss(self, now: float) -> float | None:
         """Share of the last settled messages that were lost; None before any settled."""
@@ -47,7 +63,7 @@ class LinkHealth:
             if now - t_sent < self.grace_s:
                 break
             del self._pending[seq]
-            self._settle(False)
+            self._settle(False, seq)
         if not self._settled:
             return None
         return self._settled.count(False) / len(self._settled)

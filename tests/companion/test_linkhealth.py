@@ -17,8 +17,26 @@ def test_loss_counts_messages_no_report_mentioned_within_the_grace() -> None:
     h.on_delivered(2)  # a repeated report entry counts once
     assert h.loss(3.5) == 0.0  # 1 and 3 are still within their grace
     assert h.loss(4.0) == 1 / 3  # 1 (sent at 1.0) is now lost
-    h.on_delivered(1)  # too late: already settled as lost
-    assert h.loss(10.0) == 2 / 4
+    assert h.loss(10.0) == 2 / 4  # 3 as well
+    h.on_delivered(1)  # late (the drone or the station stalled): delivered after all
+    assert h.loss(10.0) == 1 / 4
+    h.on_delivered(1)
+    assert h.loss(10.0) == 1 / 4
+
+
+def test_a_late_report_undoes_only_a_loss_still_in_the_window() -> None:
+    h = LinkHealth(grace_s=1.0, window=3)
+    for seq in range(3):
+        h.on_sent(seq, 0.0)
+    assert h.loss(2.0) == 1.0
+    h.on_sent(3, 2.0)
+    h.on_delivered(3)  # the window is now 1, 2 (lost) and 3 (delivered)
+    h.on_delivered(0)  # 0 left the window: nothing changes
+    assert h.loss(2.0) == 2 / 3
+    h.on_delivered(2)
+    assert h.loss(2.0) == 1 / 3
+    h.on_delivered(99)  # never sent (another drone's, a stale report)
+    assert h.loss(2.0) == 1 / 3
 
 
 def test_loss_is_over_the_last_window_of_settled_messages() -> None:

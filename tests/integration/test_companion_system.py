@@ -247,19 +247,25 @@ async def test_companion_streams_and_survives_vehicle_loss(
 
 
 @pytest.mark.timeout(90)
-async def test_a_stalled_companion_does_not_call_the_link_lost(
+async def test_stalls_lose_neither_the_link_nor_messages(
         receiver: tuple[Receiver, int], vehicle_proc: VehicleProcess, tmp_path: Path) -> None:
     """The companion's process stops for 4 s (SIGSTOP: what swap, an SD card's write or a
     paused VM do to it) while the vehicle goes on: the HEARTBEATs wait in the socket, and the
     link is not lost, closed or shown lost (a 3 s timeout found "no HEARTBEAT for 9.8 s" on
-    a pty line in make test, and dropped it)."""
+    a pty line in make test, and dropped it). Then the station stalls 4 s: the drone hears
+    no report and counts its messages lost until the reports after the stall name them."""
     rx, gs_port = receiver
     config = _write_config(
         tmp_path / "d1.toml", drone="d1", vehicle_port=vehicle_proc.port, gs_port=gs_port,
         frames=_frames(tmp_path / "plain", red=False, n=2), rate_hz=1.0,
+        camera_extra='versions = ["quarter"]',  # what the station's socket holds for 6 s
         constraint='[constraint]\nname = "constant"\nparams = { limit_bytes_per_s = 200000.0 }')
     proc = start_companion(config, json_logs=True)
     mission_log = tmp_path / "d1.jsonl"
+
+    def statuses() -> list[Message]:
+        return rx.of("d1", "status")
+
     try:
         await until(lambda: rx.of("d1", "position"), 40, proc)
         t_stop = time.time()
@@ -268,6 +274,13 @@ async def test_a_stalled_companion_does_not_call_the_link_lost(
         proc.send_signal(signal.SIGCONT)
         seen = len(rx.of("d1", "position"))
         await until(lambda: len(rx.of("d1", "position")) > seen + 2, 20, proc)
+
+        n = len(statuses())
+        time.sleep(6.0)  # the station's event loop stalls: no report goes for 6 s
+        await until(lambda: len(statuses()) > n + 3, 20, proc)
+        losses = [m.data["loss"] for m in statuses()[n:]]
+        assert max(losses) > 0, losses  # unreported for longer than the 3 s grace: lost...
+        await until(lambda: statuses()[-1].data["loss"] == 0.0, 20, proc)  # ...until reported
         await asyncio.sleep(1.5)  # the mission log is flushed every 1 s
         assert proc.poll() is None
     finally:
