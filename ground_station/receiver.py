@@ -121,6 +121,7 @@ class GroundLink(LinkOutput):
         self._timer: asyncio.TimerHandle | None = None
         self._timer_at: float | None = None
         self._next_tick = now + TICK_S
+        self.fleet.last_tick = now  # a stall before the first tick is one too
         self._last_storage_alert = 0.0
         self._tile_pushed: dict[str, float] = {}
         """Drone -> when its tile was last pushed to the dashboard."""
@@ -401,6 +402,10 @@ class GroundLink(LinkOutput):
             self._save_replay_state_soon()
             self.mission_state.save_soon()
             point = self.fleet.tick(now=now)
+            for gap in self.fleet.stalls:
+                log.warning("the station did not run for %.1f s (this computer was busy or "
+                            "suspended): no drone judged lost on that tick", gap)
+            self.fleet.stalls.clear()
             for drone in self.fleet.take_forgotten():
                 self.missions.forget(drone)
                 if drone not in self.fleet.drones:  # not heard again since
