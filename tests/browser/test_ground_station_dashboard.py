@@ -358,9 +358,17 @@ async def test_dashboard_live_tiles_and_start_mission(
             await page.screenshot(path=str(ARTIFACTS / "dashboard_running.png"))
             # the end-of-mission report: utility over time per drone, in the drones' colours
             await page.click("#report-link")
-            await wait_js(page, "() => document.body.dataset.loaded === '1'", timeout_s=15.0)
-            legend = dict(await page.evaluate("""() => [...document.querySelectorAll(
-                '#r-legend .lg')].map((e) => [e.dataset.drone, e.dataset.color])"""))
+            legend: dict[str, str] = {}
+            deadline = time.monotonic() + 15.0  # the first images of the run being stored
+            while True:
+                await wait_js(page, "() => document.body.dataset.loaded === '1'",
+                              timeout_s=15.0)
+                legend = dict(await page.evaluate("""() => [...document.querySelectorAll(
+                    '#r-legend .lg')].map((e) => [e.dataset.drone, e.dataset.color])"""))
+                if len(legend) == 4 or time.monotonic() > deadline:
+                    break
+                await asyncio.sleep(0.5)
+                await page.reload()
             assert legend == EXPECTED_COLOURS
             check_report_axes(await page.evaluate(REPORT_AXES))
             await wait_js(page, "() => document.querySelector('#r-png').naturalWidth > 0",
