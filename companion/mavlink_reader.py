@@ -226,7 +226,7 @@ class MavlinkReader:
         if sample is None:
             return
         if isinstance(sample, HeartbeatSample):
-            self._t_last_heartbeat = now
+            self._t_last_heartbeat, self._forgave = now, False
             if not self._connected:
                 self._connected = True
                 if self._silent:
@@ -251,12 +251,11 @@ class MavlinkReader:
         self._post(sample)
 
     def _forgive_stall(self, now: float) -> None:
-        """Time the reader did not run is not the link's silence (docs/companion.md); never
-        two rounds in a row, so a reader slow at every round cannot hide a dead link."""
+        """Time the reader did not run is not the link's silence (docs/companion.md); once
+        per HEARTBEAT, so a reader that stalls again and again cannot hide a dead link."""
         unseen = stalled_s(self._t_last_look, now, self.settings.recv_timeout_s)
         self._t_last_look = now
         if not unseen or (unseen > 0 and self._forgave):
-            self._forgave = False
             return
         self._forgave = unseen > 0
         if unseen > 0:
