@@ -322,9 +322,9 @@ class FleetView:
 
         A tick more than :data:`STALLED_TICK_S` after the previous one means the station
         did not run (swap, a paused VM, a laptop's lid closed): the datagrams of that time
-        wait in its socket, and asyncio reads one per loop round, so this tick judges
-        nobody lost or silent (never two ticks in a row); the next one, a second later,
-        has read them. Before, all four drones of a 5 s stall were alerted "link lost"
+        wait in its socket, and may not have been read yet, so this tick judges nobody
+        lost or silent (never two ticks in a row); the next one, a second later, has read
+        them. Before, all four drones of a 5 s stall were alerted "link lost"
         and "link back" (``tests/integration/test_ground_station_stall.py``)."""
         last, self.last_tick = self.last_tick, now
         stalled = last is not None and now - last > STALLED_TICK_S and not self._stalled

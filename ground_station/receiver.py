@@ -55,12 +55,8 @@ log = logging.getLogger(__name__)
 MAX_EPOCHS = 1024
 """Drones whose boot epoch is kept; a forgotten one is sent epoch 0 and announces again."""
 
-TICK_S = 1.0
-"""Link charts are sampled and link loss checked once a second."""
-
-def is_image(message_type: str, payload: bytes) -> bool:
-    """Images carry a payload (JPEG bytes); telemetry travels in the metadata only."""
-    return bool(payload)
+TICK_S = 1.0  # the link charts are sampled and link loss checked once a second
+LATE_TIMER_S = 1.0  # a timer this late means the station itself did not run
 
 
 class GroundLink(LinkOutput):
@@ -120,6 +116,7 @@ class GroundLink(LinkOutput):
             missions, config.mission, config.data_dir / "mission_state.json", self.counters)
         self._timer: asyncio.TimerHandle | None = None
         self._timer_at: float | None = None
+        self._deferred = False  # the late timer waited for one read of the socket
         self._next_tick = now + TICK_S
         self.fleet.last_tick = now  # a stall before the first tick is one too
         self._last_storage_alert = 0.0
@@ -247,7 +244,7 @@ class GroundLink(LinkOutput):
     def _on_message(self, event: MessageReassembled, now: float) -> None:
         message = event.message
         addr = event.addr
-        image = is_image(message.type, event.payload)
+        image = bool(event.payload)  # JPEG bytes; telemetry travels in the metadata
         utility = (
             self.image_utility.weight(message)
             if image
@@ -389,9 +386,15 @@ class GroundLink(LinkOutput):
         self._timer = loop.call_later(max(0.0, deadline - self.clock()), self._on_timer)
 
     def _on_timer(self) -> None:
-        self._timer = None
-        self._timer_at = None
+        due, self._timer, self._timer_at = self._timer_at, None, None
         now = self.clock()
+        if due is not None and now - due > LATE_TIMER_S and not self._deferred:
+            # the station did not run (its wait timed out meanwhile): read what waited in the
+            # socket (the partial images' fragments) before expiring anything; once
+            self._deferred, self._timer_at = True, due
+            self._timer = asyncio.get_running_loop().call_later(0.01, self._on_timer)
+            return
+        self._deferred = False
         self.decoder.handle_timer(now)
         self._process_events(now)
         self._push_due_tiles(now)

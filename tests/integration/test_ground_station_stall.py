@@ -1,9 +1,10 @@
 """The real ``uav-ground-station run`` stops for seconds (SIGSTOP: swap, a full disk's
 writes, a paused VM) while its drones go on sending: the datagrams wait in its socket, and
-when it runs again no drone is reported lost. Before, its first tick after the stall came
-before the waiting datagrams were read (asyncio reads one per loop round) and raised "link
-lost: nothing heard for 5.2 s" and then "link back" for all four drones: false alerts,
-stored and shown on the dashboard."""
+when it runs again no drone is reported lost and no image half received is expired.
+Before, its first timer after the stop ran before the socket was read (the loop's wait had
+timed out meanwhile): it raised "link lost: nothing heard for 5.2 s" and then "link back"
+for all four drones (false alerts, stored and shown on the dashboard), and expired every
+image whose other fragments were waiting."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from ground_station.fake_drone import FakeDrone
+from ground_station.fake_drone import FakeDrone, synthetic_jpeg
 from tests.keys import TEST_FLEET_KEY
 from tests.station_process import Station, running_station
 
@@ -69,3 +70,37 @@ async def test_a_stalled_station_reports_no_drone_lost(tmp_path: Path) -> None:
     assert not [a for a in alerts if a["kind"] == "link"], [a["text"] for a in alerts]
     assert [d["link_lost"] for d in fleet["drones"]] == [False] * 4, fleet
     assert "the station did not run for" in station.log.read_text()
+
+
+@pytest.mark.timeout(90)
+async def test_an_image_half_received_when_the_station_stalled_is_stored(
+        tmp_path: Path) -> None:
+    """Half an image's fragments arrive, the station stops for 4 s (its reassembly timeout
+    is 2 s) and the other half waits in its socket: stored whole. Before, its first timer
+    after the stop ran before the socket was read and expired the image."""
+    with running_station(tmp_path) as station:
+        found = re.findall(r"receiving fleet (\d+) on udp://127.0.0.1:(\d+)", station.log_text())
+        drone = FakeDrone("d1", fleet_id=int(found[0][0]), key=TEST_FLEET_KEY,
+                          ground=("127.0.0.1", int(found[0][1])))
+        await drone.open()
+        try:
+            jpeg = synthetic_jpeg(3, red=0.1, width=640, height=480)
+            fragments = drone.datagrams_for_image(jpeg, data={"red": 0.1})
+            assert len(fragments) >= 4
+            half = len(fragments) // 2
+            for datagram in fragments[:half]:
+                drone.sendto(datagram)
+            await asyncio.sleep(0.5)  # the station holds a partial image
+            station.proc.send_signal(signal.SIGSTOP)
+            for datagram in fragments[half:]:
+                drone.sendto(datagram)
+            await asyncio.sleep(4.0)
+            station.proc.send_signal(signal.SIGCONT)
+            await asyncio.sleep(1.0)
+            images = _get(station, "/api/images")["images"]
+            decoder = _get(station, "/api/stats")["decoder"]
+        finally:
+            station.proc.send_signal(signal.SIGCONT)
+            drone.close()
+    assert decoder["expired"] == 0, decoder
+    assert [image["sender"] for image in images] == ["d1"], images
