@@ -77,7 +77,10 @@ def test_ardupilot_streams_only_after_set_message_interval(
     reader = _reader(vehicle.port, recorder)
     started.append(reader)
     reader.start()
-    assert recorder.wait(lambda: recorder.state.snapshot().lat_deg is not None)
+    # each stream's first message, not just the position's (a loaded run read the snapshot
+    # between GLOBAL_POSITION_INT and GPS_RAW_INT: no satellites yet)
+    assert recorder.wait(lambda: None not in (
+        (s := recorder.state.snapshot()).lat_deg, s.satellites, s.battery_v, s.roll_rad))
     snap = recorder.state.snapshot()
     assert snap.connected and snap.autopilot == "ardupilot" and snap.mode == "STABILIZE"
     assert snap.battery_v == pytest.approx(12.3) and snap.battery_remaining == 0.87
