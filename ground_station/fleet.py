@@ -11,7 +11,7 @@ import math
 from collections import Counter, deque
 from collections.abc import Mapping
 from dataclasses import asdict
-from typing import Any, cast
+from typing import Any
 
 from companion.protocol import Address
 from ground_station.drone_state import (
@@ -35,10 +35,6 @@ def _peer_ages(state: DroneState, now: float) -> dict[str, float] | None:
         return None
     since = max(0.0, now - state.field_t.get("peers", now))
     return {peer: round(age + since, 1) for peer, age in sorted(state.peers.items())}
-
-
-STALLED_TICK_S = 2.0
-"""The shell ticks every second (``receiver.TICK_S``); a gap this long is the station's own."""
 
 
 class FleetView:
@@ -84,11 +80,6 @@ class FleetView:
         self.drops: Counter[str] = Counter()
         self._origin: tuple[float, float] | None = None
         self._new_alerts: list[Alert] = []
-        self.last_tick: float | None = None  # the shell seeds it when it starts ticking
-        self._stalled = False
-        self.stalls: list[float] = []
-        """How long the station did not run before each tick that came that late (the
-        shell logs and clears them)."""
 
     def set_origin(self, lat: float, lon: float) -> None:
         """Local coordinates around this point (the scene's home) instead of the first fix."""
@@ -318,26 +309,13 @@ class FleetView:
 
     # -- periodic -----------------------------------------------------------------------
     def tick(self, *, now: float) -> dict[str, Any]:
-        """Sample the link charts and check for link loss; returns the new series point.
-
-        A tick more than :data:`STALLED_TICK_S` after the previous one means the station
-        did not run (swap, a paused VM, a laptop's lid closed): the datagrams of that time
-        wait in its socket, and may not have been read yet, so this tick judges nobody
-        lost or silent (never two ticks in a row); the next one, a second later, has read
-        them. Before, all four drones of a 5 s stall were alerted "link lost"
-        and "link back" (``tests/integration/test_ground_station_stall.py``)."""
-        last, self.last_tick = self.last_tick, now
-        stalled = last is not None and now - last > STALLED_TICK_S and not self._stalled
-        self._stalled = stalled
-        if stalled:
-            self.stalls.append(now - cast(float, last))
-        else:
-            self.forget_silent(now=now)
+        """Sample the link charts and check for link loss; returns the new series point."""
+        self.forget_silent(now=now)
         goodput_total = 0.0
         point_drones: dict[str, dict[str, float | None]] = {}
         latencies: list[float] = []
         for drone, state in self.drones.items():
-            if not (stalled or state.link_lost) and now - state.last_heard > self.link_lost_s:
+            if not state.link_lost and now - state.last_heard > self.link_lost_s:
                 state.link_lost = True
                 self.alert(
                     Alert(

@@ -118,7 +118,6 @@ class GroundLink(LinkOutput):
         self._timer_at: float | None = None
         self._deferred = False  # the late timer waited for one read of the socket
         self._next_tick = now + TICK_S
-        self.fleet.last_tick = now  # a stall before the first tick is one too
         self._last_storage_alert = 0.0
         self._tile_pushed: dict[str, float] = {}
         """Drone -> when its tile was last pushed to the dashboard."""
@@ -390,7 +389,9 @@ class GroundLink(LinkOutput):
         now = self.clock()
         if due is not None and now - due > LATE_TIMER_S and not self._deferred:
             # the station did not run (its wait timed out meanwhile): read what waited in the
-            # socket (the partial images' fragments) before expiring anything; once
+            # socket before expiring images or judging links lost; once
+            log.warning("the station did not run for %.1f s (this computer was busy or "
+                        "suspended): reading what its drones sent meanwhile first", now - due)
             self._deferred, self._timer_at = True, due
             self._timer = asyncio.get_running_loop().call_later(0.01, self._on_timer)
             return
@@ -405,10 +406,6 @@ class GroundLink(LinkOutput):
             self._save_replay_state_soon()
             self.mission_state.save_soon()
             point = self.fleet.tick(now=now)
-            for gap in self.fleet.stalls:
-                log.warning("the station did not run for %.1f s (this computer was busy or "
-                            "suspended): no drone judged lost on that tick", gap)
-            self.fleet.stalls.clear()
             for drone in self.fleet.take_forgotten():
                 self.missions.forget(drone)
                 if drone not in self.fleet.drones:  # not heard again since

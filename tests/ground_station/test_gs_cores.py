@@ -106,26 +106,6 @@ def test_fleet_rates_share_latency_and_link_loss() -> None:
     assert fv.drones["d1"].link_lost is False and fv.drones["d2"].link_lost is True
 
 
-def test_a_tick_after_the_station_stalled_judges_nobody_lost() -> None:
-    """Ticks come every second; one 6 s late means the station did not run (the drones'
-    datagrams of that time still wait in its socket): no alert on it, never two in a row."""
-    fv = FleetView(high_utility=3.0, link_lost_s=2.0)
-    fv.heard("d1", now=T0)
-    for k in range(3):
-        fv.tick(now=T0 + k)
-    fv.tick(now=T0 + 8.0)  # 6 s after the last tick, 8 s after d1 was heard
-    assert fv.take_new_alerts() == [] and fv.stalls == [6.0]
-    assert not fv.drones["d1"].link_lost
-    fv.tick(now=T0 + 9.0)  # a second later nothing of d1 was read: it is lost
-    assert [a.text for a in fv.take_new_alerts()] == ["link lost: nothing heard for 9.0 s"]
-    fv.heard("d1", now=T0 + 9.5)
-    fv.take_new_alerts()
-    fv.tick(now=T0 + 20.0)  # late, forgiven
-    fv.tick(now=T0 + 30.0)  # late again: not forgiven twice in a row
-    assert [a.text for a in fv.take_new_alerts()] == ["link lost: nothing heard for 20.5 s"]
-    assert fv.stalls == [6.0, 11.0]
-
-
 def test_fleet_applies_telemetry_fields_and_local_coordinates() -> None:
     fv = FleetView(high_utility=3.0, link_lost_s=2.0)
     fv.on_message(msg(1, t_gen=T0, t_rcv=T0, lat=51.0, lon=17.0, level=0.5), now=T0)
