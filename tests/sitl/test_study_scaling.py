@@ -107,19 +107,35 @@ def test_the_long_cell_trips_on_a_planted_growing_cost_and_passes_without() -> N
     """A real 3-agent, 40 s mission of the periodic battery scenario (~4 s each on the
     loaded machine): the planted cost is CPU time, so it shows whatever the load."""
     cell: dict[str, object] = {"kind": "long", "agents": 3, "t_end": 40.0}
-    clean = {**cell, **scaling_cell(cell, 11)}
     planted_cell = {**cell, "inject_growth_us_per_s": 200.0}
-    planted = {**planted_cell, **scaling_cell(planted_cell, 11)}
-    # blocks: cycle 1 (t in 10..20 s: +2..4 ms planted) and cycle 3 (30..40 s: +6..8 ms)
-    assert planted["first_tenth_ms"] - clean["first_tenth_ms"] == pytest.approx(3.0, abs=1.0)
-    assert planted["last_tenth_ms"] - clean["last_tenth_ms"] == pytest.approx(7.0, abs=1.5)
-    (ok,) = growth_goals([clean])
-    if not ok.ok:  # CPU time rises too when the other core's test gets busy mid-mission (a
-        # fresh-clone make test: x1.42 on the clean cell): a growing cost trips twice
-        (ok,) = growth_goals([{**cell, **scaling_cell(cell, 11)}])
-    (tripped,) = growth_goals([planted])
-    assert ok.ok, ok.measured
-    assert not tripped.ok and planted["growth_lo"] > 1.15, tripped.measured
+
+    def measure() -> list[str]:
+        clean = {**cell, **scaling_cell(cell, 11)}
+        planted = {**planted_cell, **scaling_cell(planted_cell, 11)}
+        # blocks: cycle 1 (t in 10..20 s: +2..4 ms planted) and cycle 3 (30..40 s: +6..8 ms)
+        early = planted["first_tenth_ms"] - clean["first_tenth_ms"]
+        late = planted["last_tenth_ms"] - clean["last_tenth_ms"]
+        (ok,) = growth_goals([clean])
+        (tripped,) = growth_goals([planted])
+        misses: list[str] = []
+        if abs(early - 3.0) > 1.0:
+            misses.append(f"planted early +{early:.2f} ms, not 3.0 +- 1")
+        if abs(late - 7.0) > 1.5:
+            misses.append(f"planted late +{late:.2f} ms, not 7.0 +- 1.5")
+        if not ok.ok:
+            misses.append(f"clean cell tripped: {ok.measured}")
+        if tripped.ok or planted["growth_lo"] <= 1.15:
+            misses.append(f"planted cell passed: {tripped.measured}")
+        return misses
+
+    # CPU time rises too when the other core's test gets busy mid-mission (fresh-clone make
+    # test runs: the clean cell x1.42 over its mission once, a planted block +1.2 ms once):
+    # the pair is measured again, and a real fault (a cost that grows, a planted cost that
+    # does not show) misses twice
+    misses = measure()
+    if misses:
+        misses = measure()
+    assert not misses, misses
 
 
 def test_bench_inject_growth_reports_a_miss_and_exits_1(tmp_path: Path) -> None:
