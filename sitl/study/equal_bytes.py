@@ -99,7 +99,8 @@ def rows_for(scenario: str, seed: int, *, t_end: float, mcts: str = "mcts300",
     for b, r in ours.items():
         target = r["delivered_bytes"]
         row: dict[str, Any] = {
-            "scenario": scenario, "seed": seed, "budget": b, "mcts_pct": r["utility_pct"],
+            "scenario": scenario, "seed": seed, "t_end": t_end, "budget": b,
+            "mcts_pct": r["utility_pct"],
             "mcts_bytes": target,
             "mcts_windows_over_b": window_violations(r["sends"], window_s=dr.WINDOW_S,
                                                      budget_bytes=dr.budget_bytes(b)),
@@ -213,6 +214,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="output directory (default artifacts/equal_bytes)")
     parser.add_argument("--quick", action="store_true",
                         help="3 seeds, 20 s missions (default 5 seeds, 40 s)")
+    parser.add_argument("--seeds", type=int, default=None,
+                        help="seeds 1..N (default 5; 3 with --quick)")
+    parser.add_argument("--t-end", type=float, default=None, metavar="S",
+                        help="mission length in s (default 40; 20 with --quick; the thesis' "
+                             "fig. 5.7 missions are 100 s long: the blind start weighs less)")
     parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS,
                         metavar="SCENARIO", help="any of " + ", ".join(SCENARIOS)
                         + " (default all)")
@@ -231,8 +237,12 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--budgets: numbers separated by commas expected, got {args.budgets!r}")
     if not budgets or min(budgets) <= 0 or args.max_states < 1:
         parser.error("--budgets must be > 0 and --max-states >= 1")
+    n_seeds = args.seeds if args.seeds is not None else 3 if args.quick else 5
+    t_end = args.t_end if args.t_end is not None else 20.0 if args.quick else 40.0
+    if n_seeds < 1 or not 1.0 <= t_end <= 10_000.0:
+        parser.error(f"--seeds must be >= 1 and --t-end in 1..10000 s, got {n_seeds}, {t_end:g}")
     args.out.mkdir(parents=True, exist_ok=True)
-    seeds, t_end = ([1, 2, 3], 20.0) if args.quick else ([1, 2, 3, 4, 5], 40.0)
+    seeds = list(range(1, n_seeds + 1))
     rows: list[dict[str, Any]] = []
     for sc in args.scenarios:
         for seed in seeds:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import subprocess
 import sys
 from pathlib import Path
@@ -63,6 +64,26 @@ def test_bad_budgets_are_a_one_line_usage_error(tmp_path: Path) -> None:
     assert done.returncode == 2
     assert "Traceback" not in done.stderr
     assert "--budgets: numbers separated by commas expected" in done.stderr.splitlines()[-1]
+
+
+def test_seeds_and_mission_length_are_options_and_bad_ones_a_usage_error(
+        tmp_path: Path) -> None:
+    """Round 18: the thesis' missions are 100 s long, the quick study's 20 s, and how long a
+    mission is decides how much its blind start weighs in a cell."""
+    done = subprocess.run([sys.executable, "-m", "sitl.study.equal_bytes", "--out",
+                           str(tmp_path), "--seeds", "1", "--t-end", "4", "--scenarios",
+                           "uniform", "--budgets", "9.25"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "uniform seed 1 done" in done.stdout and "seed 2" not in done.stdout
+    with (tmp_path / "equal_bytes.csv").open() as f:
+        (row,) = csv.DictReader(f)
+    assert (row["seed"], float(row["t_end"]), float(row["budget"])) == ("1", 4.0, 9.25)
+    for bad in (["--seeds", "0"], ["--t-end", "nan"], ["--t-end", "0.5"]):
+        done = subprocess.run([sys.executable, "-m", "sitl.study.equal_bytes", "--out",
+                               str(tmp_path), *bad], capture_output=True, text=True, timeout=60)
+        assert done.returncode == 2 and "Traceback" not in done.stderr, bad
+        assert "--seeds must be >= 1 and --t-end in 1..10000 s" in done.stderr.splitlines()[-1]
 
 
 def test_the_first_window_share_and_the_rest_add_up_to_the_mission() -> None:
