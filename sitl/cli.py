@@ -14,6 +14,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 STUDIES: dict[str, tuple[str, str]] = {
     "drop-rate-vs-utility": ("sitl.study.drop_rate", "thesis figure 5.7: utility vs drop share"),
+    "fig4.11": ("sitl.study.fig413", "thesis figures 4.11-4.13 (same command as fig4.13)"),
+    "fig4.12": ("sitl.study.fig413", "thesis figures 4.11-4.13 (same command as fig4.13)"),
+    "fig4.13": ("sitl.study.fig413", "thesis figures 4.11-4.13: battery over radio vs Internet"),
     "fig5.7": ("sitl.study.fig57", "thesis figure 5.7 at 31 drop shares x 30 runs, on Dask"),
     "fig6.1": ("sitl.study.fig61", "thesis figure 6.1: reception rate and latency vs rate"),
     "fig6.2": ("sitl.study.fig62", "thesis figure 6.2: mean backlog vs publishing rate, on Dask"),
