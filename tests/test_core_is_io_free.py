@@ -12,7 +12,8 @@ ROOT = Path(__file__).resolve().parents[1]
 FORBIDDEN = {"asyncio", "socket", "threading", "time", "cv2", "sqlite3", "random", "subprocess"}
 CORES = ["utility_specs", "companion/middleware", "companion/protocol"]
 # thin tools at the edge: the command line, the plots, the spec/log file loaders
-EDGES = {"utility_specs/cli.py", "utility_specs/plots.py", "utility_specs/files.py"}
+EDGES = {"utility_specs/cli.py", "utility_specs/cli_characteristics.py", "utility_specs/plots.py",
+         "utility_specs/files.py"}
 FILE_CALLS = {"open", "read_text", "write_text", "read_bytes", "write_bytes", "iterdir", "mkdir",
               "unlink", "files"}
 

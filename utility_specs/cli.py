@@ -62,6 +62,10 @@ def _parser() -> argparse.ArgumentParser:
     pl.add_argument("kind", metavar="KIND", help=f"one of: {', '.join(KINDS)}, 4.2-4.10, all")
     pl.add_argument("--out", type=Path, required=True, help="output PNG (a folder with 'all')")
 
+    from utility_specs import cli_characteristics
+
+    cli_characteristics.add_parser(sub)
+
     sub.add_parser("specs", help="list the built-in mission specs",
                    description="List the built-in mission specs: each name works as "
                                "`evaluate --spec NAME` and as a companion's mission.spec = "
@@ -169,6 +173,10 @@ def main(argv: list[str] | None = None) -> int:
             return _evaluate(args)
         if args.command == "plot":
             return _plot(args)
+        if args.command == "characteristics":
+            from utility_specs import cli_characteristics
+
+            return cli_characteristics.run(args)
         for name in builtin_specs():
             spec = builtin_spec(name)
             print(f"{name:<20} {', '.join(spec.types)}")
