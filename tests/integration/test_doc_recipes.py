@@ -17,6 +17,7 @@ recipe cannot hide in an unlabelled block.
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import re
@@ -149,6 +150,11 @@ RECIPES: dict[str, str] = {
         "test_baselines_study_recipe",
     "python -m sitl.study.equal_bytes --out out/equal_bytes --quick --optimum "
     "--budgets 9.25,5.5,2.5": "test_equal_bytes_study_recipe",
+    "python -m sitl.study.equal_bytes --out out/eb100 --t-end 100 --budgets 9.25,5.5,2.5":
+        "test_equal_bytes_study_recipe",
+    # docs/utility.md
+    "uav-utility characteristics --spec image_streaming --type image --out out/fig72 "
+    "out/fleet/*/drones/*/mission_log.jsonl": "test_fleet_recipe_and_evaluate_agree",
 }
 DEVELOPER = re.compile(r"^(sudo )?(\w+=\S+ )*\.venv/bin/python (-m pytest|benchmarks/)")
 """Developer commands (tests, benchmarks): checked by test_developer_recipes."""
@@ -445,6 +451,14 @@ def test_equal_bytes_study_recipe(tmp_path: Path) -> None:
     last = (out / "equal_bytes.md").read_text().splitlines()[-1]
     assert last.startswith("| uniform | 2.5 |") and "n/a" not in last
     assert (out / "equal_bytes.png").stat().st_size > 10_000
+    # round 18's thesis-length run, on one seed of a 4 s uniform mission at one budget
+    long = _bash(_sub(_recipe("python -m sitl.study.equal_bytes --out out/eb100 --t-end 100 "
+                              "--budgets 9.25,5.5,2.5"),
+                      ("--t-end 100", "--t-end 4 --seeds 1 --scenarios uniform"),
+                      ("--budgets 9.25,5.5,2.5", "--budgets 9.25")), tmp_path, timeout=120)
+    assert long.returncode == 0, long.stdout[-3000:] + long.stderr[-3000:]
+    (row,) = csv.DictReader((tmp_path / "out" / "eb100" / "equal_bytes.csv").open())
+    assert (row["scenario"], float(row["t_end"])) == ("uniform", 4.0)
 
 
 # ----------------------------------------------------------------------------- ground station
@@ -591,6 +605,16 @@ def test_fleet_recipe_and_evaluate_agree(tmp_path: Path) -> None:
     result = json.loads(as_json.stdout)
     assert result["total"] == pytest.approx(total, rel=1e-9)
     assert (result["t_start"], result["t_end"]) == (summary["t_start"], summary["t_end"])
+    # docs/utility.md: the characteristics (thesis fig. 7.2) of the same run's frames
+    chars = _bash(_sub(_recipe("uav-utility characteristics --spec image_streaming --type image "
+                               "--out out/fig72 out/fleet/*/drones/*/mission_log.jsonl"),
+                       ("out/fleet/*/drones", f"{run}/drones")), tmp_path)
+    assert chars.returncode == 0, chars.stderr[-3000:]
+    generated = sum(1 for d in ("drone1", "drone2") for line in
+                    (run / "drones" / d / "mission_log.jsonl").read_text().splitlines()
+                    if '"type":"image"' in line.replace(" ", ""))
+    assert f"{generated} generated messages (image)" in chars.stdout
+    assert (tmp_path / "out" / "fig72" / "characteristics.png").stat().st_size > 20_000
 
 
 @pytest.mark.slow
