@@ -102,7 +102,7 @@ def _interval(values: Sequence[float]) -> tuple[float, float]:
                                   / math.sqrt(len(a)))
 
 
-def _sweep(args: argparse.Namespace) -> tuple[list[dict[str, Any]], np.ndarray, np.ndarray]:
+def _sweep(args: argparse.Namespace) -> list[dict[str, Any]]:
     delays = np.round(np.linspace(0.0, 1.0, 11 if args.quick else 21), 3)
     losses = np.round(np.linspace(0.0, 0.3, 7 if args.quick else 16), 3)
     rows: list[dict[str, Any]] = []
@@ -116,7 +116,7 @@ def _sweep(args: argparse.Namespace) -> tuple[list[dict[str, Any]], np.ndarray, 
                              "agents": args.agents, "utility": round(u, 4)})
         print(f"fig4.11-4.13: {link} link, {len(grid)} points x {args.runs} run(s) done",
               flush=True)
-    return rows, delays, losses
+    return rows
 
 
 def _curve(rows: Sequence[dict[str, Any]], link: str, key: str
@@ -211,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    rows, _, _ = _sweep(args)
+    rows = _sweep(args)
     with (out / "fig4_11_13.csv").open("w", newline="", encoding="utf-8") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
