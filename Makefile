@@ -19,7 +19,7 @@ help:
 	@echo "              (about 10 min on two cores; as root it also apt-installs chromium,"
 	@echo "              iperf3 and iproute2 for the browser and link tests)"
 	@echo "make bench  - run the benchmarks in benchmarks/ (each prints a table)"
-	@echo "make plots  - draw the thesis figures of the utility model into out/plots"
+	@echo "make plots  - draw the thesis figures of the utility model (4.2-4.13) into out/plots"
 
 $(VENV)/bin/python:
 	@$(PYTHON) -m venv $(VENV) 2>/dev/null || { \
@@ -88,6 +88,7 @@ demo: $(VENV)/.installed
 
 plots: $(VENV)/.installed
 	$(VENV)/bin/uav-utility plot all --out out/plots
+	$(VENV)/bin/uav-sitl study fig4.13 --out out/plots
 
 bench: $(VENV)/.installed-test
 	@status=0; for b in benchmarks/bench_*.py; do echo "== $$b"; $(PY) $$b || status=1; done; exit $$status
