@@ -60,6 +60,9 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+STALL_LATE_S = 1.0
+"""The housekeeping tick this late means the process did not run (:meth:`CompanionApp._stalled`)."""
+
 Clock = Callable[[], float]
 
 
@@ -220,14 +223,30 @@ class CompanionApp:
         self._stopping.set()
 
     async def _housekeeping(self) -> None:
+        loop = asyncio.get_running_loop()
         try:
             while not self._stopping.is_set():
+                t_before, ran_at = loop.time(), self.clock()
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(1.0):
                         await self._stopping.wait()
+                late = loop.time() - t_before - 1.0
+                if late > STALL_LATE_S and not self._stopping.is_set():
+                    self._stalled(late, since=ran_at)
                 self.mission_log.flush()
         finally:
             self.mission_log.flush()
+
+    def _stalled(self, late_s: float, *, since: float) -> None:
+        """The loop did not run for ``late_s`` (SIGSTOP, swap, an SD card's write, a paused
+        VM): what the pacer held was stamped before and left after, so the adaptive
+        constraint must not read those messages' latency as the link's queue."""
+        pacer = getattr(self.transport, "pacer", None)
+        held_s = pacer.max_delay_s if pacer is not None else 0.0
+        log.warning("companion: the process did not run for %.1f s (this computer was busy "
+                    "or suspended): the link statistics skip what it delayed", late_s,
+                    extra={"event": "stall", "late_s": round(late_s, 2)})
+        self.dispatcher.on_stall(since - held_s, self.clock())
 
     # -- routing ----------------------------------------------------------------------------
 

@@ -40,7 +40,7 @@ dispatcher sends it without asking while the optimiser warms up."""
 
 COUNTERS = ("generated", "sent", "dropped", "decide_timeouts", "decide_errors", "send_errors",
             "reports", "commands", "frames_skipped", "frame_errors", "not_running", "decided",
-            "fallback", "warming_up")
+            "fallback", "warming_up", "stalls")
 """The app's counters (shared by its services; ``request_report`` returns them)."""
 
 
@@ -247,6 +247,16 @@ class Dispatcher:
                 if entry.sender == self.config.drone_id:
                     self.health.on_delivered(entry.seq)
         future = loop.run_in_executor(self._pool, self.decider.on_report, report, self.clock())
+        future.add_done_callback(self._after_call)
+
+    def on_stall(self, t_from: float, t_to: float) -> None:
+        """The process did not run in [t_from, t_to] (fleet clock): a decider that learns the
+        link from reports is told, in its executor, so the delay is not read as queueing."""
+        self.counters["stalls"] += 1
+        hook = getattr(self.decider, "on_stall", None)
+        if hook is None or self._loop is None:
+            return
+        future = self._loop.run_in_executor(self._pool, hook, t_from, t_to, self.clock())
         future.add_done_callback(self._after_call)
 
     def mission_started(self) -> None:

@@ -110,6 +110,9 @@ class CountingReports(GoodputConstraint):
     def on_round_trip(self, round_trip: RoundTrip, *, now: float) -> None:
         self.inner.on_round_trip(round_trip, now=now)
 
+    def on_stall(self, t_from: float, t_to: float, *, now: float) -> None:
+        self.inner.on_stall(t_from, t_to, now=now)
+
     def on_sent(self, size_bytes: int, *, now: float) -> None:
         self.inner.on_sent(size_bytes, now=now)
 

@@ -620,6 +620,12 @@ class Middleware:
         return ReportLearned(delivered=self.counters["delivered"] - before, bad_entries=bad,
                              link=link)
 
+    def on_stall(self, t_from: float, t_to: float, now: float) -> None:
+        """The agent's process did not run in [t_from, t_to] (swap, a paused VM, a blocked
+        loop): the constraint does not learn the link from what that delayed."""
+        self.counters["stalls"] += 1
+        self.constraint.on_stall(t_from, t_to, now=now)
+
     def mission_started(self, now: float) -> None:
         """The ground station started the mission at ``now``: for ``start_share_s`` the agent
         plans its declared share of the budget (``fleet_size``) as if no peer had been heard.

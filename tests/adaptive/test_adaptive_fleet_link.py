@@ -56,7 +56,8 @@ def test_without_fleet_goodput_other_agents_messages_are_ignored() -> None:
     stats = LinkStats(window_s=1.0)
     stats.update(other(0.0, 0.002, 6000, 0), now=T0)
     assert stats.get() is None and stats.others == 1
-    assert stats.counters == {"samples": 0, "duplicate": 0, "stale": 0, "invalid": 0}
+    assert stats.counters == {"samples": 0, "duplicate": 0, "stale": 0, "invalid": 0,
+                              "stalled": 0}
     stats.update(own(0.1, 0.002, 200, 0), now=T0)
     assert stats.get().goodput_bytes_per_s == pytest.approx(200.0)  # type: ignore[union-attr]
 

@@ -78,7 +78,8 @@ def test_duplicates_stale_and_invalid_samples_are_counted_not_learned() -> None:
     stats.update(sample(5.0, 5.01, seq=2), now=T0)
     stats.update(sample(0.5, 0.51, seq=3), now=T0)  # older than the window
     stats.update(LinkSample(t_sent=math.nan, t_rcv=T0, size=10, seq=4), now=T0)
-    assert stats.counters == {"samples": 2, "duplicate": 1, "stale": 1, "invalid": 1}
+    assert stats.counters == {"samples": 2, "duplicate": 1, "stale": 1, "invalid": 1,
+                              "stalled": 0}
     assert stats.get().n_messages == 1  # type: ignore[union-attr]
 
 

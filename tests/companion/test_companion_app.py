@@ -495,3 +495,37 @@ async def test_a_new_fix_is_told_at_once_not_at_the_next_period(
         app.stop()
         await asyncio.wait_for(task, 10)
     assert t_told - t_fix < 1.5
+
+
+class StallRecorder(FakeDecider):
+    def __init__(self) -> None:
+        super().__init__()
+        self.stalls: list[tuple[float, float, float]] = []
+
+    def on_stall(self, t_from: float, t_to: float, now: float) -> None:
+        self.stalls.append((t_from, t_to, now))
+
+
+async def test_a_blocked_loop_is_told_to_the_decider_as_a_stall(
+        vehicle: FakeVehicle, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """The process does not run for 2.5 s (here: the loop blocked; SIGSTOP in the product
+    test): the decider hears of the interval, so the adaptive constraint does not read what
+    it delayed as the link's queue (tests/adaptive/test_adaptive_stall.py)."""
+    decider = StallRecorder()
+    app, _ = _make(_status_config(vehicle, tmp_path, period_s=5.0), decider)
+    task = asyncio.create_task(app.run())
+    try:
+        await _until(lambda: app.telemetry.snapshot().connected)
+        await asyncio.sleep(1.2)
+        t_block = time.time()
+        time.sleep(2.5)  # blocks the loop: what a stop does to every task
+        t_resume = time.time()
+        await _until(lambda: decider.stalls, timeout_s=3.0)
+    finally:
+        app.stop()
+        await asyncio.wait_for(task, 10)
+    ((t_from, t_to, _),) = decider.stalls
+    # from the housekeeping's last tick before it (no pacer here to hold older sends)
+    assert t_block - 1.1 <= t_from <= t_block and t_resume <= t_to <= t_resume + 0.5
+    assert app.counters["stalls"] == 1
+    assert any("the process did not run for" in r.getMessage() for r in caplog.records)

@@ -291,6 +291,8 @@ async def test_stalls_lose_neither_the_link_nor_messages(
     logs = [json.loads(line) for line in err.splitlines() if line.startswith("{")]
     assert not [r["msg"] for r in logs if "link lost" in r["msg"]], err[-3000:]
     assert any("did not run for" in r["msg"] for r in logs), err[-3000:]
+    # and the optimiser's constraint was told (tests/adaptive/test_adaptive_stall.py)
+    assert any(r["msg"].startswith("companion: the process did not run for") for r in logs)
     assert "lost" not in _link_states(mission_log, after=t_stop)
     assert sum("mavlink connection opened" in r["msg"] for r in logs) == 1
 

@@ -118,6 +118,13 @@ class LinkStatsConstraint(GoodputConstraint):
         del now
         self.stats.on_round_trip(round_trip)
 
+    def on_stall(self, t_from: float, t_to: float, *, now: float) -> None:
+        """Messages this agent sent while it stalled are neither latency nor loss samples."""
+        del now
+        self.stats.mark_stall(t_from, t_to)
+        if self.ledger is not None:
+            self.ledger.forget(t_from, t_to)
+
     @abstractmethod
     def _learn(self, observations: list[WindowStats]) -> None:
         """Update ξ from warm windows, one per newly reported message, in order."""

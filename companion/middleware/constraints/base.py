@@ -52,6 +52,9 @@ class GoodputConstraint(ABC):
     def on_round_trip(self, round_trip: RoundTrip, *, now: float) -> None:  # noqa: B027
         """A report round trip (clock offset and delay); default: not used."""
 
+    def on_stall(self, t_from: float, t_to: float, *, now: float) -> None:  # noqa: B027
+        """This agent did not run in [t_from, t_to] (its clock); default: nothing to undo."""
+
     @property
     def fleet_goodput(self) -> bool:
         """Whether :meth:`on_samples` wants the other agents' report entries too (marked

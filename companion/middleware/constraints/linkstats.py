@@ -262,7 +262,10 @@ class LinkStats:
                 f"link_rate_bytes_per_s must be >= 0 (0: unknown), got {link_rate_bytes_per_s}")
         self.fleet_goodput = bool(fleet_goodput)
         self.link_rate_bytes_per_s = float(link_rate_bytes_per_s)
-        self.counters: dict[str, int] = {"samples": 0, "duplicate": 0, "stale": 0, "invalid": 0}
+        self.counters: dict[str, int] = {"samples": 0, "duplicate": 0, "stale": 0, "invalid": 0,
+                                         "stalled": 0}
+        self._stalls: deque[tuple[float, float]] = deque(maxlen=8)
+        """Intervals of this agent's own clock in which it did not run (:meth:`mark_stall`)."""
         self.others = 0
         """Other agents' samples counted in the goodput (``fleet_goodput``) or ignored."""
         # (t_rcv, raw latency or None for another agent's message, size, key) in arrival
@@ -293,6 +296,9 @@ class LinkStats:
         if not sample.own and not self.fleet_goodput:
             self.others += 1
             return self
+        if sample.own and any(a <= t_sent <= b for a, b in self._stalls):
+            self.counters["stalled"] += 1  # its latency is this agent's stall, not the link's
+            return self
         if self._t_newest is not None and t_rcv <= self._t_newest - self.window_s:
             self.counters["stale"] += 1
             return self
@@ -320,6 +326,15 @@ class LinkStats:
         while self._min and self._min[-1][1] >= raw:
             self._min.pop()
         self._min.append((t_rcv, raw))
+        return self
+
+    def mark_stall(self, t_from: float, t_to: float) -> Self:
+        """This agent did not run between ``t_from`` and ``t_to`` (its clock): what it had
+        stamped and queued left late, so its messages sent in there say nothing about the
+        link and are not learned from (a 4 s SIGSTOP of the companion read as 4 s of
+        queueing and cut ξ by 70 % for 15 s: docs/companion.md)."""
+        if t_to >= t_from:
+            self._stalls.append((t_from, t_to))
         return self
 
     def on_round_trip(self, round_trip: RoundTrip) -> Self:

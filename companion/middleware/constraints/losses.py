@@ -57,5 +57,10 @@ class SendLedger:
         self.counters["unmatched"] += 1
         return 0
 
+    def forget(self, t_from: float, t_to: float) -> None:
+        """Drop the sends made in [t_from, t_to]: the agent stalled then, so one of them lost
+        (an image half sent when it stopped) is its own doing, not the link's congestion."""
+        self._records = deque(r for r in self._records if not t_from <= r[0] <= t_to)
+
     def __len__(self) -> int:
         return len(self._records)
