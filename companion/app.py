@@ -233,7 +233,11 @@ class CompanionApp:
                 late = loop.time() - t_before - 1.0
                 if late > STALL_LATE_S and not self._stopping.is_set():
                     self._stalled(late, since=ran_at)
+                t_before, ran_at = loop.time(), self.clock()
                 self.mission_log.flush()
+                blocked = loop.time() - t_before  # a write that blocked (a slow SD card)
+                if blocked > STALL_LATE_S and not self._stopping.is_set():
+                    self._stalled(blocked, since=ran_at)
         finally:
             self.mission_log.flush()
 

@@ -506,20 +506,38 @@ class StallRecorder(FakeDecider):
         self.stalls.append((t_from, t_to, now))
 
 
+@pytest.mark.parametrize("where", ["a task", "the mission log's flush"])
 async def test_a_blocked_loop_is_told_to_the_decider_as_a_stall(
-        vehicle: FakeVehicle, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
-    """The process does not run for 2.5 s (here: the loop blocked; SIGSTOP in the product
-    test): the decider hears of the interval, so the adaptive constraint does not read what
-    it delayed as the link's queue (tests/adaptive/test_adaptive_stall.py)."""
+        vehicle: FakeVehicle, tmp_path: Path, caplog: pytest.LogCaptureFixture,
+        where: str) -> None:
+    """The process does not run for 2.5 s (here: the loop blocked, by a task or by a write
+    to a slow SD card; SIGSTOP in the product test): the decider hears of the interval, so
+    the adaptive constraint does not read what it delayed as the link's queue
+    (tests/adaptive/test_adaptive_stall.py)."""
     decider = StallRecorder()
     app, _ = _make(_status_config(vehicle, tmp_path, period_s=5.0), decider)
     task = asyncio.create_task(app.run())
+    blocked: list[float] = []
     try:
         await _until(lambda: app.telemetry.snapshot().connected)
         await asyncio.sleep(1.2)
-        t_block = time.time()
-        time.sleep(2.5)  # blocks the loop: what a stop does to every task
-        t_resume = time.time()
+        if where == "a task":
+            t_block = time.time()
+            time.sleep(2.5)  # blocks the loop: what a stop does to every task
+            t_resume = time.time()
+        else:
+            flush = app.mission_log.flush
+
+            def slow_flush() -> None:
+                if not blocked:
+                    blocked.append(time.time())
+                    time.sleep(2.5)
+                    blocked.append(time.time())
+                flush()
+
+            app.mission_log.flush = slow_flush  # type: ignore[method-assign]
+            await _until(lambda: len(blocked) == 2, timeout_s=5.0)
+            t_block, t_resume = blocked
         await _until(lambda: decider.stalls, timeout_s=3.0)
     finally:
         app.stop()
