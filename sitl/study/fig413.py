@@ -91,17 +91,6 @@ def mission_utility(*, agents: int, delay_s: float, loss: float, seed: int,
     return float(evaluate(messages, SPEC, t_end=T_END_S).total)
 
 
-def _interval(values: Sequence[float]) -> tuple[float, float]:
-    """Mean and the half-width of its 95 % t-interval (0 for one value)."""
-    from scipy import stats  # type: ignore[import-untyped]
-
-    a = np.asarray(values, dtype=float)
-    if len(a) < 2:
-        return float(a.mean()), 0.0
-    return float(a.mean()), float(stats.t.ppf(0.975, len(a) - 1) * a.std(ddof=1)
-                                  / math.sqrt(len(a)))
-
-
 def _sweep(args: argparse.Namespace) -> list[dict[str, Any]]:
     delays = np.round(np.linspace(0.0, 1.0, 11 if args.quick else 21), 3)
     losses = np.round(np.linspace(0.0, 0.3, 7 if args.quick else 16), 3)
@@ -122,9 +111,13 @@ def _sweep(args: argparse.Namespace) -> list[dict[str, Any]]:
 def _curve(rows: Sequence[dict[str, Any]], link: str, key: str
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     xs = sorted({float(r[key]) for r in rows if r["link"] == link})
+    from sitl.study.fig57 import _interval  # mean and 95 % t-interval, as every figure
+
     stats = [_interval([r["utility"] for r in rows if r["link"] == link and r[key] == x])
              for x in xs]
-    return (np.array(xs), np.array([m for m, _ in stats]), np.array([h for _, h in stats]))
+    # half-widths; one run has no interval (nan), drawn and printed as 0
+    return (np.array(xs), np.array([m for m, _, _ in stats]),
+            np.nan_to_num(np.array([hi - m for m, _, hi in stats])))
 
 
 def _plots(out: Path, rows: Sequence[dict[str, Any]], agents: int) -> None:
