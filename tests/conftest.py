@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import logging
 import os
+from collections.abc import Generator
+from pathlib import Path
+
+import pytest
 
 # pymavlink picks its wire version from the environment at import time (STYLE.md): decide once.
 os.environ.setdefault("MAVLINK20", "1")
@@ -47,3 +52,32 @@ def pytest_collection_modifyitems(items: list) -> None:  # type: ignore[type-arg
         examples = max(current.max_examples * factor, settings.default.max_examples)
         test._hypothesis_internal_use_settings = settings(  # type: ignore[union-attr]
             current, max_examples=examples, deadline=None, database=None)
+
+
+# Records are built only for enabled levels, so a logging call that raises does so only with
+# its level on (issue 11: INFO was off in the tests). These files run with every logger at
+# DEBUG, as ``--log-level debug`` would in the field: the whole pipeline and the command path
+# (companion app and MAVLink), the station and its UDP receiver. The rest runs at the defaults.
+DEBUG_LOGGED = (
+    "tests/companion/test_companion_app.py",
+    "tests/companion/test_companion_mavlink.py",
+    "tests/ground_station/test_gs_app.py",
+    "tests/integration/test_ground_station_udp.py",
+    "tests/test_logging_extra.py",  # checks that the hook below is in force
+)
+_ROOT = Path(__file__).resolve().parents[1]
+_DEBUG_LOGGED_PATHS = frozenset(_ROOT / name for name in DEBUG_LOGGED)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None
+                            ) -> Generator[None, object, object]:
+    if Path(item.path) not in _DEBUG_LOGGED_PATHS:
+        return (yield)
+    root = logging.getLogger()
+    level = root.level
+    root.setLevel(logging.DEBUG)  # what pytest's ``-o log_level=DEBUG`` does, for this file
+    try:
+        return (yield)
+    finally:
+        root.setLevel(level)

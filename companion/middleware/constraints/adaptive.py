@@ -19,14 +19,17 @@ import dataclasses
 import math
 from abc import abstractmethod
 from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
 import numpy as np
-from sklearn.linear_model import SGDRegressor
 
 from companion.middleware.constraints.base import GoodputConstraint
 from companion.middleware.constraints.linkstats import LinkSample, LinkStats, RoundTrip, WindowStats
 from companion.middleware.constraints.losses import SendLedger
 from companion.middleware.errors import ConstraintError
+
+if TYPE_CHECKING:
+    from sklearn.linear_model import SGDRegressor
 
 __all__ = ["AdaptiveConstraint", "LinkStatsConstraint"]
 
@@ -284,7 +287,12 @@ class AdaptiveConstraint(LinkStatsConstraint):
         self.min_bytes_per_s = float(min_bytes_per_s)
         self.max_bytes_per_s = float(max_bytes_per_s)
         self.scale_bytes_per_s = float(scale_bytes_per_s)
-        self.model = SGDRegressor(
+        # Imported here, not with the module: scikit-learn pulls in scipy.stats (1.5 s on the
+        # test VM, several on a Pi), which a config check or a link-statistics constraint
+        # (the peers' LinkStatsConstraint) never needs.
+        from sklearn.linear_model import SGDRegressor
+
+        self.model: SGDRegressor = SGDRegressor(
             loss="squared_error",
             penalty=None,
             learning_rate="constant",
