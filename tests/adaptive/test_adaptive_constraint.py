@@ -209,3 +209,28 @@ def test_the_send_log_stays_one_window_long_when_nobody_asks() -> None:
         c.on_sent(100, now=i * 0.01)  # 100 s of sends at 100 Hz
     assert len(c._sent) <= 201
     assert c.sent_in_window(now=99.99) == 200 * 100
+
+
+def test_live_parameters_are_settings_not_the_state_the_constraint_recomputes() -> None:
+    """α of the last window is recomputed at every learned window: offering it to
+    ``set_params`` would accept a number the next window overwrites."""
+    from companion.middleware.errors import UnknownParamError
+
+    c = AdaptiveConstraint()
+    assert "alpha_now_bytes_per_s" not in c.tunable()
+    assert {"alpha_bytes_per_s", "min_bytes_per_s", "max_bytes_per_s"} <= set(c.tunable())
+    with pytest.raises(UnknownParamError) as err:
+        c.check_params({"alpha_now_bytes_per_s": 1000.0})
+    assert "alpha_now" not in ", ".join(err.value.known)
+    assert sorted(AimdConstraint().tunable()) == [
+        "alpha_bytes_per_s", "beta_bytes_per_s", "decrease_factor", "increase_bytes_per_s",
+        "max_bytes_per_s", "min_bytes_per_s"]
+
+
+def test_a_new_alpha_moves_xi_at_once_without_waiting_for_a_window() -> None:
+    """ξ = R(α) (eq. 6.8): a changed α is the operator's new tolerance for queueing, on the
+    dashboard at the next status, even on a link that carries nothing to learn from."""
+    c = AdaptiveConstraint()
+    c.apply_params(c.check_params({"alpha_bytes_per_s": 5_000.0}))
+    assert c.limit_bytes_per_s(now=T0) == pytest.approx(c.predict_bytes_per_s(5_000.0))
+    assert c.limit_bytes_per_s(now=T0) < AdaptiveConstraint().limit_bytes_per_s(now=T0)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from abc import abstractmethod
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -327,6 +327,11 @@ class AdaptiveConstraint(LinkStatsConstraint):
         if not math.isfinite(xi):
             return self.min_bytes_per_s
         return min(self.max_bytes_per_s, max(self.min_bytes_per_s, xi))
+
+    def apply_params(self, checked: Mapping[str, float]) -> None:
+        super().apply_params(checked)
+        if self.queueing_budget_s == 0:  # ξ = R(α) at once, not from the next learned window
+            self.alpha_now_bytes_per_s = self.alpha_bytes_per_s
 
     def alpha_for(self, o: WindowStats) -> float:
         """α for window ``o``: the fixed α, or the backlog ``queueing_budget_s`` makes."""

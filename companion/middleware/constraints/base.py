@@ -85,11 +85,13 @@ class GoodputConstraint(ABC):
     def tunable(self) -> dict[str, str]:
         """The numbers a live ``set_params`` may change: parameter name -> attribute.
 
-        By default every public numeric attribute except the window (its length shapes the
-        statistics already gathered) and the update count.
+        By default every public numeric attribute that is also a constructor parameter (a
+        setting, not state the constraint recomputes, such as the adaptive α of the last
+        window), except the window (its length shapes the statistics already gathered).
         """
+        settings = inspect.signature(type(self)).parameters
         return {k: k for k, v in sorted(vars(self).items())
-                if not k.startswith("_") and k not in ("window_s", "n_updates")
+                if not k.startswith("_") and k in settings and k != "window_s"
                 and isinstance(v, int | float) and not isinstance(v, bool)}
 
     def check_params(self, changes: Mapping[str, object]) -> dict[str, float]:
