@@ -17,6 +17,7 @@ import csv
 import hashlib
 import json
 import logging
+import socket
 import sys
 import time
 import uuid
@@ -25,6 +26,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 __all__ = [
     "CellFailed",
@@ -101,6 +103,7 @@ def dask_client(
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
+        _refuse_fast(scheduler, timeout_s=connect_timeout_s)
         client = Client(scheduler, timeout=connect_timeout_s)  # type: ignore[no-untyped-call]
         with client:
             yield client
@@ -117,6 +120,26 @@ def dask_client(
         yield local
     finally:
         _shut_down(local, cluster)
+
+
+def _refuse_fast(scheduler: str, *, timeout_s: float) -> None:
+    """Raise at once when nothing listens at a ``tcp://`` scheduler (a mistyped port): Dask
+    retries a refused connection for its whole connect timeout before it says so."""
+    parts = urlsplit(scheduler)
+    try:
+        host, port = parts.hostname, parts.port or 8786
+    except ValueError:  # a port that is not a number: Dask's own error names it
+        return
+    if parts.scheme != "tcp" or not host:
+        return
+    try:
+        socket.create_connection((host, port), timeout=timeout_s).close()
+    except ConnectionRefusedError:
+        raise ConnectionRefusedError(
+            f"nothing listens at {scheduler} (connection refused): start the scheduler there "
+            "or leave --scheduler out for a local cluster") from None
+    except OSError:
+        return  # unreachable or slow: Dask tries for its timeout and says so
 
 
 def _shut_down(client: Any, cluster: Any) -> None:

@@ -160,3 +160,24 @@ def test_a_csv_of_another_sweep_is_refused_not_mixed(client, tmp_path: Path) -> 
     with pytest.raises(ValueError, match="use a new --out"):
         run_sweep(other_cell, [{"x": 1}], out=out, client=client, progress=lambda _: None)
     assert out.read_text() == before
+
+
+def test_a_scheduler_address_where_nothing_listens_is_refused_at_once() -> None:
+    """Dask retries a refused connection for its whole connect timeout (10 s); a mistyped
+    port is said at once, and a listening address (or one that is not tcp://) is let through."""
+    import socket
+    import time
+
+    from sitl.study.sweep import _refuse_fast
+
+    with socket.socket() as listening:
+        listening.bind(("127.0.0.1", 0))
+        listening.listen()
+        port = listening.getsockname()[1]
+        _refuse_fast(f"tcp://127.0.0.1:{port}", timeout_s=5.0)  # nothing raised
+    started = time.monotonic()
+    with pytest.raises(ConnectionRefusedError, match=f"nothing listens at tcp://127.0.0.1:{port}"):
+        _refuse_fast(f"tcp://127.0.0.1:{port}", timeout_s=5.0)
+    assert time.monotonic() - started < 2.0
+    _refuse_fast("tls://127.0.0.1:9", timeout_s=5.0)  # Dask's to judge
+    _refuse_fast("tcp://127.0.0.1:abc", timeout_s=5.0)
