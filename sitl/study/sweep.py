@@ -128,8 +128,9 @@ def _refuse_fast(scheduler: str, *, timeout_s: float) -> None:
     parts = urlsplit(scheduler)
     try:
         host, port = parts.hostname, parts.port or 8786
-    except ValueError:  # a port that is not a number: Dask's own error names it
-        return
+    except ValueError:  # urlsplit's own message is "Port could not be cast to integer value"
+        raise ValueError(f"--scheduler {scheduler}: the port is not a number "
+                         "(tcp://HOST:8786)") from None
     if parts.scheme != "tcp" or not host:
         return
     try:

@@ -180,4 +180,5 @@ def test_a_scheduler_address_where_nothing_listens_is_refused_at_once() -> None:
         _refuse_fast(f"tcp://127.0.0.1:{port}", timeout_s=5.0)
     assert time.monotonic() - started < 2.0
     _refuse_fast("tls://127.0.0.1:9", timeout_s=5.0)  # Dask's to judge
-    _refuse_fast("tcp://127.0.0.1:abc", timeout_s=5.0)
+    with pytest.raises(ValueError, match="the port is not a number"):
+        _refuse_fast("tcp://127.0.0.1:abc", timeout_s=5.0)
