@@ -222,6 +222,7 @@ def test_live_parameters_are_settings_not_the_state_the_constraint_recomputes() 
     with pytest.raises(UnknownParamError) as err:
         c.check_params({"alpha_now_bytes_per_s": 1000.0})
     assert "alpha_now" not in ", ".join(err.value.known)
+    assert "constraint.alpha_bytes_per_s" in err.value.known  # the name a user types
     assert sorted(AimdConstraint().tunable()) == [
         "alpha_bytes_per_s", "beta_bytes_per_s", "decrease_factor", "increase_bytes_per_s",
         "max_bytes_per_s", "min_bytes_per_s"]

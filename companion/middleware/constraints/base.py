@@ -104,7 +104,8 @@ class GoodputConstraint(ABC):
         checked: dict[str, float] = {}
         for name, value in changes.items():
             if name not in tunable:
-                raise UnknownParamError(f"constraint.{name}", sorted(tunable),
+                raise UnknownParamError(f"constraint.{name}",
+                                        [f"constraint.{k}" for k in sorted(tunable)],
                                         owner=f"the {type(self).__name__}")
             if (isinstance(value, bool) or not isinstance(value, int | float)
                     or not math.isfinite(value) or value < 0):
