@@ -103,6 +103,9 @@ def parse_params(text: str) -> dict[str, Any]:
             raise MissionError(f"parameter {part!r}: expected NAME=VALUE, e.g. alpha=10")
         if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.]*", name):
             raise MissionError(f"parameter name {name!r}: expected letters, digits, '_' or '.'")
+        if "=" in raw:  # "alpha=12 mcts_iterations=300" would send alpha the text "12 mcts..."
+            raise MissionError(f"parameter {part!r}: separate parameters with commas, "
+                               "e.g. alpha=10, mcts_iterations=300")
         params[name] = _value(raw.strip())
     if not params:
         raise MissionError("expected at least one NAME=VALUE parameter")

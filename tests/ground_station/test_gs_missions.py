@@ -66,6 +66,8 @@ def test_parse_params_types() -> None:
     for bad in ("alpha", "=3", "", "a b=1", "x=nan"):
         with pytest.raises(MissionError):
             parse_params(bad)
+    with pytest.raises(MissionError, match="separate parameters with commas"):
+        parse_params("alpha=12 mcts_iterations=300")
 
 
 def test_shell_lines_of_figure_3_7() -> None:
