@@ -230,16 +230,16 @@ class CompanionApp:
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(1.0):
                         await self._stopping.wait()
-                late = loop.time() - t_before - 1.0
-                if late > STALL_LATE_S and not self._stopping.is_set():
-                    self._stalled(late, since=ran_at)
+                self._check_ran(loop.time() - t_before - 1.0, since=ran_at)
                 t_before, ran_at = loop.time(), self.clock()
                 self.mission_log.flush()
-                blocked = loop.time() - t_before  # a write that blocked (a slow SD card)
-                if blocked > STALL_LATE_S and not self._stopping.is_set():
-                    self._stalled(blocked, since=ran_at)
+                self._check_ran(loop.time() - t_before, since=ran_at)  # a slow SD card's write
         finally:
             self.mission_log.flush()
+
+    def _check_ran(self, late_s: float, *, since: float) -> None:
+        if late_s > STALL_LATE_S and not self._stopping.is_set():
+            self._stalled(late_s, since=since)
 
     def _stalled(self, late_s: float, *, since: float) -> None:
         """The loop did not run for ``late_s`` (SIGSTOP, swap, an SD card's write, a paused
