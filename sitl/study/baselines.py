@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-import math
 import sys
 import time
 from collections import defaultdict
@@ -37,6 +36,7 @@ from companion.middleware.constraint import ConstantConstraint
 from companion.middleware.middleware import Decision, Middleware, MiddlewareConfig
 from sitl.netsim import ChannelConfig, SimAgent, StreamConfig, simulate
 from sitl.study import drop_rate as dr
+from sitl.study.sweep import mean_interval
 from utility_specs.files import builtin_spec
 from utility_specs.message import Message, Version
 from utility_specs.spec import MissionSpec
@@ -186,13 +186,9 @@ def plan(quick: bool) -> dict[str, Any]:
 
 
 def _interval(values: Sequence[float]) -> tuple[float, float]:
-    """Mean and half-width of the 95 % t-interval."""
-    arr = np.asarray(values, dtype=float)
-    if len(arr) < 2:
-        return float(arr.mean()), float("nan")
-    t95 = {2: 12.71, 3: 4.30, 4: 3.18, 5: 2.78, 6: 2.57, 7: 2.45, 8: 2.36, 9: 2.31, 10: 2.26}
-    t = t95.get(len(arr), 1.96)
-    return float(arr.mean()), float(t * arr.std(ddof=1) / math.sqrt(len(arr)))
+    """Mean and half-width of the 95 % t-interval (NaN for one seed)."""
+    mean, _, high = mean_interval(values)
+    return mean, high - mean
 
 
 def at_bytes(curve: Sequence[tuple[float, float]], target: float) -> float | None:

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from sitl.study.sweep import mean_interval
 from utility_specs.evaluate import evaluate
 from utility_specs.message import Message
 from utility_specs.spec import MissionSpec, parse_spec
@@ -111,9 +112,7 @@ def _sweep(args: argparse.Namespace) -> list[dict[str, Any]]:
 def _curve(rows: Sequence[dict[str, Any]], link: str, key: str
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     xs = sorted({float(r[key]) for r in rows if r["link"] == link})
-    from sitl.study.fig57 import _interval  # mean and 95 % t-interval, as every figure
-
-    stats = [_interval([r["utility"] for r in rows if r["link"] == link and r[key] == x])
+    stats = [mean_interval([r["utility"] for r in rows if r["link"] == link and r[key] == x])
              for x in xs]
     # half-widths; one run has no interval (nan), drawn and printed as 0
     return (np.array(xs), np.array([m for m, _, _ in stats]),

@@ -40,6 +40,7 @@ from sitl.study.sweep import (
     dask_client,
     error_text,
     map_cells,
+    mean_interval,
     run_sweep,
 )
 
@@ -135,17 +136,6 @@ def fifths(normalised: np.ndarray) -> list[float]:
     return [float(c) / max(1, len(normalised)) for c in counts]
 
 
-def _interval(values: Sequence[float]) -> tuple[float, float, float]:
-    from scipy import stats  # type: ignore[import-untyped]
-
-    a = np.asarray(values, dtype=float)
-    mean = float(a.mean())
-    if len(a) < 2:
-        return mean, math.nan, math.nan
-    half = float(stats.t.ppf(0.975, len(a) - 1) * a.std(ddof=1) / math.sqrt(len(a)))
-    return mean, mean - half, mean + half
-
-
 def summarise(rows: Sequence[dict[str, str]]) -> list[dict[str, Any]]:
     """Mean and 95 % interval of utility and achieved drop per (scenario, policy, drop)."""
     groups: dict[tuple[str, str, float], list[dict[str, str]]] = defaultdict(list)
@@ -153,8 +143,8 @@ def summarise(rows: Sequence[dict[str, str]]) -> list[dict[str, Any]]:
         groups[(r["scenario"], r["policy"], float(r["drop"]))].append(r)
     out = []
     for (scenario, policy, drop), rs in sorted(groups.items()):
-        u, u_lo, u_hi = _interval([float(r["utility_pct"]) for r in rs])
-        d, d_lo, d_hi = _interval([float(r["drop_share"]) for r in rs])
+        u, u_lo, u_hi = mean_interval([float(r["utility_pct"]) for r in rs])
+        d, d_lo, d_hi = mean_interval([float(r["drop_share"]) for r in rs])
         out.append({"scenario": scenario, "policy": policy, "target_drop": drop, "runs": len(rs),
                     "utility_mean": u, "utility_lo": u_lo, "utility_hi": u_hi,
                     "drop_mean": d, "drop_lo": d_lo, "drop_hi": d_hi,

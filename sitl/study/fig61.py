@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from sitl.study.sweep import add_cluster_options, sweep_figure, write_rows
+from sitl.study.sweep import add_cluster_options, mean_interval, sweep_figure, write_rows
 
 __all__ = ["SIGMAS", "jittered_link", "main", "point_cell"]
 
@@ -75,15 +75,14 @@ def point_cell(params: dict[str, Any], seed: int) -> dict[str, Any]:
 
 
 def _summary(rows: Sequence[dict[str, str]]) -> list[dict[str, Any]]:
-    from sitl.study.fig57 import _interval
 
     groups: dict[tuple[float, float], list[dict[str, str]]] = defaultdict(list)
     for r in rows:
         groups[(float(r["sigma_s"]), float(r["rate_mbit"]))].append(r)
     out = []
     for (sigma, rate), rs in sorted(groups.items()):
-        rx, rx_lo, rx_hi = _interval([float(r["reception_mbit"]) for r in rs])
-        lat, lat_lo, lat_hi = _interval([float(r["latency_ms"]) for r in rs])
+        rx, rx_lo, rx_hi = mean_interval([float(r["reception_mbit"]) for r in rs])
+        lat, lat_lo, lat_hi = mean_interval([float(r["latency_ms"]) for r in rs])
         out.append({"sigma_s": sigma, "rate_mbit": rate, "runs": len(rs),
                     "reception_mean_mbit": rx, "reception_lo_mbit": rx_lo,
                     "reception_hi_mbit": rx_hi, "latency_mean_ms": lat,

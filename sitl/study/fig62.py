@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from sitl.study.sweep import add_cluster_options, sweep_figure, write_rows
+from sitl.study.sweep import add_cluster_options, mean_interval, sweep_figure, write_rows
 
 __all__ = ["THESIS_R_STAR_MBIT", "crossing", "main", "point_cell"]
 
@@ -57,7 +57,6 @@ def crossing(rates: Sequence[float], backlog: Sequence[float], alpha: float) -> 
 
 
 def _summary(rows: Sequence[dict[str, str]]) -> list[dict[str, Any]]:
-    from sitl.study.fig57 import _interval
 
     groups: dict[tuple[float, float], list[float]] = defaultdict(list)
     for r in rows:
@@ -65,7 +64,7 @@ def _summary(rows: Sequence[dict[str, str]]) -> list[dict[str, Any]]:
             float(r["mean_backlog_mbit"]))
     out = []
     for (s, rate), values in sorted(groups.items()):
-        mean, lo, hi = _interval(values)
+        mean, lo, hi = mean_interval(values)
         out.append({"background_mbit": s, "rate_mbit": rate, "runs": len(values),
                     "backlog_mean_mbit": mean, "backlog_lo_mbit": lo, "backlog_hi_mbit": hi})
     return out

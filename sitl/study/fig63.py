@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from sitl.study.sweep import add_cluster_options, sweep_figure, write_rows
+from sitl.study.sweep import add_cluster_options, mean_interval, sweep_figure, write_rows
 
 __all__ = ["ALPHAS_MBIT", "FIXED_RATES_MBIT", "alpha_cell", "main"]
 
@@ -77,7 +77,6 @@ def alpha_cell(params: dict[str, Any], seed: int) -> dict[str, Any]:
 
 
 def _summary(rows: Sequence[dict[str, str]]) -> list[dict[str, Any]]:
-    from sitl.study.fig57 import _interval
 
     groups: dict[tuple[str, float], list[dict[str, str]]] = defaultdict(list)
     for r in rows:
@@ -87,7 +86,7 @@ def _summary(rows: Sequence[dict[str, str]]) -> list[dict[str, Any]]:
     for (mode, key), rs in sorted(groups.items()):
         row: dict[str, Any] = {"mode": mode, "alpha_or_rate_mbit": key, "runs": len(rs)}
         for col in ("publishing_mbit", "reception_mbit", "loss", "latency_ms"):
-            mean, lo, hi = _interval([float(r[col]) for r in rs])
+            mean, lo, hi = mean_interval([float(r[col]) for r in rs])
             row.update({f"{col}_mean": mean, f"{col}_lo": lo, f"{col}_hi": hi})
         out.append(row)
     return out

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from sitl.study.sweep import add_cluster_options, sweep_figure, write_rows
+from sitl.study.sweep import add_cluster_options, mean_interval, sweep_figure, write_rows
 
 __all__ = ["main", "run_cell", "step_response_s"]
 
@@ -76,7 +76,6 @@ def run_cell(params: dict[str, Any], seed: int) -> dict[str, Any]:
 
 def _summary(rows: Sequence[dict[str, str]]) -> list[dict[str, Any]]:
     from sitl.study.adaptive.figures import FIG65_CONSTRAINTS
-    from sitl.study.fig57 import _interval
 
     out = []
     for name in FIG65_CONSTRAINTS:
@@ -86,7 +85,7 @@ def _summary(rows: Sequence[dict[str, str]]) -> list[dict[str, Any]]:
         row: dict[str, Any] = {"constraint": name, "runs": len(rs)}
         for col in ("cv_first_half", "cv_second_half", "p95_queueing_ms", "loss",
                     "step_response_s", "xi_before_mbit", "xi_after_mbit"):
-            mean, lo, hi = _interval([float(r[col]) for r in rs])
+            mean, lo, hi = mean_interval([float(r[col]) for r in rs])
             row.update({f"{col}_mean": mean, f"{col}_lo": lo, f"{col}_hi": hi})
         out.append(row)
     return out

@@ -35,7 +35,13 @@ from typing import Any
 
 import numpy as np
 
-from sitl.study.sweep import add_cluster_options, dask_client, error_text, run_sweep
+from sitl.study.sweep import (
+    add_cluster_options,
+    dask_client,
+    error_text,
+    mean_interval,
+    run_sweep,
+)
 
 __all__ = ["RED_SHARES", "fig73_cell", "fig74_cell", "main_73", "main_74"]
 
@@ -173,7 +179,6 @@ def _parser(name: str, text: str) -> argparse.ArgumentParser:
 
 
 def main_73(argv: list[str] | None = None) -> int:
-    from sitl.study.fig57 import _interval
 
     parser = _parser("fig7.3", "Thesis fig. 7.3: frames per robot by red content (MCTS 300).")
     args = parser.parse_args(argv)
@@ -187,8 +192,8 @@ def main_73(argv: list[str] | None = None) -> int:
         return 1
     summary = []
     for i, red in enumerate(RED_SHARES):
-        fps = _interval([float(r[f"fps_{i}"]) for r in sweep.rows])
-        kb = _interval([float(r[f"kbytes_per_s_{i}"]) for r in sweep.rows])
+        fps = mean_interval([float(r[f"fps_{i}"]) for r in sweep.rows])
+        kb = mean_interval([float(r[f"kbytes_per_s_{i}"]) for r in sweep.rows])
         summary.append({"robot": i, "red_share": red, "fps_mean": fps[0], "fps_lo": fps[1],
                         "fps_hi": fps[2], "kbytes_per_s_mean": kb[0]})
     with (args.out / "fig7_3_summary.csv").open("w", newline="", encoding="utf-8") as f:
@@ -220,7 +225,6 @@ def main_73(argv: list[str] | None = None) -> int:
 
 
 def main_74(argv: list[str] | None = None) -> int:
-    from sitl.study.fig57 import _interval
 
     parser = _parser("fig7.4", "Thesis fig. 7.4 with image streaming: a background step "
                                "under the adaptive constraint (MCTS 300).")
@@ -248,7 +252,7 @@ def main_74(argv: list[str] | None = None) -> int:
              "thesis (ch. 7.3, robots, 10 Mbit/s background): immediate drop of application "
              "traffic, latency falls over ~20 s and stabilises; no numbers stated"]
     for k in keys:
-        mean, lo, hi = _interval([float(r[k]) for r in sweep.rows])
+        mean, lo, hi = mean_interval([float(r[k]) for r in sweep.rows])
         lines.append(f"  {k:26s} {mean:8.1f} [{lo:8.1f}, {hi:8.1f}]")
     _plot_74(args.out / "fig7_4.png", series, t_on)
     print("\n".join(lines))

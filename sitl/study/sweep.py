@@ -17,6 +17,7 @@ import csv
 import hashlib
 import json
 import logging
+import math
 import socket
 import sys
 import time
@@ -28,6 +29,8 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
+import numpy as np
+
 __all__ = [
     "CellFailed",
     "SweepResult",
@@ -35,6 +38,7 @@ __all__ = [
     "cell_seed",
     "dask_client",
     "map_cells",
+    "mean_interval",
     "read_done",
     "run_sweep",
 ]
@@ -158,6 +162,19 @@ def error_text(exc: BaseException) -> str:
     """An exception as one line, also when it carries no message (Dask's TimeoutError)."""
     text = str(exc).strip().splitlines()
     return text[0] if text else type(exc).__name__
+
+
+def mean_interval(values: Sequence[float]) -> tuple[float, float, float]:
+    """Mean and its 95 % t-interval (low, high) over runs or seeds, as every study's tables
+    and error bars give them; NaN bounds for a single value (no interval)."""
+    from scipy import stats  # type: ignore[import-untyped]
+
+    a = np.asarray(values, dtype=float)
+    mean = float(a.mean())
+    if len(a) < 2:
+        return mean, math.nan, math.nan
+    half = float(stats.t.ppf(0.975, len(a) - 1) * a.std(ddof=1) / math.sqrt(len(a)))
+    return mean, mean - half, mean + half
 
 
 def add_cluster_options(parser: argparse.ArgumentParser) -> None:
