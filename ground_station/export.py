@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ground_station.storage import Storage, safe_name
+from ground_station.storage_identity import generation_label
 
 __all__ = ["ExportError", "ExportResult", "export_mission"]
 
@@ -101,6 +102,7 @@ def export_mission(data_dir: Path, mission: str, out: Path, *,
     images_dir.mkdir(parents=True, exist_ok=True)
     csv_path = out / "geotags.csv"
     copied = missing = untagged = 0
+    names: set[str] = set()
     with open(csv_path, "w", newline="", encoding="utf-8") as handle:
         writer = csv.writer(handle)
         writer.writerow(COLUMNS)
@@ -109,6 +111,9 @@ def export_mission(data_dir: Path, mission: str, out: Path, *,
                 missing += 1
                 continue
             name = f"{safe_name(row.sender)}_{row.seq:09d}.jpg"
+            if name in names:  # a restarted drone's seq again (rows come oldest first)
+                name = f"{safe_name(row.sender)}_{row.seq:09d}~{generation_label(row.t_gen)}.jpg"
+            names.add(name)
             shutil.copy2(data_dir / row.path, images_dir / name)
             copied += 1
             pose = row.pose or ("ok" if row.lat_deg is not None and row.lon_deg is not None

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from ground_station.storage_files import fsync_dir, remove_temp_files, write_atomically
+from ground_station.storage_identity import image_relpath, image_relpaths, key_images_by_t_gen
 from ground_station.storage_reads import StorageReads
 from ground_station.storage_records import (
     NEW_IMAGE_COLUMNS,
@@ -98,6 +99,7 @@ class Storage(StorageReads):
         for name, kind in NEW_IMAGE_COLUMNS:
             if name not in have:
                 self.db.execute(f"ALTER TABLE images ADD COLUMN {name} {kind}")
+        key_images_by_t_gen(self.db)
 
     def close(self, *, now: float | None = None) -> None:
         """Close files. A mission received in this process without an end command gets
@@ -121,15 +123,8 @@ class Storage(StorageReads):
         self.db.close()
 
     # -- writing ------------------------------------------------------------------------
-    def image_relpath(self, mission: str, message: Message) -> Path:
-        version = "" if message.version is None else f"-v{message.version}"
-        return (
-            Path("missions")
-            / safe_name(mission)
-            / "images"
-            / safe_name(message.sender)
-            / f"{message.seq:09d}{version}.jpg"
-        )
+    def image_relpath(self, mission: str, message: Message, *, renamed: bool = False) -> Path:
+        return image_relpath(mission, message, renamed=renamed)
 
     def _write_file(self, relpath: Path, payload: bytes) -> None:
         write_atomically(self.root / relpath, payload, fsync=self.fsync,
@@ -154,11 +149,10 @@ class Storage(StorageReads):
             self._logs[mission] = handle
         return handle
 
-    def _store_file(self, item: StoreItem) -> tuple[Path | None, str | None]:
+    def _store_file(self, item: StoreItem, rel: Path | None) -> tuple[Path | None, str | None]:
         """Write one image file; (relative path, None) or (None, error text)."""
-        if item.payload is None:
+        if item.payload is None or rel is None:
             return None, None
-        rel = self.image_relpath(item.mission, item.message)
         try:
             self._write_file(rel, item.payload)
         except OSError as exc:
@@ -179,7 +173,7 @@ class Storage(StorageReads):
         dirs: set[Path] = set()
         # Files are written (and fsync'd) by a few threads at once: fsync waits for the
         # disk, and parallel fsyncs share journal commits (about 1.7x here).
-        outcomes = list(self._files.map(self._store_file, items))
+        outcomes = list(self._files.map(self._store_file, items, image_relpaths(self.db, items)))
         for rel, failure in outcomes:
             if rel is None:
                 paths.append(None)

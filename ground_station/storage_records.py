@@ -82,7 +82,7 @@ CREATE TABLE IF NOT EXISTS images (
     pose_age_s REAL,
     pose TEXT,
     alt_amsl_m REAL,
-    UNIQUE (mission, sender, seq)
+    UNIQUE (mission, sender, seq, t_gen)
 );
 CREATE INDEX IF NOT EXISTS images_by_sender ON images (mission, sender, t_rcv);
 CREATE INDEX IF NOT EXISTS images_by_utility ON images (mission, utility);

@@ -32,7 +32,7 @@ from companion.middleware.constraints.base import GoodputConstraint
 from companion.middleware.incremental import option_message, window_violations
 from companion.middleware.reports import ReceiverReport, feed_link
 from companion.protocol.records import entry_from_message
-from utility_specs.message import Message, Version
+from utility_specs.message import Message, MessageKey, Version
 
 __all__ = ["ChannelConfig", "SimAgent", "SimResult", "StreamConfig", "ideal_copies", "simulate"]
 
@@ -174,8 +174,8 @@ def simulate(
                     break
                 push(t, _GEN, (a_index, s_index, k))
                 k += 1
-    generated: dict[tuple[str, int], Message] = {}
-    order: list[tuple[str, int]] = []
+    generated: dict[MessageKey, Message] = {}
+    order: list[MessageKey] = []
     queues: list[deque[tuple[float, Message]]] = [deque() for _ in agents]
     busy = False
     lost = 0

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from utility_specs.evaluate import evaluate
-from utility_specs.message import Message
+from utility_specs.message import Message, MessageKey
 from utility_specs.spec import MissionSpec
 
 __all__ = ["Characteristics", "DropRun", "characteristics"]
@@ -44,7 +44,7 @@ class Characteristics:
     ideal: float
     """U(M) with every generated message delivered at once."""
     runs: list[DropRun]
-    expected: dict[tuple[str, int], float]
+    expected: dict[MessageKey, float]
     """Per message (sender, seq) delivered in some replay: its mean marginal utility."""
 
     def normalised(self) -> np.ndarray:
@@ -74,7 +74,7 @@ def characteristics(messages: Sequence[Message], spec: MissionSpec, *, t_start: 
         streams[_stream_key(spec, m)].append(i)
     ideal = evaluate(copies, spec, t_start=t_start, t_end=t_end).total
     rng = np.random.default_rng(seed)
-    gathered: dict[tuple[str, int], list[float]] = defaultdict(list)
+    gathered: dict[MessageKey, list[float]] = defaultdict(list)
     out: list[DropRun] = []
     for drop in drops:
         for run in range(runs):

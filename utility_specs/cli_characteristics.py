@@ -96,8 +96,8 @@ def _write(out: Path, result: Characteristics, generated: list[Any]) -> None:
     with (out / "characteristics.csv").open("w", newline="", encoding="utf-8") as f:
         writer = csv.writer(f)
         writer.writerow(["sender", "seq", "type", "expected_utility", "normalised"])
-        for (sender, seq), value in sorted(result.expected.items()):
-            writer.writerow([sender, seq, types[(sender, seq)], f"{value:.6g}",
+        for key, value in sorted(result.expected.items()):
+            writer.writerow([key[0], key[1], types[key], f"{value:.6g}",
                              f"{value / top:.6g}"])
     with (out / "drop_runs.csv").open("w", newline="", encoding="utf-8") as f:
         writer = csv.writer(f)

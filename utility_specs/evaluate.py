@@ -26,7 +26,7 @@ from utility_specs._envelope import JIT, max_envelope_integral
 from utility_specs.curves import Curve
 from utility_specs.errors import MessageError
 from utility_specs.functions import UtilityFunction
-from utility_specs.message import Message, StateHistory
+from utility_specs.message import Message, MessageKey, StateHistory
 from utility_specs.spec import InfoType, MissionSpec
 
 __all__ = [
@@ -160,7 +160,7 @@ def _stream_total(
 ) -> float:
     """:func:`evaluate_stream` for received messages; copies of one message collapse by
     eq. 4.33. A long ``max`` stream without copies goes to the compiled sweep directly."""
-    if len({(m.sender, m.seq) for m in stream}) == len(stream):
+    if len({m.key for m in stream}) == len(stream):
         if info.aggregation == "max" and JIT and len(stream) >= _COMPILED_FROM:
             stream.sort(key=_t_rcv)
             starts = [m.t_rcv for m in stream]
@@ -170,9 +170,9 @@ def _stream_total(
         inf = math.inf
         occs = [_Occurrence(m, m.t_rcv, inf) for m in stream]  # type: ignore[arg-type]
     else:
-        groups: dict[tuple[str, int], list[Message]] = defaultdict(list)
+        groups: dict[MessageKey, list[Message]] = defaultdict(list)
         for m in stream:
-            groups[(m.sender, m.seq)].append(m)
+            groups[m.key].append(m)
         occs = [o for group in groups.values() for o in occurrences(group)]
     return evaluate_stream(info, occs, t_start=t0, t_end=t1, history=history)
 
@@ -217,9 +217,9 @@ def evaluate_stream(
         return _impulses(fn, occs, t_start, t_end)
     prepared = fn.prepare([o.m for o in occs])
     if prepared is not None:
-        by_id = {(p.sender, p.seq, p.version, p.t_rcv): p for p in prepared}
+        by_id = {(p.key, p.version, p.t_rcv): p for p in prepared}
         occs = [
-            _Occurrence(by_id[(o.m.sender, o.m.seq, o.m.version, o.m.t_rcv)], o.start, o.until)
+            _Occurrence(by_id[(o.m.key, o.m.version, o.m.t_rcv)], o.start, o.until)
             for o in occs
         ]
     if fn.state_dependent:
@@ -248,7 +248,7 @@ def evaluate_stream(
 
 def _impulses(fn: UtilityFunction, occs: Sequence[_Occurrence], t0: float, t1: float) -> float:
     """Eq. 4.34: each message counts once, at its first reception, with its best version."""
-    best: dict[tuple[str, int], tuple[float, Message]] = {}
+    best: dict[MessageKey, tuple[float, Message]] = {}
     for o in occs:
         first = best.get(o.m.key)
         start = o.start if first is None else min(first[0], o.start)
@@ -507,7 +507,7 @@ def aggregate_at(
     prepared = fn.prepare(list(messages)) or list(messages)
     received = [m for m in prepared if m.t_rcv is not None and m.t_rcv <= t]
     # eq. 4.33: of several copies of one message only the best version received so far counts
-    best: dict[tuple[str, int], Message] = {}
+    best: dict[MessageKey, Message] = {}
     for m in received:
         held = best.get(m.key)
         if held is None or m.quality > held.quality:

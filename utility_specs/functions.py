@@ -40,7 +40,7 @@ from utility_specs.curves import (
     StepCurve,
 )
 from utility_specs.errors import MessageError, SpecError
-from utility_specs.message import Message
+from utility_specs.message import Message, MessageKey
 
 __all__ = [
     "FUNCTIONS",
@@ -443,7 +443,7 @@ class Localization(UtilityFunction):
         order = sorted(received, key=lambda m: (m.t_rcv or 0.0, m.sender, m.seq))
         known_cells: set[tuple[int, int]] = set()
         known_area: Any = None
-        new_of: dict[tuple[str, int], tuple[str, Any]] = {}  # a message's N_m, by its key
+        new_of: dict[MessageKey, tuple[str, Any]] = {}  # a message's N_m, by its key
         out: list[Message] = []
         for m in order:
             data = dict(m.data)

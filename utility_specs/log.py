@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import IO, Any
 
 from utility_specs.errors import LogError, MessageError
-from utility_specs.message import Message, StateHistory, Version
+from utility_specs.message import Message, MessageKey, StateHistory, Version
 
 __all__ = [
     "MissionLog",
@@ -198,17 +198,17 @@ def write_record(stream: IO[str], record: Mapping[str, Any]) -> None:
 def merge_copies(messages: Iterable[Message]) -> Iterator[Message]:
     """Drop a sender's not-received record when a receiver logged the same message.
 
-    Copies are matched by (sender, seq, version); received copies are all kept (one per
-    receiver), a not-received copy only when no receiver logged that message.
+    Copies are matched by identity (sender, seq, t_gen) and version; received copies are all
+    kept (one per receiver), a not-received copy only when no receiver logged that message.
     """
-    received: set[tuple[str, int, int | None]] = set()
+    received: set[tuple[MessageKey, int | None]] = set()
     pending: list[Message] = []
     for m in messages:
         if m.t_rcv is not None:
-            received.add((m.sender, m.seq, m.version))
+            received.add((m.key, m.version))
             yield m
         else:
             pending.append(m)
     for m in pending:
-        if (m.sender, m.seq, m.version) not in received:
+        if (m.key, m.version) not in received:
             yield m

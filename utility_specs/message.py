@@ -13,7 +13,12 @@ from typing import Any
 
 from utility_specs.errors import MessageError
 
-__all__ = ["Message", "StateHistory", "Version"]
+__all__ = ["Message", "MessageKey", "StateHistory", "Version"]
+
+MessageKey = tuple[str, int, float]
+"""(sender, seq, t_gen): a message's identity. A drone counts ``seq`` from 0 again each time
+its companion starts, so within one mission (sender, seq) names several messages; their
+``t_gen`` tells them apart (the wire decoder's identity too, docs/protocol.md)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -98,9 +103,9 @@ class Message:
         return self.t_rcv is not None
 
     @property
-    def key(self) -> tuple[str, int]:
-        """Identity of the message across copies, receivers and versions."""
-        return (self.sender, self.seq)
+    def key(self) -> MessageKey:
+        """Identity of the message across copies, receivers and versions (:data:`MessageKey`)."""
+        return (self.sender, self.seq, self.t_gen)
 
     @property
     def quality(self) -> float:

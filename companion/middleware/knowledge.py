@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 from companion.middleware.forecast import LatencyEstimator, StreamForecaster
 from companion.middleware.incremental import FixedItem, PlanItem, option_message, stream_of
 from utility_specs.errors import UtilitySpecsError
-from utility_specs.message import Message
+from utility_specs.message import Message, MessageKey
 from utility_specs.spec import MissionSpec
 
 __all__ = ["WORTH_SPAN_S", "FleetKnowledge", "PlanningView", "settle_inflight", "usable"]
@@ -84,10 +84,10 @@ class FleetKnowledge:
         waiting for a better frame; False: copies of the last message (the baselines)."""
         self.latency = LatencyEstimator(default_s=default_latency_s)
         self._delivered: dict[tuple[str, str | None], tuple[Message, float]] = {}
-        self._inflight: dict[tuple[str, int], tuple[Message, float]] = {}
-        self._sends: dict[tuple[str, int], tuple[float, int]] = {}
-        self._seen: set[tuple[str, int]] = set()
-        self._seen_order: deque[tuple[str, int]] = deque()
+        self._inflight: dict[MessageKey, tuple[Message, float]] = {}
+        self._sends: dict[MessageKey, tuple[float, int]] = {}
+        self._seen: set[MessageKey] = set()
+        self._seen_order: deque[MessageKey] = deque()
         self._newest: dict[tuple[str, str | None], Message] = {}
         """Per stream, the newest message generated here: what the sender knows has changed."""
         self._held: dict[str, dict[tuple[str, str | None], tuple[Message, float]]] = {}
@@ -201,7 +201,7 @@ class FleetKnowledge:
         hi = now - lag_s
         lo = hi - window_s
         sums: dict[str, list[float]] = {}
-        for (sender, _), (t, b) in self._sends.items():
+        for (sender, _, _), (t, b) in self._sends.items():
             if sender != self.agent and lo <= t <= hi:
                 acc = sums.setdefault(sender, [0.0, 0.0])
                 acc[0] += b

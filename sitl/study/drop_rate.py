@@ -39,7 +39,7 @@ from companion.middleware.middleware import Middleware, MiddlewareConfig
 from sitl.netsim import ChannelConfig, SimAgent, SimResult, StreamConfig, ideal_copies, simulate
 from utility_specs.evaluate import evaluate
 from utility_specs.files import builtin_spec
-from utility_specs.message import Message
+from utility_specs.message import Message, MessageKey
 from utility_specs.spec import MissionSpec
 
 __all__ = [
@@ -269,12 +269,12 @@ def optimum_gap(
 
 def message_utilities(
     spec: MissionSpec, result: SimResult, t_end: float
-) -> dict[tuple[str, int], float]:
+) -> dict[MessageKey, float]:
     """What each delivered message added to its stream (eq. 4.5 chain: until the next one)."""
     by_stream: dict[str, list[Message]] = defaultdict(list)
     for m in result.delivered:
         by_stream[m.type].append(m)
-    out: dict[tuple[str, int], float] = {}
+    out: dict[MessageKey, float] = {}
     for type_name, msgs in by_stream.items():
         info = spec.types[type_name]
         fn = info.utility
@@ -341,7 +341,7 @@ def main(argv: list[str] | None = None) -> int:
     chars: dict[str, list[float]] = {}
     char_rows = []
     for scenario in scenarios:
-        values: dict[tuple[str, int], list[float]] = defaultdict(list)
+        values: dict[MessageKey, list[float]] = defaultdict(list)
         # the random-drop runs of the curves themselves (same seed, same drop shares)
         for p in cfg["drops"]:
             _, result, spec = run_mission(scenario, "random", p, seed=cfg["seeds"][0],

@@ -66,7 +66,7 @@ def test_settling_estimates_what_others_sent_in_the_last_lag_and_keeps_the_newes
     assert view.root_window == [(0.5, 1000), (1.125, 2500), (1.375, 2500), (1.625, 2500),
                                 (1.875, 2500)]
     kept = settle_inflight(_view([*inflight, own]), now=2.0, rates={}, lag_s=1.0, keep=2)
-    assert [it.message.key for it in kept.items] == [("b", 3), ("c", 0), ("a", 0)]
+    assert [it.message.key[:2] for it in kept.items] == [("b", 3), ("c", 0), ("a", 0)]
     assert kept.root_window == [(0.5, 1000)]
     quiet = settle_inflight(_view([own]), now=2.0, rates={"b": (10_000.0, 2500.0)}, lag_s=0.0)
     assert quiet.root_window == [(0.5, 1000)] and quiet.items == [own]

@@ -90,7 +90,7 @@ def test_in_flight_messages_with_versions_are_settled_not_searched() -> None:
     fix = item("c", 0, 1.5, "position", "inflight")
     view = PlanningView(items=[*frames, fix, own], fixed=[], root_window=[], horizon_end=5.0)
     settled = settle_inflight(view, now=2.0, rates={}, lag_s=1.0, keep=4, settle_versions=True)
-    assert [it.message.key for it in settled.items] == [("c", 0), ("a", 9)]
+    assert [it.message.key[:2] for it in settled.items] == [("c", 0), ("a", 9)]
     kept = settle_inflight(view, now=2.0, rates={}, lag_s=1.0, keep=4)
     assert len(kept.items) == 5
 

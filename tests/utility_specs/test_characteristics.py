@@ -48,12 +48,12 @@ def test_a_message_is_worth_what_the_stream_loses_without_it() -> None:
     result = characteristics(_stream([0.0, 1.0]), _spec("max"), t_start=0.0, t_end=30.0,
                              drops=[0.0], runs=1, seed=1)
     assert result.ideal == pytest.approx(2 * 5.95)
-    assert result.expected == {("a", 0): pytest.approx(1.9), ("a", 1): pytest.approx(1.9)}
+    assert result.expected == {("a", 0, 0.0): pytest.approx(1.9), ("a", 1, 1.0): pytest.approx(1.9)}
     # another sender's stream is its own: nothing it sends lowers these
     both = characteristics(_stream([0.0, 1.0]) + _stream([0.5], sender="b"), _spec("max"),
                            t_start=0.0, t_end=30.0, drops=[0.0], runs=1, seed=1)
-    assert both.expected[("a", 0)] == pytest.approx(1.9)
-    assert both.expected[("b", 0)] == pytest.approx(10.0)
+    assert both.expected[("a", 0, 0.0)] == pytest.approx(1.9)
+    assert both.expected[("b", 0, 0.5)] == pytest.approx(10.0)
 
 
 def test_bad_arguments_are_value_errors() -> None:
