@@ -25,6 +25,7 @@ log = logging.getLogger(__name__)
 Clock = Callable[[], float]
 SendStatus = Callable[[Status, float], int]
 RESULTS_KEPT = 1000
+PHASE_KEPT = 64
 
 
 class CommandExecutor:
@@ -48,6 +49,8 @@ class CommandExecutor:
         """Command id -> its final status (None while it waits for ``t_exec``)."""
         self._tasks: set[asyncio.Task[None]] = set()
         self._timers: list[asyncio.TimerHandle] = []
+        self._phase: dict[int, tuple[str, float]] = {}
+        """Start and end commands received: id -> (name, t_exec), the last PHASE_KEPT."""
 
     def close(self) -> None:
         for handle in self._timers:
@@ -68,6 +71,10 @@ class CommandExecutor:
                 result or Status(state="ack", command_id=command.command_id), self._clock())
             return
         self._results[command.command_id] = None
+        if command.name in ("start", "end"):
+            self._phase[command.command_id] = (command.name, command.t_exec)
+            if len(self._phase) > PHASE_KEPT:
+                del self._phase[next(iter(self._phase))]
         self._dispatcher.counters["commands"] += 1
         self._send_status(Status(state="ack", command_id=command.command_id), self._clock())
         loop = asyncio.get_running_loop()
@@ -87,6 +94,11 @@ class CommandExecutor:
             return
         now = self._clock()
         info: dict[str, Any] = {"name": command.name}
+        later = self._replaced_by(command)
+        if later is not None:
+            self._finish(command, info, error=f"superseded by {later[1]} #{later[0]}, issued "
+                         "later to run before it: the latest start or end decides")
+            return
         try:
             if command.name == "start":
                 self._mission.state = "running"
@@ -104,6 +116,17 @@ class CommandExecutor:
             self._finish(command, info, error=str(exc))
             return
         self._finish(command, info)
+
+    def _replaced_by(self, command: Any) -> tuple[int, str] | None:
+        """A start or end the station issued after ``command`` (a newer id) that runs at or
+        before it: the station replaced ``command`` with it (``ground_station.missions``),
+        so ``command`` must not run. Ids are compared as serial numbers: they wrap at 2**32."""
+        if command.name not in ("start", "end"):
+            return None
+        for cid, (name, t_exec) in self._phase.items():
+            if 0 < (cid - command.command_id) % 2**32 < 2**31 and t_exec <= command.t_exec:
+                return cid, name
+        return None
 
     async def _apply_params(self, command: Any) -> None:
         params = dict(command.args)

@@ -122,10 +122,14 @@ async def _issue(request: web.Request, verb: str) -> web.Response:
     mission = app[CONFIG].mission
     fleet = app[FLEET]
     try:  # the command is issued either way; a storage failure is shown, not a 500
+        cancelled = [c.command.t_exec for c in app[MISSIONS].commands.values()
+                     if c.superseded_by == issued.command.command_id and c.command.name == "start"]
+        if cancelled:
+            await app[STORAGE].call_writer(lambda s: s.cancel_starts(mission, cancelled, now=now))
         if verb == "start":
             await app[STORAGE].call_writer(
                 lambda s: s.mark_mission(mission, now=now, t_start=t_exec))
-        elif verb == "end":
+        elif verb == "end" and app[MISSIONS].t_end == t_exec:
             await app[STORAGE].call_writer(lambda s: s.mark_mission(mission, now=now, t_end=t_exec))
     except Exception as exc:  # full disk, SQLite errors...
         fleet.alert(Alert(t=now, level="error", kind="storage",

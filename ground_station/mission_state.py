@@ -42,7 +42,7 @@ def snapshot_missions(missions: MissionManager, mission: str) -> dict[str, Any]:
         commands.append({
             "command_id": c.command_id, "name": c.name, "t_exec": c.t_exec,
             "args": dict(c.args), "target": c.target, "t_issued": issued.t_issued,
-            "targets": sorted(issued.targets),
+            "targets": sorted(issued.targets), "superseded_by": issued.superseded_by,
             **{name: dict(getattr(issued, name)) for name in PER_DRONE},
         })
     return {
@@ -97,6 +97,8 @@ def restore_missions(missions: MissionManager, saved: dict[str, Any], mission: s
                                    targets=set(entry["targets"]))
             for name in PER_DRONE:
                 getattr(issued, name).update(dict(entry[name]))
+            if isinstance(entry.get("superseded_by"), int):
+                issued.superseded_by = entry["superseded_by"]
         except (KeyError, TypeError, ValueError) as exc:
             log.warning("mission state: command entry skipped (%s)", exc)
             continue

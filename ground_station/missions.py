@@ -22,10 +22,10 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from typing import Any
 
 from companion.protocol.records import Command
+from ground_station.issued import FINAL, NO_REPLY, IssuedCommand
 from ground_station.mission_input import (
     MissionError,
     ShellCommand,
@@ -36,6 +36,8 @@ from ground_station.mission_input import (
 from ground_station.mission_params import fleet_params
 
 __all__ = [
+    "FINAL",
+    "NO_REPLY",
     "IssuedCommand",
     "MissionError",
     "MissionManager",
@@ -50,84 +52,10 @@ COMMAND_NAMES = {"start": "start", "end": "end", "params": "set_params",
 """Operator verbs to the command names on the wire (companion.protocol.records.Command)."""
 
 
-FINAL = ("done", "error")
-"""Drone states that end a command (a STATUS naming its id)."""
-NO_REPLY = "no reply"
 PARAMS_KEPT = 64
 """set_params commands kept for drones that rejoin (the oldest are forgotten first)."""
 STATUS_AFTER_RESULT_S = 1.0
 """A drone's mission state generated this soon after its result may predate it (clocks)."""
-
-
-@dataclass(slots=True, kw_only=True)
-class IssuedCommand:
-    """A command and, per drone, when it was sent, acknowledged and what came of it."""
-
-    command: Command
-    t_issued: float
-    reply_timeout_s: float = 5.0
-    targets: set[str] = field(default_factory=set)
-    """Drones the command is for: those known when issued and those heard while it is live."""
-    first_sent: dict[str, float] = field(default_factory=dict)
-    last_sent: dict[str, float] = field(default_factory=dict)
-    acked: dict[str, float] = field(default_factory=dict)
-    states: dict[str, str] = field(default_factory=dict)
-    results: dict[str, dict[str, Any]] = field(default_factory=dict)
-    """Drone -> ``{"state": "done"|"error", "t": ..., "info": {...}}`` from its final STATUS."""
-    rejoined: dict[str, float] = field(default_factory=dict)
-    """Drone -> when the command was armed for it again (:meth:`MissionManager.rejoin`); it
-    is sent to that drone until ``command_ttl_s`` after that."""
-
-    def reply_deadline(self, drone: str) -> float:
-        """When a drone without a result counts as ``no reply``."""
-        t0 = max(self.command.t_exec, self.first_sent.get(drone, self.command.t_exec))
-        return t0 + self.reply_timeout_s
-
-    def result(self, drone: str, now: float | None) -> str:
-        """``done``, ``error``, ``no reply``, or while waiting ``acked``/``sent``/``pending``."""
-        final = self.results.get(drone)
-        if final is not None:
-            return str(final["state"])
-        if now is not None and now >= self.reply_deadline(drone):
-            return NO_REPLY
-        if drone in self.acked:
-            return "acked"
-        return "sent" if drone in self.last_sent else "pending"
-
-    def outcome(self, now: float | None) -> dict[str, Any]:
-        """Per drone result (with the reason of an error) and their counts."""
-        drones = sorted(self.targets | set(self.last_sent) | set(self.acked))
-        per_drone: dict[str, dict[str, Any]] = {}
-        counts = {"done": 0, "error": 0, NO_REPLY: 0, "waiting": 0}
-        for drone in drones:
-            result = self.result(drone, now)
-            entry: dict[str, Any] = {"result": result}
-            final = self.results.get(drone)
-            if final is not None:
-                entry["info"] = final["info"]
-                if result == "error":
-                    entry["reason"] = str(final["info"].get("error", "no reason given"))
-            elif result == NO_REPLY:
-                entry["reason"] = (f"no result {self.reply_timeout_s:g} s after execution"
-                                   + ("" if drone in self.acked else "; never acknowledged"))
-            per_drone[drone] = entry
-            counts[result if result in counts else "waiting"] += 1
-        return {"results": per_drone, "summary": {**counts, "total": len(drones)},
-                "finished": counts["waiting"] == 0 and bool(drones)}
-
-    def as_json(self, now: float | None = None) -> dict[str, Any]:
-        c = self.command
-        return {
-            "command_id": c.command_id,
-            "name": c.name,
-            "t_exec": c.t_exec,
-            "args": dict(c.args),
-            "t_issued": self.t_issued,
-            "sent_to": sorted(self.last_sent),
-            "acked_by": sorted(self.acked),
-            "states": dict(self.states),
-            **self.outcome(now),
-        }
 
 
 class MissionManager:
@@ -213,8 +141,11 @@ class MissionManager:
         )
         issued = IssuedCommand(command=command, t_issued=now,
                                reply_timeout_s=self.reply_timeout_s, targets=set(self.drones))
+        replaced = verb in ("start", "end") and self._supersede_pending(issued, now=now)
         self.commands[command.command_id] = issued
-        if verb == "start":
+        if replaced:
+            self.t_start, self.t_end = self._bounds()
+        elif verb == "start":
             self.t_start, self.t_end = t_exec, None
         elif verb == "end":
             self.t_end = t_exec
@@ -225,9 +156,40 @@ class MissionManager:
         # that make the mission's state (a drone that rejoins gets them again).
         keep = {id(i) for i in self.state_commands()}
         for cid in [c for c, i in self.commands.items()
-                    if not self._live(i, now - 3600.0) and id(i) not in keep]:
+                    if now - 3600.0 > self._until(i) and id(i) not in keep]:
             del self.commands[cid]
         return issued
+
+    def _supersede_pending(self, issued: IssuedCommand, *, now: float) -> bool:
+        """The operator's latest start or end decides from its time on: one issued earlier
+        that has not run yet and would run at or after it is replaced (not sent any more;
+        a drone that has it skips it, ``companion.commands``). Returns whether any was.
+        Before, both ran at their own times: an end sent while a start was scheduled ran
+        first and the start after it (the fleet streamed; the report had t_end < t_start),
+        and a start after a scheduled end was ended by it (the station said running)."""
+        t_exec = issued.command.t_exec
+        replaced = False
+        for earlier in self.commands.values():
+            c = earlier.command
+            if c.name in ("start", "end") and earlier.superseded_by is None \
+                    and c.t_exec > now and c.t_exec >= t_exec:
+                earlier.superseded_by = issued.command.command_id
+                replaced = True
+        return replaced
+
+    def _bounds(self) -> tuple[float | None, float | None]:
+        """(t_start, t_end) from the start and end commands that were not replaced."""
+        t_start: float | None = None
+        t_end: float | None = None
+        for issued in self.commands.values():
+            c = issued.command
+            if issued.superseded_by is not None:
+                continue
+            if c.name == "start":
+                t_start, t_end = c.t_exec, None
+            elif c.name == "end" and t_start is not None and t_end is None:
+                t_end = c.t_exec
+        return t_start, t_end
 
     def _take_id(self) -> int:
         cid = self._next_id
@@ -272,7 +234,7 @@ class MissionManager:
         """The commands that make the mission's state, in issue order: the latest start,
         every end after it, and of the last :data:`PARAMS_KEPT` set_params those with a key
         no later one sets (a rejected one, all or nothing, sets none)."""
-        issued = list(self.commands.values())
+        issued = [c for c in self.commands.values() if c.superseded_by is None]
         starts = [i for i, c in enumerate(issued) if c.command.name == "start"]
         first = starts[-1] if starts else len(issued)
         params: list[IssuedCommand] = []
@@ -353,8 +315,10 @@ class MissionManager:
     # -- outputs ------------------------------------------------------------------------
     def _live(self, issued: IssuedCommand, now: float) -> bool:
         """Still sent to some drone."""
-        latest = max([issued.command.t_exec, *issued.rejoined.values()])
-        return now <= latest + self.command_ttl_s
+        return issued.superseded_by is None and now <= self._until(issued)
+
+    def _until(self, issued: IssuedCommand) -> float:
+        return max([issued.command.t_exec, *issued.rejoined.values()]) + self.command_ttl_s
 
     def _expiry(self, issued: IssuedCommand, drone: str) -> float:
         """Until when ``issued`` is sent to ``drone``."""
@@ -362,7 +326,7 @@ class MissionManager:
                    issued.rejoined.get(drone, -math.inf)) + self.command_ttl_s
 
     def _live_for(self, issued: IssuedCommand, drone: str, now: float) -> bool:
-        return now <= self._expiry(issued, drone)
+        return issued.superseded_by is None and now <= self._expiry(issued, drone)
 
     def _on_its_way(self, issued: IssuedCommand, drone: str, now: float) -> bool:
         """Sent (or armed again) to ``drone``, no result yet, still being resent."""
@@ -402,6 +366,8 @@ class MissionManager:
         """Next time :meth:`due` has something to send, or None."""
         deadline: float | None = None
         for issued in self.commands.values():
+            if issued.superseded_by is not None:
+                continue
             for drone in self.drones:
                 expiry = self._expiry(issued, drone)
                 t = self._next_send(issued, drone)

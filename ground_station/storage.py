@@ -372,6 +372,29 @@ class Storage(StorageReads):
         self._last_rcv.setdefault(mission, now)
         return True
 
+    def cancel_starts(self, mission: str, t_starts: Sequence[float], *, now: float) -> None:
+        """Operator's starts replaced before they ran (an end sent while one was scheduled):
+        their bounds go, and the mission's are again those of the rows left, in the
+        missions row and, appended, in the mission log (a later ``t_start`` replaces the
+        open one there). With no start left the next message opens the mission again."""
+        for t in t_starts:
+            self.db.execute("DELETE FROM mission_bounds WHERE rowid = (SELECT max(rowid) FROM"
+                            " mission_bounds WHERE mission = ? AND kind = 'start' AND t_start = ?)",
+                            (mission, t))
+        t_start = t_end = None
+        for a, b, _ in self.db.execute("SELECT t_start, t_end, kind FROM mission_bounds "
+                                       "WHERE mission = ? ORDER BY rowid", (mission,)):
+            t_start, t_end = (a, None) if a is not None else (t_start, b)
+        self.db.execute("UPDATE missions SET t_start = ?, t_end = ? WHERE name = ?",
+                        (t_start, t_end, mission))
+        handle = self._log(mission)
+        for record in ({"t_start": t_start}, {"t_end": t_end}):
+            if None not in record.values():
+                handle.write(json.dumps({"mission": record}) + "\n")
+        handle.flush()
+        if t_start is None:
+            self._last_rcv.pop(mission, None)
+
     def write_alerts(self, rows: Sequence[tuple[str, float, str, str, str | None, str]]) -> None:
         """Store alerts: (mission, t, level, kind, drone, text) rows."""
         self.db.executemany(

@@ -465,6 +465,7 @@ function commandLine(c, known) {
     ` · <span class="${s.done === total && total ? "ok" : ""}">done ${s.done || 0}/${total}</span>`;
   if (s.error) text += ` · <span class="err">error ${s.error}</span>`;
   if (s["no reply"]) text += ` · <span class="err">no reply ${s["no reply"]}</span>`;
+  if (c.superseded_by) text += ` · superseded by #${esc(c.superseded_by)}`;
   const bad = Object.entries(c.results || {}).filter(([, e]) => e.result === "error" || e.result === "no reply")
     .map(([d, e]) => `<div class="cmd-detail">${esc(d)}: ${esc(e.result)}${e.reason ? " — " + esc(e.reason) : ""}</div>`).join("");
   const counters = Object.entries(c.results || {}).filter(([, e]) => e.info && e.info.counters)

@@ -174,10 +174,17 @@ def test_restarted_companion_and_station_rejoin_the_running_mission(fleet: Fleet
     assert params["summary"]["done"] == 1
 
     # kill -9 the companion and start it again: it runs the mission, with the parameters
+    first_run = fleet.until("images of the first run", lambda: fleet.images_since(0), 30)
     os.killpg(fleet.procs.pop("drone1").pid, signal.SIGKILL)
     t_restart = time.time()
     fleet.start_companion()
     fleet.until("images of the restarted companion", lambda: fleet.images_since(t_restart), 30)
+    # its seqs start from 0 again: the first run's images are all still there (they were
+    # replaced, row and file, by the restarted run's of the same seq)
+    fleet.until("a restarted image with a seq of the first run's", lambda: {
+        i["seq"] for i in fleet.images_since(t_restart)} & {i["seq"] for i in first_run}, 30)
+    kept = {(i["seq"], i["t_gen"], i["size"]) for i in fleet.images_since(0)}
+    assert {(i["seq"], i["t_gen"], i["size"]) for i in first_run} <= kept
     decided = fleet.until("searched decisions in its mission log",
                           lambda: fleet.decisions_since(t_restart), 20)
     assert {r["decision"]["iterations"] for r in decided} == {7}  # the shipped 300 before
@@ -203,3 +210,33 @@ def test_restarted_companion_and_station_rejoin_the_running_mission(fleet: Fleet
                 lambda: fleet.images_since(t_restart), 30)
     log = (fleet.run_dir / "station.log").read_text()
     assert "Traceback" not in log + (fleet.run_dir / "drone1.log").read_text()
+
+
+def test_the_latest_start_or_end_decides_on_the_drone_and_the_station(fleet: Fleet) -> None:
+    """Found driving the shipped station with the API: an end sent while a start was
+    scheduled did not stop the start (the fleet streamed after "end mission"); a start
+    after a scheduled end was ended by it, while the station said ``running``."""
+    def tile() -> dict[str, Any]:
+        return next(d for d in fleet.api("GET", "/api/fleet")["drones"] if d["drone"] == "drone1")
+
+    scheduled = fleet.api("POST", "/api/mission/start", {"delay_s": 3})["command"]
+    assert fleet.command("end", {})["summary"]["done"] == 1
+    t_cancelled = scheduled["t_exec"]
+    time.sleep(max(0.0, t_cancelled - time.time()) + 2.0)
+    mission = fleet.api("GET", "/api/mission")
+    assert mission["phase"] == "idle" and mission["t_start"] is None
+    start = next(c for c in mission["commands"] if c["command_id"] == scheduled["command_id"])
+    assert start["superseded_by"] is not None and start["finished"]
+    assert fleet.images_since(t_cancelled) == []  # the drone skipped the start
+    assert tile().get("mission") != "running"
+
+    assert fleet.command("start", {})["summary"]["done"] == 1
+    later_end = fleet.api("POST", "/api/mission/end", {"delay_s": 4})["command"]
+    assert fleet.command("end", {})["summary"]["done"] == 1
+    assert fleet.command("start", {})["summary"]["done"] == 1
+    time.sleep(max(0.0, later_end["t_exec"] - time.time()) + 1.0)
+    t_after = time.time()
+    fleet.until("images after the replaced end's time", lambda: fleet.images_since(t_after), 20)
+    assert fleet.api("GET", "/api/mission")["phase"] == "running"
+    assert tile().get("mission") == "running"
+    assert "Traceback" not in (fleet.run_dir / "drone1.log").read_text()
