@@ -83,6 +83,11 @@ def select_intervals(receiver_logs: Sequence[list[MissionInterval]],
         if (interval.t_start, interval.t_end) not in seen:
             seen.add((interval.t_start, interval.t_end))
             unique.append(interval)
+    # a station restart closes a run and opens it again with the same start: [S, X] is then
+    # the first part of [S, Y], one run, not two overlapping ones
+    unique = [i for i in unique if not any(
+        j.t_start == i.t_start and j.t_end is not None and i.t_end is not None
+        and j.t_end > i.t_end for j in unique)]
     if not unique:
         return Selection([], [], "no mission records in the logs")
     if choice == "all":

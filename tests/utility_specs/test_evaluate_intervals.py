@@ -57,6 +57,15 @@ def test_intervals_follow_start_and_end_records() -> None:
         MissionInterval(30.0, None, "gs")]
 
 
+def test_a_station_restart_is_one_interval_not_two_overlapping() -> None:
+    """The station's stop ends the run, its restart writes the same start again: [10, 20]
+    is the first part of [10, 35] (it was listed as a second, overlapping interval)."""
+    gs = intervals_of([(10.0, None), (None, 20.0), (10.0, None), (None, 35.0)], "gs")
+    chosen = select_intervals([gs], [], None)
+    assert chosen.candidates == chosen.chosen == [MissionInterval(10.0, 35.0, "gs")]
+    assert "the only mission interval" in chosen.why
+
+
 def test_receiver_intervals_win_over_senders_process_lifetimes() -> None:
     gs = [MissionInterval(10.0, 20.0, "gs")]
     drone = [MissionInterval(0.0, 40.0, "drone")]
