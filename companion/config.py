@@ -20,10 +20,14 @@ from companion.mavlink import DEFAULT_STREAM_RATES_HZ, MavlinkSettings
 from companion.mavlink_commands import DEFAULT_MAVLINK_URL
 from companion.peers import PeersSettings, parse_peers_settings
 from companion.protocol.errors import LocalProtocolError
-from companion.protocol.signing import decode_key_text
+from companion.protocol.signing import (
+    WrongKeyKind,
+    decode_key_text,
+    same_key,
+)
 from companion.protocol.wire import MAX_ID_BYTES, MIN_KEY_BYTES
 from companion.scoring import SCORERS
-from companion.secret_files import UnsafeKeyFile, read_secret
+from companion.secret_files import UnsafeKeyFile, read_key_file
 
 __all__ = [
     "DEFAULT_CONFIG_PATH",
@@ -162,24 +166,33 @@ def _resolve(path: str, base: Path) -> Path:
     return p if p.is_absolute() else base / p
 
 
-def _command_public_key(t: Table, base: Path) -> bytes | None:
+def _command_public_key(t: Table, base: Path, fleet_key: bytes | None) -> bytes | None:
     key_file = t.string("command_public_key_file", None)
     key_text = t.string("command_public_key", None)
     name = "command_public_key_file" if key_file is not None else "command_public_key"
     if key_file is not None:
         try:
-            raw = _resolve(key_file, base).read_bytes()
+            raw = read_key_file(_resolve(key_file, base), "command public key", key_file)
+        except WrongKeyKind as exc:
+            raise ConfigError(f"{t.source}: {t.key(name)}: {exc}") from None
         except OSError as exc:
             t.fail(name, "a readable key file", f"{key_file} ({exc.strerror})")
     elif key_text is not None:
         raw = str(key_text).encode()
     else:
         return None
+    what = f"{key_file}" if key_file is not None else "the key"
     try:
-        return decode_key_text(raw, "command public key")
+        key = decode_key_text(raw, what, kind="command public key")
+    except WrongKeyKind as exc:
+        raise ConfigError(f"{t.source}: {t.key(name)}: {exc}") from None
     except LocalProtocolError as exc:
         t.fail(name, "command.pub as written by uav-ground-station keygen", str(exc))
-    return None  # unreachable: fail raises
+    if fleet_key is not None and same_key(fleet_key, key):  # untagged files look alike
+        raise ConfigError(f"{t.source}: {t.key(name)}: {what} is the same key as "
+                          f"{t.key('fleet_key_file')}: the fleet key is fleet.key, the ground "
+                          "station's command public key command.pub")
+    return key
 
 
 def missing_keys(config: CompanionConfig) -> str | None:
@@ -200,7 +213,9 @@ def _fleet_key(t: Table, base: Path) -> bytes | None:
     key_text = t.string("fleet_key", None)
     if key_file is not None:
         try:
-            key = read_secret(_resolve(key_file, base)).strip()
+            key = read_key_file(_resolve(key_file, base), "fleet key", key_file).strip()
+        except WrongKeyKind as exc:
+            raise ConfigError(f"{t.source}: {t.key('fleet_key_file')}: {exc}") from None
         except UnsafeKeyFile as exc:
             t.fail("fleet_key_file", "a key file only its owner can read", str(exc))
         except OSError as exc:
@@ -301,8 +316,8 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
     ground = GroundStationConfig(
         host=gs.string("host", "127.0.0.1"),
         port=gs.integer("port", 14600, low=1, high=65535),
-        fleet_key=_fleet_key(gs, base),
-        command_public_key=_command_public_key(gs, base),
+        fleet_key=(fleet_key := _fleet_key(gs, base)),
+        command_public_key=_command_public_key(gs, base, fleet_key),
         fleet_id=gs.integer("fleet_id", 1, low=0, high=0xFFFF_FFFF),
         listen_host=gs.string("listen_host", "0.0.0.0"),
         listen_port=gs.integer("listen_port", 0, low=0, high=65535),

@@ -12,7 +12,10 @@ import os
 import stat
 from pathlib import Path
 
-__all__ = ["UnsafeKeyFile", "make_private_dir", "read_secret"]
+from companion.protocol.errors import LocalProtocolError
+from companion.protocol.signing import KeyKind, WrongKeyKind, key_text_kind
+
+__all__ = ["UnsafeKeyFile", "make_private_dir", "read_key_file", "read_secret"]
 
 
 class UnsafeKeyFile(OSError):
@@ -35,6 +38,33 @@ def read_secret(path: Path) -> bytes:
             return handle.read()
     finally:
         os.close(fd)
+
+
+def read_key_file(path: Path, kind: KeyKind, what: str) -> bytes:
+    """The text of a key file that should hold a ``kind`` key: :class:`WrongKeyKind` when
+    ``keygen`` tagged it as another kind (told before its mode: ``command.pub`` named as the
+    fleet key is 0644, and "others may read it" hid the real mistake), then as
+    :func:`read_secret` for the secret kinds; a public key is read whatever its mode."""
+    if kind == "command public key":
+        text = path.read_bytes()
+    else:
+        try:
+            text = read_secret(path)
+        except UnsafeKeyFile:
+            with contextlib.suppress(OSError):
+                _check_kind(path.read_bytes(), kind, what)
+            raise
+    _check_kind(text, kind, what)
+    return text
+
+
+def _check_kind(text: bytes, kind: KeyKind, what: str) -> None:
+    try:
+        found = key_text_kind(text, what)
+    except LocalProtocolError:
+        return  # the key's own reader says what is wrong with it
+    if found is not None and found != kind:
+        raise WrongKeyKind(what, found, kind)
 
 
 def make_private_dir(path: Path) -> None:

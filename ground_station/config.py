@@ -15,9 +15,16 @@ from typing import Any
 
 from companion.config_table import described, known_key_expected
 from companion.protocol.errors import LocalProtocolError
-from companion.protocol.signing import KEY_BYTES, decode_key_text
+from companion.protocol.signing import (
+    KEY_BYTES,
+    KeyKind,
+    WrongKeyKind,
+    decode_key_text,
+    public_key_of,
+    same_key,
+)
 from companion.protocol.wire import MIN_KEY_BYTES
-from companion.secret_files import UnsafeKeyFile, read_secret
+from companion.secret_files import UnsafeKeyFile, read_key_file, read_secret
 
 __all__ = ["ConfigError", "GroundConfig", "load_config", "missing_keys"]
 
@@ -29,15 +36,19 @@ _HOST_NAME = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)(\.(?!-)[A-Za-z0-9-]{1,63
 class ConfigError(ValueError):
     """A configuration value that cannot be used; the text names file, key and expectation."""
 
-    def __init__(self, file: str, key: str, expected: str, got: object = None) -> None:
+    def __init__(self, file: str, key: str, expected: str, got: object = None, *,
+                 detail: str | None = None) -> None:
         self.file = file
         self.key = key
         self.expected = expected
         self.got = got
+        self.detail = detail
         # "<file>"/"<syntax>": the whole file, not a key in it ("key '<file>'" read as noise)
         where = "" if key.startswith("<") else f" key {key!r}:"
         message = f"{file}:{where} expected {expected}"
-        if got is not None:
+        if detail is not None:  # a sentence of its own (a key file of the wrong kind)
+            message = f"{file}:{where} {detail}"
+        elif got is not None:
             message += f", got {described(key, got)}"
         super().__init__(message)
 
@@ -172,6 +183,13 @@ class GroundConfig:
                 if key in ("fleet_key", "command_key"):  # a secret: its length, never bytes
                     got = f"{len(got)} bytes"
                 raise ConfigError("<config>", key, expected, got)
+        if self.fleet_key is not None and self.command_key is not None and (
+                same_key(self.fleet_key, self.command_key)
+                or same_key(self.fleet_key, public_key_of(self.command_key))):
+            raise ConfigError("<config>", "fleet_key", "", detail=(
+                "the fleet key is the same key as the command key or its public key (bare "
+                "key files look alike): the fleet key is fleet.key, the command key "
+                "command.key"))
         for name in self.allowed_hosts:
             if not _HOST_NAME.fullmatch(name) or len(name) > 253:
                 raise ConfigError("<config>", "allowed_hosts",
@@ -272,17 +290,18 @@ def config_from_mapping(raw: dict[str, Any], *, file: str = "<config>") -> Groun
                 raise ConfigError(file, key, "a list of DNS names (strings)", value)
             values[key] = tuple(value)
         elif key == "fleet_key_file":
-            values["fleet_key"] = _key_file(file, key, value, base).strip()
+            values["fleet_key"] = _key_file(file, key, value, base, "fleet key").strip()
         elif key == "mavlink_signing_key_file":
-            passphrase = _key_file(file, key, value, base).strip()
+            passphrase = _key_file(file, key, value, base, None).strip()
             if len(passphrase) < 8:
                 raise ConfigError(file, key, "a passphrase of at least 8 bytes",
                                   f"{len(passphrase)} bytes")
             values["mavlink_signing_key"] = hashlib.sha256(passphrase).digest()
         elif key == "command_key_file":
-            key_text = _key_file(file, key, value, base)
+            key_text = _key_file(file, key, value, base, "command key")
             try:
-                values["command_key"] = decode_key_text(key_text, "command key")
+                values["command_key"] = decode_key_text(key_text, "command key",
+                                                        kind="command key")
             except LocalProtocolError as exc:
                 raise ConfigError(file, key, "a file written by uav-ground-station keygen",
                                   str(exc)) from exc
@@ -293,14 +312,18 @@ def config_from_mapping(raw: dict[str, Any], *, file: str = "<config>") -> Groun
     try:
         return GroundConfig(**values)
     except ConfigError as exc:
-        raise ConfigError(file, exc.key, exc.expected, exc.got) from exc
+        raise ConfigError(file, exc.key, exc.expected, exc.got, detail=exc.detail) from exc
 
 
-def _key_file(file: str, key: str, value: Any, base: Path) -> bytes:
-    """A ``*_key_file``'s bytes (relative to the config's folder; private to this user)."""
+def _key_file(file: str, key: str, value: Any, base: Path, kind: KeyKind | None) -> bytes:
+    """A ``*_key_file``'s bytes (relative to the config's folder; private to this user),
+    refused when ``keygen`` tagged it as another kind of key than ``kind``."""
     path = Path(str(value)).expanduser()
+    path = path if path.is_absolute() else base / path
     try:
-        return read_secret(path if path.is_absolute() else base / path)
+        return read_secret(path) if kind is None else read_key_file(path, kind, str(value))
+    except WrongKeyKind as exc:
+        raise ConfigError(file, key, exc.expected, detail=str(exc)) from None
     except UnsafeKeyFile as exc:
         raise ConfigError(file, key, _PRIVATE, str(exc)) from exc
     except OSError as exc:
@@ -337,10 +360,12 @@ def missing_keys(config: GroundConfig) -> GroundConfig | str:
     changes: dict[str, bytes] = {}
     try:
         if config.fleet_key is None and files.fleet_key.is_file():
-            changes["fleet_key"] = read_secret(files.fleet_key).strip()
+            changes["fleet_key"] = read_key_file(files.fleet_key, "fleet key",
+                                                 str(files.fleet_key)).strip()
         if config.command_key is None and files.command_key.is_file():
-            changes["command_key"] = decode_key_text(read_secret(files.command_key),
-                                                     "command key")
+            changes["command_key"] = decode_key_text(
+                read_key_file(files.command_key, "command key", str(files.command_key)),
+                str(files.command_key), kind="command key")
         config = config.with_overrides(**changes) if changes else config
     except (OSError, LocalProtocolError, ConfigError) as exc:
         return f"cannot read the keys in {files.folder}: {exc}"

@@ -8,18 +8,19 @@
     command.pub   its public key (base64), mode 0644; every drone
 
 A drone gets ``fleet.key`` and ``command.pub``, never ``command.key``: with it alone it can
-send data but cannot make a command another companion obeys.
+send data but cannot make a command another companion obeys. Each file is one line naming
+its kind before the key (``uav-infodist command public key (...): BASE64``,
+:func:`companion.protocol.signing.key_file_line`), which the readers check.
 """
 
 from __future__ import annotations
 
-import base64
 import os
 import secrets
 from dataclasses import dataclass
 from pathlib import Path
 
-from companion.protocol.signing import KEY_BYTES, public_key_of
+from companion.protocol.signing import KEY_BYTES, key_file_line, public_key_of
 from companion.secret_files import make_private_dir
 
 __all__ = ["COMMAND_KEY", "COMMAND_PUB", "FLEET_KEY", "KeyFiles", "generate_keys"]
@@ -70,8 +71,9 @@ def generate_keys(folder: Path, *, replace: bool = False) -> KeyFiles:
             if path.exists():
                 raise FileExistsError(f"{path} exists (pass --force to replace the fleet's keys)")
     seed = secrets.token_bytes(KEY_BYTES)
-    _write_new(files.fleet_key, base64.b64encode(secrets.token_bytes(32)), 0o600,
+    _write_new(files.fleet_key, key_file_line("fleet key", secrets.token_bytes(32)), 0o600,
                replace=replace)
-    _write_new(files.command_key, base64.b64encode(seed), 0o600, replace=replace)
-    _write_new(files.command_pub, base64.b64encode(public_key_of(seed)), 0o644, replace=replace)
+    _write_new(files.command_key, key_file_line("command key", seed), 0o600, replace=replace)
+    _write_new(files.command_pub, key_file_line("command public key", public_key_of(seed)),
+               0o644, replace=replace)
     return files

@@ -122,7 +122,7 @@ def test_companion_refuses_without_keys(tmp_path: Path) -> None:
                       'command_public_key_file = "keys/command.pub"\n')
     loaded = load_companion_config(config)
     assert loaded.ground_station.command_public_key == base64.b64decode(
-        (tmp_path / "keys" / "command.pub").read_bytes())
+        (tmp_path / "keys" / "command.pub").read_bytes().rpartition(b": ")[2])
 
 
 def test_every_fleet_run_has_its_own_keys(tmp_path: Path) -> None:
