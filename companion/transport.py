@@ -22,6 +22,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from companion.drop_warnings import DropWarnings
 from companion.medium import (
     SharedMedium,
     open_medium_socket,
@@ -142,6 +143,8 @@ class UdpTransport:
         """Set by :meth:`pace`; None: each message's datagrams go to the socket at once."""
         self._pace_timer: asyncio.TimerHandle | None = None
         self._pace_deadline: float | None = None
+        self._drop_warnings = DropWarnings(log)
+        """A wrong key or fleet id is told at WARNING (rate-limited), not only at DEBUG."""
 
     # -- lifecycle -----------------------------------------------------------------------
 
@@ -364,6 +367,7 @@ class UdpTransport:
                 log.debug(
                     "dropped datagram from %s: %s (%s)", event.addr, event.reason, event.detail
                 )
+                self._drop_warnings.on_drop(event.reason, event.addr, event.detail)
                 if event.reason == "wrong_epoch":
                     self._announce_epoch()
             if self._on_event is not None:

@@ -1,10 +1,12 @@
 """A captured command is not executed again after the companion restarts (issue 13 item 4),
 and a drone holding the fleet key cannot command a companion (item 5): real ``uav-companion``
-processes, real UDP, effects read from the STATUS replies and the companion's mission log."""
+processes, real UDP, effects read from the STATUS replies and the companion's mission log.
+A companion given the wrong command key says so at WARNING, not only at DEBUG."""
 
 from __future__ import annotations
 
 import asyncio
+import base64
 import json
 import secrets
 import socket
@@ -64,7 +66,7 @@ async def station() -> AsyncIterator[tuple[Station, int]]:
     transport.close()
 
 
-def _config(path: Path, gs_port: int) -> Path:
+def _config(path: Path, gs_port: int, *, public_key: bytes | None = None) -> Path:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:  # nobody answers MAVLink here
         s.bind(("127.0.0.1", 0))
         mavlink_port = s.getsockname()[1]
@@ -83,6 +85,11 @@ wait_for_start = true
 [budgets]
 mcts_iterations = 20
 """)
+    if public_key is not None:  # instead of the station's (the line ground_station_toml wrote)
+        lines = [f'command_public_key = "{base64.b64encode(public_key).decode()}"'
+                 if line.startswith("command_public_key =") else line
+                 for line in path.read_text().splitlines()]
+        path.write_text("\n".join(lines) + "\n")
     return path
 
 
@@ -151,4 +158,33 @@ async def test_a_captured_command_is_not_executed_after_a_restart(
         code, err = stop_companion(second)
     assert code == 0, err[-2000:]
     assert _commands_logged(log, after=restarted) == ["start"]
+    assert "Traceback" not in err
+
+
+@pytest.mark.timeout(120)
+async def test_commands_refused_for_their_signature_are_told_at_warning(
+    station: tuple[Station, int], tmp_path: Path
+) -> None:
+    """The station's private key as the drone's public key (an untagged copy of command.key,
+    which no reader can tell from command.pub): every command was dropped, the shell said "no
+    reply" and the companion logged nothing above DEBUG."""
+    gs, gs_port = station
+    config = _config(tmp_path / "d1.toml", gs_port, public_key=TEST_COMMAND_KEY)
+    proc = start_companion(config)
+    try:
+        await until(lambda: gs.epochs(), 60, proc, poll_s=0.05)
+        epoch, addr = gs.epochs()[-1]
+        for command_id in (51, 52, 53):
+            start = Command(command_id=command_id, name="start", t_exec=time.time())
+            gs.send(gs.encoder.encode_command(start, time.time(), epoch=epoch), addr)
+        await asyncio.sleep(1.0)
+        assert gs.states(51) == []
+    finally:
+        code, err = stop_companion(proc)
+    assert code == 0, err[-2000:]
+    warned = [line for line in err.splitlines() if "refused bad_signature" in line]
+    assert len(warned) == 1, err[-3000:]  # the first; the others at most once a minute
+    assert '"level": "warning"' in warned[0]
+    assert "ground_station.command_public_key_file" in warned[0]
+    assert "the station's command.pub" in warned[0]
     assert "Traceback" not in err
