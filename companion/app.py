@@ -400,6 +400,7 @@ def build_transport_factory(config: CompanionConfig, *, clock: Clock) -> Transpo
             decoder=Decoder(gs.fleet_id, key, local_id=config.drone_id,
                             command_key=gs.command_public_key, epoch=epoch),
             remote_addr=(gs.host, gs.port),
+            remote_name="ground_station.host",
             local_addr=(gs.listen_host, gs.listen_port),
             clock=clock,
             on_event=on_event,

@@ -192,6 +192,7 @@ def _run(args: argparse.Namespace) -> int:
 
 def _check(args: argparse.Namespace) -> int:
     from companion.app import AppSetupError, check_setup
+    from companion.remote_lookup import lookup_problem
 
     config = _load(args.config)
     if config is None:
@@ -205,6 +206,11 @@ def _check(args: argparse.Namespace) -> int:
     for line in setup:
         print(line)
     failures = 0
+    unresolved = lookup_problem(config.ground_station.host, config.ground_station.port,
+                                "ground_station.host")
+    if unresolved is not None:  # `run` would send nothing until it resolves
+        print(f"ground station: {unresolved}")
+        failures += 1
     snapshot = None
     if not args.skip_mavlink:
         snapshot, lines, ok = _probe_mavlink(config, args.timeout)

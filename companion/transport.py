@@ -17,7 +17,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import socket
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -42,6 +41,7 @@ from companion.protocol import (
 )
 from companion.protocol.pacer import Pacer
 from companion.protocol.records import EPOCH_STATUS
+from companion.remote_lookup import RemoteLookup
 from utility_specs.message import Message
 
 __all__ = ["Clock", "SharedMedium", "UdpTransport", "open_medium_socket", "parse_medium"]
@@ -115,6 +115,7 @@ class UdpTransport:
         max_write_buffer_bytes: int = 256 * 1024,
         epoch: int | None = None,
         medium: SharedMedium | None = None,
+        remote_name: str = "remote host",
     ) -> None:
         """``epoch``: this boot's epoch (the decoder's); announced to ``remote_addr`` at start
         and whenever a command for another boot is refused, at most twice a second.
@@ -127,6 +128,10 @@ class UdpTransport:
         self._epoch_sent_at = -1.0
         self.decoder = decoder
         self.remote_addr = remote_addr
+        self.remote_name = remote_name
+        """What a WARNING calls ``remote_addr``'s host (the app: ``ground_station.host``)."""
+        self._lookup: RemoteLookup | None = None
+        """Set while ``remote_addr`` is a name that has not resolved yet."""
         self.local_addr = local_addr
         self._clock = clock
         self._on_event = on_event
@@ -162,7 +167,12 @@ class UdpTransport:
             return
         self._loop = asyncio.get_running_loop()
         if self.remote_addr is not None:
-            self.remote_addr = await self._resolve(self.remote_addr)
+            lookup = RemoteLookup(self.remote_addr, self.remote_name, self._resolved)
+            resolved = await lookup.first()
+            if resolved is None:
+                self._lookup = lookup  # retrying in the background; nothing is sent meanwhile
+            else:
+                self.remote_addr = resolved
         transport, _ = await self._loop.create_datagram_endpoint(
             lambda: _Protocol(self), local_addr=self.local_addr
         )
@@ -178,8 +188,13 @@ class UdpTransport:
         log.info("protocol transport bound to %s", self.local_address)
         self._announce_epoch()
 
+    def _resolved(self, addr: tuple[str, int]) -> None:
+        self.remote_addr = addr
+        self._lookup = None
+        self._announce_epoch()
+
     def _announce_epoch(self) -> None:
-        if self.epoch is None or self.remote_addr is None:
+        if self.epoch is None or self.remote_addr is None or self._lookup is not None:
             return
         now = self._clock()
         if 0 <= now - self._epoch_sent_at < 0.5:
@@ -202,6 +217,9 @@ class UdpTransport:
         self._stopped.set()
 
     def _close(self) -> None:
+        if self._lookup is not None:
+            self._lookup.cancel()
+            self._lookup = None
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
@@ -214,14 +232,6 @@ class UdpTransport:
         if self._medium_transport is not None:
             self._medium_transport.close()
             self._medium_transport = None
-
-    async def _resolve(self, addr: tuple[str, int]) -> tuple[str, int]:
-        assert self._loop is not None
-        infos = await self._loop.getaddrinfo(
-            addr[0], addr[1], family=socket.AF_INET, type=socket.SOCK_DGRAM
-        )
-        host, port = infos[0][4][:2]
-        return (str(host), int(port))
 
     # -- sending -------------------------------------------------------------------------
 
@@ -273,7 +283,8 @@ class UdpTransport:
         if target is None:
             raise LocalProtocolError("no remote address to send to")
         transport = self._transport
-        if transport is None:  # not bound yet, or already closed: lost like on the air
+        if transport is None or (addr is None and self._lookup is not None):
+            # not bound yet, closed, or the remote's name not resolved: lost like on the air
             self.counters["send_not_ready"] += 1
             return 0
         total = sum(len(d) for d in datagrams)

@@ -10,6 +10,7 @@ import math
 import os
 import shlex
 import signal
+import socket
 import sys
 from pathlib import Path
 
@@ -264,10 +265,19 @@ def _run(args: argparse.Namespace, config: GroundConfig) -> int:
 
 def _serve_problem(exc: OSError, config: GroundConfig) -> str:
     """One line for a port the station cannot open; a port in use names it and the option
-    that moves it (aiohttp's own words named neither the dashboard nor the flag)."""
+    that moves it (aiohttp's own words named neither the dashboard nor the flag); so does a
+    host name that does not resolve (``[Errno -2] Name or service not known`` named neither)."""
+    udp = (exc.strerror or "").startswith("UDP ")  # the transport names its address
+    if isinstance(exc, socket.gaierror) or (exc.errno is not None and exc.errno < 0):
+        why = (exc.strerror or str(exc)).rpartition(": ")[2] if udp else exc.strerror or exc
+        if udp:
+            return (f"udp_host {config.udp_host!r} does not resolve ({why}): give this "
+                    "computer's address on the fleet's link")
+        return (f"http_host (--http-host) {config.http_host!r} does not resolve ({why}): give "
+                "an address or a name of this computer")
     if exc.errno != errno.EADDRINUSE:
         return f"cannot serve: {exc}"
-    if (exc.strerror or "").startswith("UDP "):  # the transport names its address
+    if udp:
         return (f"UDP {config.udp_host}:{config.udp_port} is already in use (another ground "
                 "station?): stop it, or pick another --udp-port")
     return (f"dashboard {config.http_host}:{config.http_port} is already in use (another "

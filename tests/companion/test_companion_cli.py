@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -24,12 +26,13 @@ def _cli(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
                           text=True, timeout=timeout, check=False)
 
 
-def _config(tmp_path: Path, url: str, camera: str, *, keys: bool = True) -> Path:
+def _config(tmp_path: Path, url: str, camera: str, *, keys: bool = True,
+            host: str = "127.0.0.1") -> Path:
     path = tmp_path / "companion.toml"
     key_lines = ""
     if keys:
         write_test_keys(tmp_path / "keys")
-        key_lines = ('[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
+        key_lines = (f'[ground_station]\nhost = "{host}"\nfleet_key_file = "keys/fleet.key"\n'
                      'command_public_key_file = "keys/command.pub"\n')
     path.write_text(f'[drone]\nid = "d1"\n[mavlink]\nurl = "{url}"\n'
                     f'[camera]\nsource = "{camera}"\n[constraint]\nname = "constant"\n'
@@ -118,6 +121,40 @@ def test_check_names_the_program_that_shares_its_port(tmp_path: Path, frames: Pa
             f"127.0.0.1:{port} and gets the datagrams sent there") in result.stdout, result.stdout
     alone = _cli("check", "--config", str(config), "--timeout", "1", "--skip-camera")
     assert f"(nothing sent MAVLink to 0.0.0.0:{port}:" in alone.stdout, alone.stdout
+
+
+def test_check_names_a_ground_station_host_that_does_not_resolve(tmp_path: Path,
+                                                                 frames: Path) -> None:
+    """It said `check: ok`, and `run` then died of a 40-line gaierror traceback."""
+    config = _config(tmp_path, "udpout:127.0.0.1:9", str(frames), host="no.such.host.invalid")
+    result = _cli("check", "--config", str(config), "--skip-mavlink", "--skip-camera")
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "ground station: ground_station.host 'no.such.host.invalid' does not resolve (" \
+        in result.stdout.splitlines()[-2], result.stdout
+    assert result.stdout.rstrip().endswith("check: 1 problem(s)")
+    assert "Traceback" not in result.stderr
+
+
+def test_run_warns_of_a_ground_station_host_that_does_not_resolve(tmp_path: Path) -> None:
+    """A drone that boots before its DNS keeps running (MAVLink, camera, mission log) and
+    says once which setting does not resolve, instead of dying of an ExceptionGroup."""
+    config = _config(tmp_path, "udpout:127.0.0.1:9", "synthetic", host="no.such.host.invalid")
+    proc = subprocess.Popen([*COMMAND, "--log-format", "text", "run", "--config", str(config)],
+                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+    try:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            if "does not resolve" in line or "companion failed" in line:
+                break
+        time.sleep(1.0)
+        assert proc.poll() is None, "the companion stopped"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        _, rest = proc.communicate(timeout=30)
+    assert proc.returncode == 0, rest
+    assert " WARNING companion.transport: ground_station.host 'no.such.host.invalid' does not " \
+        "resolve (" in line and "retrying every 5 s" in line, line
+    assert "Traceback" not in rest and "companion failed" not in rest
 
 
 def test_bad_config_exits_2_naming_file_and_key(tmp_path: Path) -> None:

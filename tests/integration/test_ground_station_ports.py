@@ -86,3 +86,19 @@ def test_http_port_0_shows_the_port_it_got(tmp_path: Path) -> None:
             assert resp.status == 200
     finally:
         interrupt(station)
+
+
+def test_a_host_that_does_not_resolve_is_named(tmp_path: Path) -> None:
+    """`cannot serve: [Errno -2] Name or service not known` named neither the host nor the
+    option."""
+    result = subprocess.run([*_station(tmp_path, "a", udp_port=0, http_port=0), "--http-host",
+                             "no.such.host.invalid"], capture_output=True, text=True,
+                            timeout=60, check=False)
+    assert result.returncode == 1, result.stderr
+    assert "Traceback" not in result.stderr
+    errors = [x for x in result.stderr.splitlines() if x.startswith("uav-ground-station")]
+    assert len(errors) == 1, result.stderr
+    assert errors[0].startswith("uav-ground-station: http_host (--http-host) "
+                                "'no.such.host.invalid' does not resolve (")  # the resolver's
+    assert errors[0].endswith("): give an address or a name of this computer")  # own words
+    assert "dashboard:" not in result.stdout

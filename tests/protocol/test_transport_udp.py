@@ -173,3 +173,45 @@ async def test_send_errors_and_full_buffers_are_counted() -> None:
     finally:
         drone.stop()
         await task
+
+
+async def test_a_remote_name_that_does_not_resolve_is_retried(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """No DNS yet at boot (or a typo): a WARNING naming the setting, nothing sent, and the
+    lookup retried until it resolves; it killed the companion with a gaierror traceback."""
+    import companion.remote_lookup as lookup
+
+    ground = UdpTransport(encoder=Encoder(FLEET, "ground", KEY), decoder=Decoder(FLEET, KEY),
+                          local_addr=LOCAL)
+    ground_task = asyncio.create_task(ground.run())
+    await ground.wait_started()
+    answers: list[tuple[str, int] | None] = [None, None, ground.local_address]
+
+    async def flaky(addr: tuple[str, int]) -> tuple[str, int]:
+        answer = answers.pop(0) if answers else ground.local_address
+        if answer is None:
+            raise socket.gaierror(socket.EAI_NONAME, "Name or service not known")
+        return answer
+
+    monkeypatch.setattr(lookup, "_resolve", flaky)
+    monkeypatch.setattr(lookup, "RESOLVE_RETRY_S", 0.05)
+    drone = UdpTransport(encoder=Encoder(FLEET, "drone1", KEY), decoder=Decoder(FLEET, KEY),
+                         remote_addr=("gs.field.lan", 14600), local_addr=LOCAL, epoch=7,
+                         remote_name="ground_station.host")
+    drone_task = asyncio.create_task(drone.run())
+    try:
+        await drone.wait_started()
+        assert [r.getMessage() for r in caplog.records if r.levelname == "WARNING"] == [
+            "ground_station.host 'gs.field.lan' does not resolve (Name or service not known): "
+            "nothing is sent to it until it does; retrying every 0.05 s"]
+        assert drone.send_status(Status(state="idle")) == 0  # not to a name: lost, counted
+        assert drone.counters["send_not_ready"] >= 1
+        announced = await next_of(ground, StatusReceived)  # the epoch, once it resolved
+        assert isinstance(announced, StatusReceived) and announced.status.info == {"epoch": 7}
+        assert drone.remote_addr == ground.local_address
+        assert drone.send_status(Status(state="idle")) == 1
+    finally:
+        for t in (ground, drone):
+            t.stop()
+        await asyncio.gather(ground_task, drone_task)
