@@ -114,7 +114,10 @@ class ConstraintConfig:
 class TelemetryConfig:
     position_rate_hz: float = 1.0
     battery_period_s: float = 5.0
-    status_period_s: float = 5.0
+    status_period_s: float = 1.0
+    """A status this often during the mission: before the vehicle has a position it is most
+    of what the station hears, and its ``link_lost_s`` (3 s) must not pass between two (5 s
+    raised "link lost" and "link back" over and over on a healthy link)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -340,7 +343,7 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
     telemetry = TelemetryConfig(
         position_rate_hz=te.number("position_rate_hz", 1.0, strict=False),
         battery_period_s=te.number("battery_period_s", 5.0),
-        status_period_s=te.number("status_period_s", 5.0),
+        status_period_s=te.number("status_period_s", 1.0),
     )
     te.done()
 

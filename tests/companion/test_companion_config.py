@@ -89,6 +89,22 @@ def test_missing_file_and_bad_toml(tmp_path: Path) -> None:
         load_config(_write(tmp_path, "[drone\n"))
 
 
+def test_the_shipped_status_period_fits_the_stations_link_lost_s() -> None:
+    """Before a position a hand-configured drone sends little but its status: every 5 s by
+    default against the station's 3 s link_lost_s made the dashboard say "link lost: nothing
+    heard for 3.8 s", then "link back", over and over on a healthy loopback link."""
+    import tomllib
+
+    from companion.config import TelemetryConfig
+    from ground_station.config import GroundConfig
+
+    station = tomllib.loads((EXAMPLE.parent / "ground_station.toml").read_text())
+    lost_s = [GroundConfig().link_lost_s, station["ground_station"]["link_lost_s"]]
+    periods = [TelemetryConfig().status_period_s, load_config(EXAMPLE).telemetry.status_period_s,
+               parse_config({"drone": {"id": "d"}}).telemetry.status_period_s]
+    assert 2.5 * max(periods) <= min(lost_s), (periods, lost_s)
+
+
 def test_relative_paths_and_key_file(tmp_path: Path) -> None:
     (tmp_path / "fleet.key").write_bytes(b"0123456789abcdef-secret\n")
     (tmp_path / "fleet.key").chmod(0o600)  # a secret others may read is refused
