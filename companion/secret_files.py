@@ -13,7 +13,7 @@ import stat
 from pathlib import Path
 
 from companion.protocol.errors import LocalProtocolError
-from companion.protocol.signing import KeyKind, WrongKeyKind, key_text_kind
+from companion.protocol.signing import KeyKind, WrongKeyKind, fleet_key_text, key_text_kind
 
 __all__ = ["UnsafeKeyFile", "make_private_dir", "read_key_file", "read_secret"]
 
@@ -55,7 +55,7 @@ def read_key_file(path: Path, kind: KeyKind, what: str) -> bytes:
                 _check_kind(path.read_bytes(), kind, what)
             raise
     _check_kind(text, kind, what)
-    return text
+    return fleet_key_text(text, what) if kind == "fleet key" else text
 
 
 def _check_kind(text: bytes, kind: KeyKind, what: str) -> None:

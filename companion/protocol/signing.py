@@ -35,6 +35,7 @@ __all__ = [
     "KeyKind",
     "WrongKeyKind",
     "decode_key_text",
+    "fleet_key_text",
     "key_file_line",
     "key_text_kind",
     "public_key_of",
@@ -159,6 +160,12 @@ def decode_key_text(text: bytes, what: str, *, kind: KeyKind | None = None) -> b
     except (binascii.Error, ValueError) as exc:
         raise LocalProtocolError(f"{what} is not base64 text") from exc
     return _check(raw, what)
+
+
+def fleet_key_text(text: bytes, what: str) -> bytes:
+    """The fleet's HMAC key from ``fleet.key``: the base64 text after its kind (a bare,
+    older file is all key), so the description line can be reworded without changing it."""
+    return _split(text, what)[1]
 
 
 def same_key(fleet_key: bytes, raw: bytes) -> bool:

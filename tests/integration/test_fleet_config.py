@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from companion.config import load_config as load_companion_config
+from companion.protocol.signing import fleet_key_text
 from ground_station.config import load_config as load_gs_config
 from sitl.fleet import (
     Background,
@@ -38,7 +39,7 @@ def _plan(tmp_path: Path, *extra: str):  # type: ignore[no-untyped-def]
 def test_configs_are_accepted_by_the_companion_and_the_ground_station(tmp_path: Path) -> None:
     plan = _plan(tmp_path, "--rate", "2", "--size", "320x240", "--alpha", "7")
     write_run_configs(plan)
-    key = plan.key_path.read_bytes().strip()
+    key = fleet_key_text(plan.key_path.read_bytes(), "fleet.key")
     assert len(key) >= 32
     gs = load_gs_config(plan.gs_config_path)
     assert gs.fleet_key == key and gs.udp_port == plan.gs_udp_port

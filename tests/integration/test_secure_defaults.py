@@ -19,7 +19,7 @@ import aiohttp
 
 from companion.config import load_config as load_companion_config
 from companion.protocol import wire
-from companion.protocol.signing import decode_key_text, public_key_of
+from companion.protocol.signing import decode_key_text, fleet_key_text, public_key_of
 from ground_station.config import load_config as load_gs_config
 from ground_station.config import missing_keys
 from sitl.fleet import make_plan, parse_args
@@ -131,7 +131,7 @@ def test_every_fleet_run_has_its_own_keys(tmp_path: Path) -> None:
         plan = make_plan(parse_args(["--drones", "2"]), tmp_path / name)
         write_run_configs(plan)
         gs = load_gs_config(plan.gs_config_path)
-        assert gs.fleet_key == plan.key_path.read_bytes().strip()
+        assert gs.fleet_key == fleet_key_text(plan.key_path.read_bytes(), "fleet.key")
         assert gs.command_key is not None
         for drone in plan.drones:
             cfg = load_companion_config(drone.config_path).ground_station

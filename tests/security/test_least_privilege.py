@@ -20,6 +20,7 @@ from pathlib import Path
 
 import aiohttp
 
+from companion.protocol.signing import fleet_key_text
 from ground_station.app import create_app
 from ground_station.config import GroundConfig
 from ground_station.token import SESSION_COOKIE, login_code, page_key, session_value
@@ -58,7 +59,7 @@ async def test_nothing_but_the_token_changes_anything(tmp_path: Path) -> None:
                 break
         token = (tmp_path / "data" / "token").read_text().strip()
         code = login_code(token, now=time.time())
-        fleet_key = (keys / "fleet.key").read_text().strip()
+        fleet_key = fleet_key_text((keys / "fleet.key").read_bytes(), "fleet.key").decode()
         async with aiohttp.ClientSession() as http:
             async def mission() -> object:
                 async with http.get(base + "/api/mission") as resp:  # a public read
