@@ -132,6 +132,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         p.error("--first-fix must be a number of seconds >= 0")
     if not 0 <= args.port <= 65535:
         p.error(f"--port must be in 0..65535, got {args.port}")
+    if args.port and args.port + args.count - 1 > 65535:  # vehicle i binds PORT+i: a traceback
+        p.error(f"--port must be in 1..{65536 - args.count} for {args.count} vehicle(s) "
+                f"(vehicle i uses PORT+i), got {args.port}")
+    if args.out and len(args.out) == 1 and args.out[0][1] + args.count - 1 > 65535:
+        p.error(f"--out port must be in 1..{65536 - args.count} for {args.count} vehicle(s) "
+                f"(vehicle i sends to PORT+i), got {args.out[0][1]}")
     if not 0 < args.speedup < math.inf:  # inf spun the loop, deaf to SIGTERM
         p.error(f"--speedup must be > 0 and finite, got {args.speedup}")
     if args.count + args.sysid - 1 > 255 or args.sysid < 1:

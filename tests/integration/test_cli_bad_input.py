@@ -107,6 +107,11 @@ CASES = [
     ("uav-sitl", "vehicle --sysid 300 --duration 1", 2, "--sysid must be in 1..255"),
     ("uav-sitl", "vehicle --count 10 --sysid 250 --duration 1", 2,
      "--sysid must be in 1..246 for 10 vehicle(s), got 250"),
+    # the last vehicle's PORT+i was past 65535: an OverflowError traceback from bind()
+    ("uav-sitl", "vehicle --port 65534 --count 4 --duration 1", 2,
+     "--port must be in 1..65532 for 4 vehicle(s) (vehicle i uses PORT+i), got 65534"),
+    ("uav-sitl", "vehicle --port 0 --count 4 --out 127.0.0.1:65535 --duration 1", 2,
+     "--out port must be in 1..65532 for 4 vehicle(s) (vehicle i sends to PORT+i), got 65535"),
     ("uav-sitl", "vehicle --out 127.0.0.1:99999 --duration 1", 2,
      "port must be in 1..65535, got '127.0.0.1:99999'"),
     ("uav-sitl", "vehicle --wind nan 0 --duration 1", 2, "--wind: expected a speed >= 0"),
