@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+import time
 
 # subcommand -> (module, help). Each module exposes ``main(argv: list[str]) -> int``.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -30,6 +32,25 @@ STUDIES: dict[str, tuple[str, str]] = {
     "peers": ("sitl.study.peers", "peer sharing: freshness and utility at each drone, equal bytes"),
     "scaling": ("sitl.study.scaling", "fleet-size scaling: decide time, reports, memory, utility"),
 }
+
+
+def _written_since(argv: list[str], started: float) -> str:
+    """What an interrupted study already wrote to its --out folder (files changed since it
+    started), as the tail of its one line; empty if nothing (or no --out)."""
+    out = next((a.split("=", 1)[1] for a in argv if a.startswith("--out=")), None)
+    if out is None and "--out" in argv[:-1]:
+        out = argv[argv.index("--out") + 1]
+    if out is None:
+        return ""
+    try:
+        names = sorted(e.name for e in os.scandir(out)
+                       if e.is_file() and e.stat().st_mtime >= started - 1)
+    except OSError:
+        names = []
+    if not names:
+        return f" (nothing written to {out} yet)"
+    shown = ", ".join(names[:6]) + (f" and {len(names) - 6} more" if len(names) > 6 else "")
+    return f" (already written to {out}: {shown})"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -73,9 +94,16 @@ def main(argv: list[str] | None = None) -> int:
         module_name = COMMANDS[command][0]
     else:
         parser.error(f"unknown command {command!r}")
-    module = importlib.import_module(module_name)
+    started = time.time()
     try:
+        module = importlib.import_module(module_name)
         return int(module.main(rest))
+    except KeyboardInterrupt:
+        if not command.startswith("study "):
+            raise  # vehicle, fleet and camera handle Ctrl-C themselves
+        print(f"uav-sitl {command}: interrupted{_written_since(rest, started)}",
+              file=sys.stderr)
+        return 130
     except OSError as exc:  # an output folder or file the tool cannot write (--out /proc/x)
         where = f" {exc.filename}" if exc.filename else ""
         print(f"uav-sitl {command}:{where}: {exc.strerror or exc}", file=sys.stderr)

@@ -18,8 +18,10 @@ import hashlib
 import json
 import logging
 import math
+import signal
 import socket
 import sys
+import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -115,10 +117,19 @@ def dask_client(
     # numba/BLAS inside a cell must not start a thread per core in each worker
     one_thread = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                                          "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")}
-    cluster = LocalCluster(  # type: ignore[no-untyped-call]
-        n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-        dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR, env=one_thread,
-    )
+    # Ctrl-C at a terminal reaches the whole process group: each worker printed a
+    # KeyboardInterrupt traceback. They start with SIGINT ignored (inherited across exec);
+    # the study itself stops on it and closes the cluster.
+    ignore = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if ignore else None
+    try:
+        cluster = LocalCluster(  # type: ignore[no-untyped-call]
+            n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+            dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR, env=one_thread,
+        )
+    finally:
+        if ignore:
+            signal.signal(signal.SIGINT, previous)
     local = Client(cluster)  # type: ignore[no-untyped-call]
     try:
         yield local
