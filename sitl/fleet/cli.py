@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import socket
 import sys
 from collections.abc import Sequence
@@ -178,6 +179,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     if args.spec is None:  # --peers alone must share something: a spec with a peers type
         args.spec = "peer_sharing" if args.peers else "image_streaming"
     _check_spec(p, args.spec)
+    if args.summary_json is not None:
+        _check_summary_json(p, args.summary_json)
     if not 0 <= args.http_port <= 65535:
         p.error(f"--http-port must be in 0..65535, got {args.http_port}")
     if args.http_port and not args.netns and _tcp_port_taken(args.http_port):
@@ -202,6 +205,25 @@ def _tcp_port_taken(port: int) -> bool:
         except OSError:
             return True
     return False
+
+
+def _check_summary_json(p: argparse.ArgumentParser, path: Path) -> None:
+    """--summary-json must be writable before the fleet starts: a parent that is a file
+    failed with "[Errno 17] File exists" after the whole mission, and hid its summary."""
+    flag = f"--summary-json {path}"
+    if path.is_dir():
+        p.error(f"{flag}: is a folder; give a file name")
+    if path.exists():
+        if not os.access(path, os.W_OK):
+            p.error(f"{flag}: not writable")
+        return
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        p.error(f"{flag}: {parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        p.error(f"{flag}: cannot create files in {parent} (not writable)")
 
 
 def _check_spec(p: argparse.ArgumentParser, spec: str) -> None:

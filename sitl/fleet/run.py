@@ -234,10 +234,15 @@ def run(args: argparse.Namespace, *, out: IO[str] = sys.stdout) -> int:
     summary["report"] = write_report_png(plan)
     text = json.dumps(finite(summary), indent=2, sort_keys=True, allow_nan=False)
     (run_dir / "summary.json").write_text(text + "\n", encoding="utf-8")
-    if args.summary_json is not None:
-        args.summary_json.parent.mkdir(parents=True, exist_ok=True)
-        args.summary_json.write_text(text + "\n", encoding="utf-8")
     print(format_summary(summary), file=out)
+    if args.summary_json is not None:  # checked at start; a copy that still fails is a note
+        try:
+            args.summary_json.parent.mkdir(parents=True, exist_ok=True)
+            args.summary_json.write_text(text + "\n", encoding="utf-8")
+        except OSError as exc:
+            print(f"uav-sitl fleet: warning: cannot write --summary-json {args.summary_json}"
+                  f" ({exc.strerror or exc}); the summary is in {run_dir / 'summary.json'}",
+                  file=sys.stderr)
     if failure:
         print(f"uav-sitl fleet: {failure}", file=sys.stderr)
         return 1

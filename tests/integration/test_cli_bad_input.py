@@ -164,6 +164,11 @@ CASES = [
      "--spec "),
     ("uav-sitl", "fleet --drones 1 --duration 1 --spec nosuch --out {folder}/run", 2,
      "nosuch.toml: no such spec file"),
+    # ran the whole mission, then "[Errno 17] File exists", exit 2 and no summary printed
+    ("uav-sitl", "fleet --drones 1 --duration 1 --summary-json {a_file}/s.json --out "
+     "{folder}/run", 2, "/a_file is a file, not a folder"),
+    ("uav-sitl", "fleet --drones 1 --duration 1 --summary-json {folder} --out {folder}/run",
+     2, "is a folder; give a file name"),
     ("uav-sitl", "fleet --drones 1 --duration 1 --http-port 99999 --out {folder}/run", 2,
      "--http-port must be in 0..65535, got 99999"),
     ("uav-utility", "evaluate --spec {deep_toml} {deep_jsonl}", 2, "nested too deeply"),
