@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import math
 import secrets
+import socket
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -312,36 +313,85 @@ async def fly_demo_fleet(
     return fleet
 
 
+def _address(text: str) -> tuple[str, int]:
+    """HOST:PORT (HOST may be left out: 127.0.0.1) of the station's UDP port."""
+    import argparse
+
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit():
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT (127.0.0.1:14600), got {text!r}")
+    if not 1 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"port must be in 1..65535, got {text!r}")
+    return host.strip("[]") or "127.0.0.1", int(port)
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m ground_station.fake_drone HOST:PORT``: fly a demo fleet at a station."""
     import argparse
+    import sys
 
+    from companion.cli_help import DefaultsRawFormatter
     from ground_station.config import GroundConfig
 
-    parser = argparse.ArgumentParser(description=main.__doc__)
-    parser.add_argument("ground", help="ground station UDP address HOST:PORT")
-    parser.add_argument("--drones", type=int, default=4)
-    parser.add_argument("--duration", type=float, default=60.0)
-    parser.add_argument("--fleet-id", type=int, default=GroundConfig().fleet_id)
+    parser = argparse.ArgumentParser(
+        prog="python -m ground_station.fake_drone", formatter_class=DefaultsRawFormatter,
+        description="A demo fleet of fake drones circling 51.1 N 17.0 E: each sends images,\n"
+                    "position, battery and status to a ground station over UDP and answers\n"
+                    "its commands.",
+        epilog="example:\n"
+               "  python -m ground_station.fake_drone 127.0.0.1:14600 --keys gs-data/keys")
+    parser.add_argument("ground", type=_address,
+                        help="the ground station's UDP address HOST:PORT (its udp_port)")
+    parser.add_argument("--drones", type=int, default=4,
+                        help="how many drones (uav1, uav2, ...) circle the demo point")
+    parser.add_argument("--duration", type=float, default=60.0,
+                        help="seconds to send for, then stop (Ctrl-C stops it earlier)")
+    parser.add_argument("--fleet-id", type=int, default=GroundConfig().fleet_id,
+                        help="the station's fleet_id")
     parser.add_argument("--keys", type=Path, required=True,
                         help="folder with fleet.key and command.pub (uav-ground-station keygen)")
     args = parser.parse_args(argv)
+    if not 1 <= args.drones <= 64:
+        parser.error(f"--drones must be in 1..64, got {args.drones}")
+    if not 0 <= args.duration < math.inf:
+        parser.error(f"--duration must be a finite number of seconds >= 0, got {args.duration}")
+    if not 0 <= args.fleet_id < 2**32:
+        parser.error(f"--fleet-id must be in 0..4294967295, got {args.fleet_id}")
     try:
         key = (args.keys / "fleet.key").read_bytes().strip()
         public = decode_key_text((args.keys / "command.pub").read_bytes(), "command.pub")
     except (OSError, ValueError) as exc:
         parser.error(f"--keys {args.keys}: {exc}")
-    host, _, port = args.ground.rpartition(":")
-    asyncio.run(
-        fly_demo_fleet(
-            (host or "127.0.0.1", int(port)),
-            fleet_id=args.fleet_id,
-            key=key,
-            command_public_key=public,
-            drones=args.drones,
-            duration_s=args.duration,
+    host, port = args.ground
+    try:  # sends to a name that does not resolve failed silently, all --duration long
+        socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+    except OSError as exc:
+        parser.error(f"argument ground: cannot resolve {host!r}: {exc.strerror or exc}")
+    def started(_: list[FakeDrone]) -> None:  # in the loop: Ctrl-C from here on is clean
+        print(f"fake_drone: {args.drones} drone(s) send images, telemetry and status to "
+              f"{host}:{port} (fleet {args.fleet_id}) for {args.duration:g} s; Ctrl-C stops",
+              flush=True)
+
+    try:
+        asyncio.run(
+            fly_demo_fleet(
+                (host, port),
+                fleet_id=args.fleet_id,
+                key=key,
+                command_public_key=public,
+                drones=args.drones,
+                duration_s=args.duration,
+                on_start=started,
+            )
         )
-    )
+    except KeyboardInterrupt:
+        print("fake_drone: interrupted", file=sys.stderr, flush=True)
+        return 130
+    except OSError as exc:  # a host name that does not resolve, a network that is down
+        print(f"fake_drone: cannot send to {host}:{port}: {exc.strerror or exc}",
+              file=sys.stderr)
+        return 1
+    print(f"fake_drone: done after {args.duration:g} s", flush=True)
     return 0
 
 
