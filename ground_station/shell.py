@@ -10,7 +10,10 @@ names the drones that did not answer; a command waits for its per-drone results.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import datetime as dt
+import os
+import stat
 import sys
 import threading
 import time
@@ -245,18 +248,25 @@ class MissionShell:
                     return
             return
         self.say(HELP)
-        while True:
-            try:
-                line = await _read_line(prompt)
-            except EOFError:
-                return
-            if not await self.execute(line):
-                return
+        pipe = None if sys.stdin.isatty() else _PipeLines(sys.stdin, self.out)
+        try:
+            while True:
+                try:
+                    line = await (_read_line(prompt) if pipe is None else pipe.readline(prompt))
+                except EOFError:
+                    return
+                if not await self.execute(line):
+                    return
+        finally:
+            if pipe is not None:
+                pipe.close()
 
 
 async def _read_line(prompt: str) -> str:
-    """``input(prompt)`` on a daemon thread: on Ctrl-C the process exits even though the
-    thread still waits for the terminal (an executor thread there hung the exit)."""
+    """``input(prompt)`` on a daemon thread, for a terminal (its line editing): on Ctrl-C the
+    process exits even though the thread still waits for it (an executor thread there hung
+    the exit). A pipe is read by the loop instead (:class:`_PipeLines`): a thread blocked
+    in a pipe's read holds stdin's lock, and the interpreter's exit then died on it."""
     loop = asyncio.get_running_loop()
     future: asyncio.Future[str] = loop.create_future()
 
@@ -269,14 +279,49 @@ async def _read_line(prompt: str) -> str:
 
     def read() -> None:
         try:
-            line = input(prompt)
+            line: str | None = input(prompt)
+            error: Exception | None = None
         except Exception as exc:  # EOFError: the terminal or the pipe closed
-            loop.call_soon_threadsafe(settle, None, exc)
-            return
-        loop.call_soon_threadsafe(settle, line, None)
+            line, error = None, exc
+        with contextlib.suppress(RuntimeError):  # the loop closed meanwhile (Ctrl-C)
+            loop.call_soon_threadsafe(settle, line, error)
 
     threading.Thread(target=read, name="shell-input", daemon=True).start()
     return await future
+
+
+class _PipeLines:
+    """Lines of a stdin that is not a terminal, read without a thread: a pipe or socket
+    through the event loop, a regular file (which never blocks) directly."""
+
+    def __init__(self, stdin: TextIO, out: TextIO) -> None:
+        self.stdin, self.out = stdin, out
+        self.reader: asyncio.StreamReader | None = None
+        self.transport: asyncio.BaseTransport | None = None
+        self.direct = False
+
+    async def readline(self, prompt: str) -> str:
+        self.out.write(prompt)  # as input() does when stdin is not a terminal
+        self.out.flush()
+        if self.reader is None and not self.direct:
+            mode = os.fstat(self.stdin.fileno()).st_mode
+            self.direct = not (stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode))  # a file, /dev/null
+            if not self.direct:
+                reader = asyncio.StreamReader()
+                self.transport, _ = await asyncio.get_running_loop().connect_read_pipe(
+                    lambda: asyncio.StreamReaderProtocol(reader), self.stdin)
+                self.reader = reader
+        if self.reader is None:
+            data = self.stdin.readline()
+        else:
+            data = (await self.reader.readline()).decode(errors="replace")
+        if not data:
+            raise EOFError
+        return data.rstrip("\r\n")
+
+    def close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()
 
 
 async def run_shell(

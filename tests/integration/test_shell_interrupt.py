@@ -23,6 +23,8 @@ import pytest
 
 from sitl.fleet_config import free_port
 from tests.keys import write_test_keys
+from tests.processes import interrupt
+from tests.station_process import running_station
 
 SCRIPT = Path(sys.executable).parent / "uav-ground-station"
 SHELL = [str(SCRIPT) if SCRIPT.exists() else sys.executable, *(
@@ -134,3 +136,50 @@ def test_ctrl_c_while_check_waits_for_the_autopilot(tmp_path: Path) -> None:
     assert proc.returncode == 130, err
     assert "Traceback" not in err
     assert err.strip().splitlines()[-1] == "uav-companion check: interrupted"
+
+
+def test_ctrl_c_with_stdin_a_pipe_is_always_clean(tmp_path: Path) -> None:
+    """Before: the prompt was read on a daemon thread, so with stdin a pipe 1 run in 8 died
+    with "Fatal Python error: _enter_buffered_busy" (the thread held stdin's lock at
+    shutdown) and 1 in 3 printed "Exception in thread shell-input" (a line arriving after
+    the loop closed). Now a pipe is read by the event loop, no thread."""
+    with running_station(tmp_path) as station:
+        shell = [*SHELL[:-4], "--url", f"http://127.0.0.1:{station.port}", "--token",
+                 station.token]
+        for attempt in range(8):
+            proc = subprocess.Popen(shell, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, text=True,
+                                    env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                                    preexec_fn=_sigint_as_on_a_terminal)
+            try:
+                assert proc.stdin is not None and proc.stdout is not None
+                proc.stdin.write("status\n")  # a command runs, then it waits for the next
+                proc.stdin.flush()
+                for line in proc.stdout:
+                    if line.startswith(("CMD >> phase", "phase")):
+                        break
+                time.sleep(0.1 * (attempt % 4))
+                code = interrupt(proc, timeout_s=10)
+                err = proc.stderr.read() if proc.stderr else ""
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+            assert "Traceback" not in err and "Fatal Python error" not in err, err
+            assert code == 0, err
+            assert err.strip().splitlines() == ["uav-ground-station shell: interrupted"], err
+
+
+@pytest.mark.parametrize("stdin", ["file", "devnull"])
+def test_stdin_a_file_or_dev_null_is_read_to_its_end(tmp_path: Path, stdin: str) -> None:
+    """Neither can be polled by the event loop: read directly, and the shell ends at EOF."""
+    script = tmp_path / "lines"
+    script.write_text("help\nstatus\n")
+    with open(script if stdin == "file" else os.devnull) as source:
+        result = subprocess.run(SHELL, stdin=source, capture_output=True, text=True,
+                                timeout=30, check=False)
+    assert "Traceback" not in result.stderr, result.stderr
+    assert result.returncode == 0, result.stderr
+    if stdin == "file":  # both lines ran: status failed (no station at port 9), said so
+        assert result.stdout.count("Available commands:") == 2, result.stdout
+        assert "error: ground station at http://127.0.0.1:9 unreachable" in result.stdout
