@@ -370,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
         return asyncio.run(run_shell(url, token, lines=lines, wait_timeout_s=args.timeout))
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: a line, not a traceback
         print("uav-ground-station shell: interrupted", file=sys.stderr)
-        return 0
+        return 0 if lines is None else 130  # a script must not carry on as if it had run
 
 
 if __name__ == "__main__":

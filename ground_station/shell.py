@@ -27,6 +27,8 @@ from ground_station.mission_input import HELP, MissionError, ShellCommand, parse
 __all__ = ["ApiClient", "MissionShell", "run_shell"]
 
 POLL_S = 0.25
+STATUS_REPORTS = ("done", "error", "running", "idle", "ended")
+"""Report names a drone's status gives; any other one must have been counted already."""
 WAIT_TIMEOUT_S = 30.0
 """Default bound of every wait (``--timeout``): a silent drone must not hang the shell."""
 
@@ -91,6 +93,8 @@ class MissionShell:
         self.last_command_id: int | None = None
         self.failed = False
         """An error was printed or a drone did not answer done (a script exits 1)."""
+        self.results_shown: int | None = None
+        """The command whose every result was printed (a bare ``wait`` does not repeat it)."""
 
     def say(self, text: str) -> None:
         self.out.write(text + "\n")
@@ -136,10 +140,16 @@ class MissionShell:
             )
             self.say(f"{len(state['drones'])} drone(s): {', '.join(state['drones'])}")
         elif c.verb == "wait_reports":
-            if c.count is None and c.report is None and self._latest(await self.api.mission()):
-                await self._wait_results(None)
+            state = await self.api.mission()
+            latest = self._latest(state)
+            if c.count is None and c.report is None and latest:
+                if latest.get("finished") and latest["command_id"] == self.results_shown:
+                    self.say(f"nothing left to wait for: #{latest['command_id']} "
+                             f"{latest['name']} has every result (above)")
+                else:
+                    await self._wait_results(None)
             else:
-                await self._wait_reports(c.count, c.report or "done")
+                await self._wait_reports(c.count, c.report or "done", state)
         elif c.verb == "reset_reports":
             await self.api.reset_reports()
             self.say("Reports reset")
@@ -150,8 +160,15 @@ class MissionShell:
             self._print_status(await self.api.mission())
         return True
 
-    async def _wait_reports(self, count: int | None, name: str) -> None:
-        self.say(f"Waiting for {count if count is not None else 'every drone'}'s report {name!r}")
+    async def _wait_reports(self, count: int | None, name: str, state: dict[str, Any]) -> None:
+        counted = state.get("reports", {})
+        if name not in STATUS_REPORTS and name not in counted:  # `wait 2 foo` waited 30 s
+            so_far = ", ".join(f"{k} {v}" for k, v in sorted(counted.items())) or "none"
+            raise MissionError(
+                f"wait: no report {name!r}: expected {', '.join(STATUS_REPORTS)} or a name a "
+                f"drone has reported (so far: {so_far}), e.g. wait 4 done")
+        self.say(f"Waiting for {count} report(s) {name!r}" if count is not None
+                 else f"Waiting for every drone's report {name!r}")
 
         def enough(m: dict[str, Any]) -> bool:
             if count is not None:
@@ -188,7 +205,9 @@ class MissionShell:
             return f"no result yet from: {', '.join(waiting) or 'none'}"
 
         state = await self._wait(finished, missing)
-        self._print_results(self._latest(state, command_id))
+        command = self._latest(state, command_id)
+        self._print_results(command)
+        self.results_shown = command.get("command_id")
 
     def _print_results(self, command: dict[str, Any], *, judge: bool = True) -> None:
         summary = command.get("summary", {})

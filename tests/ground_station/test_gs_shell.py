@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import asyncio
 import io
+import time
 from typing import Any
 
 from aiohttp.test_utils import TestClient
@@ -56,3 +58,45 @@ async def test_wait_for_every_drone_done(gs_client: TestClient[Any, Any]) -> Non
     mm.on_status("d2", state="done", command_id=None, now=1.0)
     text = await run_lines(gs_client, ["r"])
     assert "Reports 'done': 2" in text
+
+
+async def test_a_wait_after_a_command_that_waited_does_not_print_its_results_again(
+        gs_client: TestClient[Any, Any]) -> None:
+    """``start; wait`` printed ``#1 start: done 1/1`` twice: start had already waited."""
+    mm = gs_client.server.app[MISSIONS]
+    mm.on_drone_heard("d1", now=time.time())
+
+    async def answer() -> None:  # the drone says done to every command
+        while True:
+            for cid in list(mm.commands):
+                mm.on_status("d1", state="done", command_id=cid, now=time.time())
+            await asyncio.sleep(0.05)
+
+    drone = asyncio.create_task(answer())
+    try:
+        text = await run_lines(gs_client, ["start", "wait", "end", "wait"])
+    finally:
+        drone.cancel()
+    assert text.count("start: done 1/1") == 1, text
+    assert text.count("end: done 1/1") == 1, text
+    first, second = sorted(mm.commands)
+    assert f"nothing left to wait for: #{first} start has every result (above)" in text
+    assert f"nothing left to wait for: #{second} end has every result (above)" in text
+
+
+async def test_a_report_name_no_drone_gives_is_an_error(
+        gs_client: TestClient[Any, Any]) -> None:
+    """``wait 2 foo`` said "Waiting for 2's report 'foo'" and waited the whole timeout."""
+    out = io.StringIO()
+    api = ApiClient(str(gs_client.make_url("")), TOKEN_VALUE, gs_client.session)
+    shell = MissionShell(api, out, wait_timeout_s=2.0)
+    await shell.run(["wait 2 foo"])
+    assert out.getvalue().splitlines() == [
+        "error: wait: no report 'foo': expected done, error, running, idle, ended or a name a "
+        "drone has reported (so far: none), e.g. wait 4 done"]
+    assert shell.failed
+    mm = gs_client.server.app[MISSIONS]
+    mm.on_report("d1", "foo", now=time.time())  # a name a drone did report is waited for
+    text = await run_lines(gs_client, ["wait 1 foo", "wait 0 done"])
+    assert text.splitlines() == ["Waiting for 1 report(s) 'foo'", "Reports 'foo': 1",
+                                 "Waiting for 0 report(s) 'done'", "Reports 'done': 0"]

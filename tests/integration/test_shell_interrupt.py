@@ -3,7 +3,8 @@ check``.
 
 Before: a Ctrl-C at the prompt printed a KeyboardInterrupt traceback and then the process
 hung (the thread waiting for the terminal kept it alive) until killed; during a scripted
-``sleep``/``wait`` it printed the traceback and exited -2. Now: one line, exit 0, at once.
+``sleep``/``wait`` it printed the traceback and exited -2. Now: one line at once, exit 0 at the
+prompt and 130 in a script (``-c``).
 The shell is the installed console script on a real pseudo-terminal; it needs no station
 for this (it calls the API only for a command).
 """
@@ -85,7 +86,8 @@ def test_ctrl_c_at_the_prompt_ends_the_shell_at_once() -> None:
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_a_signal_during_a_scripted_wait_is_one_line_and_exit_0(sig: int) -> None:
+def test_a_signal_during_a_scripted_wait_is_one_line_and_exit_130(sig: int) -> None:
+    """Exit 130, not 0: a script (``shell -c \"drones 5\" && next``) must not carry on."""
     proc = subprocess.Popen([*SHELL, "-c", "help; sleep 30"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"},
@@ -96,7 +98,7 @@ def test_a_signal_during_a_scripted_wait_is_one_line_and_exit_0(sig: int) -> Non
             break
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=10)
-    assert proc.returncode == 0, err
+    assert proc.returncode == 130, err
     assert err.strip().splitlines() == ["uav-ground-station shell: interrupted"], err
 
 
