@@ -9,7 +9,7 @@ from pathlib import Path
 
 from utility_specs.errors import UtilitySpecsError
 from utility_specs.evaluate import evaluate
-from utility_specs.files import builtin_spec, builtin_specs, load_spec, read_log
+from utility_specs.files import builtin_spec, builtin_specs, read_log, spec_named
 from utility_specs.intervals import MissionInterval, intervals_of, select_intervals
 from utility_specs.log import merge_copies
 
@@ -75,7 +75,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _evaluate(args: argparse.Namespace) -> int:
     spec_arg: str = args.spec
-    spec = load_spec(spec_arg) if Path(spec_arg).suffix == ".toml" else builtin_spec(spec_arg)
+    spec = spec_named(spec_arg)
     messages = []
     states = {}
     receiver_logs: list[list[MissionInterval]] = []

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -11,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from utility_specs.characteristics import Characteristics, characteristics
-from utility_specs.files import builtin_spec, builtin_specs, load_spec, read_log
+from utility_specs.files import builtin_specs, read_log, spec_named
 from utility_specs.log import merge_copies
 
 DROPS = "0.1,0.3,0.5,0.7,0.9"
@@ -46,13 +47,24 @@ def add_parser(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    spec_arg: str = args.spec
-    spec = load_spec(spec_arg) if Path(spec_arg).suffix == ".toml" else builtin_spec(spec_arg)
+    # every option is checked before a log is read or a line printed: --runs -1 printed
+    # "5 drop probabilities x -1 replays" and only then failed
     try:
         drops = [float(d) for d in args.drops.split(",")]
     except ValueError:
         raise ValueError(
             f"--drops: numbers separated by commas expected, got {args.drops!r}") from None
+    if not all(0.0 <= d < 1.0 for d in drops):
+        raise ValueError(f"--drops: need every drop probability in [0, 1), got {args.drops!r}")
+    if args.runs < 1:
+        raise ValueError(f"--runs must be >= 1, got {args.runs}")
+    for flag, value in (("--t-start", args.t_start), ("--t-end", args.t_end)):
+        if value is not None and not math.isfinite(value):
+            raise ValueError(f"{flag} must be a finite time, got {value}")
+    if args.t_start is not None and args.t_end is not None and not args.t_end > args.t_start:
+        raise ValueError(f"need --t-start < --t-end, got {args.t_start} and {args.t_end}")
+    spec_arg: str = args.spec
+    spec = spec_named(spec_arg)
     unknown = sorted(set(args.types or ()) - set(spec.types))
     if unknown:
         raise ValueError(f"--type {', '.join(unknown)}: not a type of spec {spec.name!r} "

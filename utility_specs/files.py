@@ -16,7 +16,7 @@ from utility_specs.log import MissionLog, parse_log
 from utility_specs.scene import Scene, SceneError, parse_scene
 from utility_specs.spec import MissionSpec, parse_spec
 
-__all__ = ["builtin_spec", "builtin_specs", "load_spec", "read_log", "read_scene"]
+__all__ = ["builtin_spec", "builtin_specs", "load_spec", "read_log", "read_scene", "spec_named"]
 
 
 def read_log(path: str | Path) -> MissionLog:
@@ -65,6 +65,16 @@ def builtin_spec(name: str) -> MissionSpec:
         raise SpecError(f"no built-in spec {name!r}; expected one of {builtin_specs()}")
     raw = tomllib.loads(resource.read_text(encoding="utf-8"))
     return parse_spec(raw, source=f"utility_specs/missions/{name}.toml")
+
+
+def spec_named(text: str) -> MissionSpec:
+    """``--spec``: a file (``*.toml``, any existing file whatever its suffix, or a path with a
+    folder in it) or else a built-in spec's name. An existing ``spec.txt`` was looked up as
+    a built-in and refused with "no built-in spec"."""
+    path = Path(text)
+    if path.suffix == ".toml" or path.exists() or len(path.parts) > 1:
+        return load_spec(path)
+    return builtin_spec(text)
 
 
 def read_scene(path: str | Path) -> Scene:

@@ -93,6 +93,9 @@ def test_the_command_writes_the_figure_and_the_tables(tmp_path: Path) -> None:
     (["--drops", "0.1,x"], "--drops: numbers separated by commas expected"),
     (["--drops", "1.5"], "every drop probability in [0, 1)"),
     (["--type", "image"], "no message of type image in the logs"),
+    # printed "5 drop probabilities x -1 replays" first, then failed
+    (["--runs", "-1"], "--runs must be >= 1, got -1"),
+    (["--t-start", "5", "--t-end", "2"], "need --t-start < --t-end, got 5.0 and 2.0"),
 ])
 def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str],
                                           message: str) -> None:
@@ -102,3 +105,4 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str],
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "Traceback" not in run.stderr
     assert message in run.stderr.splitlines()[-1]
+    assert run.stdout == ""  # checked before anything is printed

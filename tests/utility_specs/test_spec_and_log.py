@@ -169,6 +169,22 @@ def test_cli_reports_errors_without_a_traceback(tmp_path: Path) -> None:
     assert "Traceback" not in result.stderr
 
 
+def test_cli_reads_an_existing_spec_file_whatever_its_suffix(tmp_path: Path) -> None:
+    """``--spec /tmp/spec.txt`` (a TOML file) said "no built-in spec '/tmp/spec.txt'"."""
+    spec = tmp_path / "spec.txt"
+    spec.write_text((Path(__file__).parents[2] / "utility_specs" / "missions" /
+                     "telemetry.toml").read_text())
+    log = tmp_path / "log.jsonl"
+    log.write_text('{"mission": {"t_end": 3}}\n')
+    result = _run("evaluate", "--spec", str(spec), "--json", str(log))
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["total"] == 0
+    missing = _run("evaluate", "--spec", str(tmp_path / "no" / "spec.txt"), str(log))
+    assert missing.returncode == 2 and "Traceback" not in missing.stderr
+    assert missing.stderr.strip() == (f"uav-utility: error: {tmp_path}/no/spec.txt: "
+                                      "no such spec file")
+
+
 def test_cli_plot_writes_a_png(tmp_path: Path) -> None:
     out = tmp_path / "fig.png"
     result = _run("plot", "4.9", "--out", str(out))
