@@ -40,7 +40,18 @@ def _config(args: argparse.Namespace) -> GroundConfig:
         overrides["public_read"] = True
     if getattr(args, "allowed_host", None):  # added to the config file's names
         overrides["allowed_hosts"] = (*config.allowed_hosts, *args.allowed_host)
-    return config.with_overrides(**overrides) if overrides else config
+    try:
+        return config.with_overrides(**overrides) if overrides else config
+    except ConfigError as exc:  # a bad value from the command line is named as its option
+        if exc.key not in overrides or exc.key not in _OPTIONS:
+            raise  # said "<config>: key 'udp_port'" for --udp-port 99999
+        raise ConfigError(_OPTIONS[exc.key], "<option>", exc.expected, exc.got) from None
+
+
+_OPTIONS = {"data_dir": "--data-dir", "mission": "--mission", "udp_port": "--udp-port",
+            "http_host": "--http-host", "http_port": "--http-port",
+            "allowed_hosts": "--allowed-host"}
+"""The config keys `run`, `token` and `shell` take from options, as the options are typed."""
 
 
 def data_dir_problem(data_dir: Path) -> str | None:
@@ -295,7 +306,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         config = _config(args)
     except ConfigError as exc:
-        print(f"uav-ground-station: configuration error: {exc}", file=sys.stderr)
+        what = "error" if exc.key == "<option>" else "configuration error"
+        print(f"uav-ground-station: {what}: {exc}", file=sys.stderr)
         return 2
     if args.command == "run":
         return _run(args, config)

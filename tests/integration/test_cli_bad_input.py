@@ -87,6 +87,11 @@ CASES = [
      "run --config {keyed} --data-dir /proc/uav-gs-data --udp-port 0 --http-port 0", 2,
      "data dir /proc/uav-gs-data: not writable"),
     ("uav-ground-station", "token --data-dir {a_file}", 2, "is a file, not a folder"),
+    # said "configuration error: <config>: key 'udp_port': ...": the value came from the option
+    ("uav-ground-station", "run --config {keyed} --data-dir {folder}/gs --udp-port 99999", 2,
+     "uav-ground-station: error: --udp-port: expected a port 0..65535, got 99999"),
+    ("uav-ground-station", "run --config {keyed} --data-dir {folder}/gs --http-port -3", 2,
+     "uav-ground-station: error: --http-port: expected a port 0..65535, got -3"),
     # printed http://127.0.0.1:0/?login=... (and made a token) for run's "any free port"
     ("uav-ground-station", "token --url --http-port 0 --data-dir {no_db}", 2,
      "token --url needs the dashboard's real port: give the --http-port that `run` printed"),
