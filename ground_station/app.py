@@ -121,15 +121,28 @@ def _image_json(row: ImageRow) -> dict[str, Any]:
     return row.as_json() | {"url": f"/api/images/{row.id}.jpg"}
 
 
+_OBJECT_FILTER: dict[str, bool | None] = {
+    "": None, "any": None, "true": True, "1": True, "yes": True,
+    "false": False, "0": False, "no": False}
+"""``/api/images?object=``: the gallery's three choices, and 1/0, yes/no."""
+
+
 async def api_images(request: web.Request) -> web.Response:
     """Gallery: highest-utility images of a mission, filterable by drone and object flag."""
     app = request.app
     q = request.query
     mission = q.get("mission", app[CONFIG].mission)
     drone = q.get("drone") or None
-    obj = q.get("object")
-    object_only = None if obj in (None, "", "any") else obj in ("1", "true", "yes")
-    order = "time" if q.get("order") == "time" else "utility"
+    obj = q.get("object", "")
+    order = q.get("order", "utility")
+    # a mistyped value was read as the default (order) or as false (object), silently
+    if obj not in _OBJECT_FILTER:
+        return json_reply({"error": f"object must be true, false or any, got {obj!r}"},
+                          status=400)
+    if order not in ("utility", "time"):
+        return json_reply({"error": f"order must be utility or time, got {order!r}"},
+                          status=400)
+    object_only = _OBJECT_FILTER[obj]
     try:
         limit = int(q.get("limit", "24"))
     except ValueError:

@@ -216,6 +216,12 @@ async def test_gallery_filters(gs_client: TestClient[Any, Any]) -> None:
     assert img.status == 200 and await img.read() == b"a" * 100
     assert (await gs_client.get("/api/images/999.jpg", headers=auth())).status == 404
     assert (await gs_client.get("/api/images", params={"limit": "x"}, headers=auth())).status == 400
+    assert len(await gallery(order="time", object="any")) == 3  # the valid values still work
+    # were ignored (200, every image, best first) where limit=x was a 400
+    for bad, error in ({"order": "bogus"}, "order must be utility or time, got 'bogus'"), \
+            ({"object": "maybe"}, "object must be true, false or any, got 'maybe'"):
+        r = await gs_client.get("/api/images", params=bad, headers=auth())
+        assert r.status == 400 and await r.json() == {"error": error}
 
 
 async def test_garbage_and_mutations_are_counted_never_raised(
