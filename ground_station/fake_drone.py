@@ -31,7 +31,7 @@ from companion.protocol import (
     ReportReceived,
     Status,
 )
-from companion.protocol.signing import decode_key_text
+from companion.protocol.signing import decode_key_text, fleet_key_text
 from utility_specs.message import Message
 
 __all__ = ["FakeDrone", "synthetic_jpeg"]
@@ -358,7 +358,7 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 <= args.fleet_id < 2**32:
         parser.error(f"--fleet-id must be in 0..4294967295, got {args.fleet_id}")
     try:
-        key = (args.keys / "fleet.key").read_bytes().strip()
+        key = fleet_key_text((args.keys / "fleet.key").read_bytes(), "fleet.key")
         public = decode_key_text((args.keys / "command.pub").read_bytes(), "command.pub")
     except (OSError, ValueError) as exc:
         parser.error(f"--keys {args.keys}: {exc}")

@@ -201,7 +201,7 @@ class MissionShell:
         def missing(m: dict[str, Any]) -> str:
             command = self._latest(m, command_id)
             waiting = sorted(d for d, e in command.get("results", {}).items()
-                             if e["result"] not in ("done", "error", "no reply"))
+                             if e["result"] not in ("done", "error", "no reply", "superseded"))
             return f"no result yet from: {', '.join(waiting) or 'none'}"
 
         state = await self._wait(finished, missing)
@@ -213,8 +213,9 @@ class MissionShell:
         summary = command.get("summary", {})
         total = summary.get("total", 0)
         parts = [f"done {summary.get('done', 0)}/{total}"]
-        parts += [f"{k} {summary[k]}" for k in ("error", "no reply") if summary.get(k)]
-        if judge and summary.get("done", 0) != total:
+        parts += [f"{k} {summary[k]}" for k in ("error", "no reply", "superseded")
+                  if summary.get(k)]
+        if judge and summary.get("done", 0) + summary.get("superseded", 0) != total:
             self.failed = True
         self.say(f"#{command['command_id']} {command['name']}: {', '.join(parts)}")
         for drone, entry in sorted(command.get("results", {}).items()):
