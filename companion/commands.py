@@ -18,7 +18,7 @@ from companion.mission import MissionWindow
 from companion.mission_log import MissionLogWriter
 from companion.protocol import LocalProtocolError, Status
 
-__all__ = ["CommandExecutor"]
+__all__ = ["CommandExecutor", "replaced_by"]
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +94,7 @@ class CommandExecutor:
             return
         now = self._clock()
         info: dict[str, Any] = {"name": command.name}
-        later = self._replaced_by(command)
+        later = replaced_by(self._phase, command)
         if later is not None:
             self._finish(command, info, error=f"superseded by {later[1]} #{later[0]}, issued "
                          "later to run before it: the latest start or end decides")
@@ -116,17 +116,6 @@ class CommandExecutor:
             self._finish(command, info, error=str(exc))
             return
         self._finish(command, info)
-
-    def _replaced_by(self, command: Any) -> tuple[int, str] | None:
-        """A start or end the station issued after ``command`` (a newer id) that runs at or
-        before it: the station replaced ``command`` with it (``ground_station.missions``),
-        so ``command`` must not run. Ids are compared as serial numbers: they wrap at 2**32."""
-        if command.name not in ("start", "end"):
-            return None
-        for cid, (name, t_exec) in self._phase.items():
-            if 0 < (cid - command.command_id) % 2**32 < 2**31 and t_exec <= command.t_exec:
-                return cid, name
-        return None
 
     async def _apply_params(self, command: Any) -> None:
         params = dict(command.args)
@@ -164,6 +153,19 @@ class CommandExecutor:
                               command=command.name)
         _log_safely(logging.INFO, "command %s #%d done", command.name, command.command_id,
                     extra={"event": "command_done", "command": command.name})
+
+
+def replaced_by(phase: Mapping[int, tuple[str, float]], command: Any) -> tuple[int, str] | None:
+    """Of the start and end commands received (``phase``: id -> (name, t_exec)), one the
+    station issued after ``command`` (a newer id) that runs at or before it: the station
+    replaced ``command`` with it (``ground_station.missions``), so ``command`` must not run.
+    Ids are compared as serial numbers: they wrap at 2**32."""
+    if command.name not in ("start", "end"):
+        return None
+    for cid, (name, t_exec) in phase.items():
+        if 0 < (cid - command.command_id) % 2**32 < 2**31 and t_exec <= command.t_exec:
+            return cid, name
+    return None
 
 
 def _log_safely(level: int, msg: str, *args: Any, extra: Mapping[str, Any] | None = None

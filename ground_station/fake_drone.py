@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, cast
 
 from companion.app import build_decider
+from companion.commands import replaced_by
 from companion.config import parse_config
 from companion.protocol import (
     EPOCH_STATUS,
@@ -106,6 +107,8 @@ class FakeDrone(asyncio.DatagramProtocol):
         self.transport: asyncio.DatagramTransport | None = None
         self.seq = 0
         self.commands: list[CommandReceived] = []
+        self._phase: dict[int, tuple[str, float]] = {}
+        """Start and end commands received (id -> name, t_exec), as the companion keeps them."""
         self.reports: list[ReportReceived] = []
         self.command_event = asyncio.Event()
         self.report_event = asyncio.Event()
@@ -153,6 +156,8 @@ class FakeDrone(asyncio.DatagramProtocol):
         self.send_status("ack", command_id=cid)
         if not self.auto_done or any(c.command.command_id == cid for c in self.commands[:-1]):
             return
+        if command.name in ("start", "end"):
+            self._phase[cid] = (command.name, command.t_exec)
         delay = max(0.0, command.t_exec - self.clock())
         asyncio.get_running_loop().call_later(delay, self._execute, command)
 
@@ -169,6 +174,9 @@ class FakeDrone(asyncio.DatagramProtocol):
 
     def _refusal(self, command: Any) -> str | None:
         """Why the companion would refuse ``command`` (None: it would run it)."""
+        later = replaced_by(self._phase, command)
+        if later is not None:
+            return f"superseded by {later[1]} #{later[0]}"
         if command.name in ("start", "end", "request_report"):
             return None
         if command.name != "set_params":

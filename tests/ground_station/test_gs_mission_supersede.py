@@ -25,6 +25,7 @@ from companion.middleware.decider import Decision
 from companion.mission import MissionWindow
 from companion.mission_log import MissionLogWriter
 from companion.protocol import Command, Status
+from ground_station.fake_drone import FakeDrone
 from ground_station.mission_state import restore_missions, snapshot_missions
 from ground_station.missions import MissionManager
 from ground_station.storage import Storage
@@ -175,3 +176,13 @@ async def test_a_drone_runs_a_window_and_ids_that_wrapped(tmp_path: Path) -> Non
 def _error(status: Status) -> str:
     info: dict[str, Any] = dict(status.info or {})
     return str(info.get("error"))
+
+
+def test_the_fake_drone_skips_a_replaced_start_as_the_companion_does() -> None:
+    drone = FakeDrone("d1", fleet_id=1, key=b"k" * 32, ground=("127.0.0.1", 9))
+    start = Command(command_id=7, name="start", t_exec=T0 + 5)
+    end = Command(command_id=8, name="end", t_exec=T0)
+    for command in (start, end):
+        drone._phase[command.command_id] = (command.name, command.t_exec)
+    assert drone._refusal(end) is None
+    assert drone._refusal(start) == "superseded by end #8"
