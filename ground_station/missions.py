@@ -300,6 +300,9 @@ class MissionManager:
                 return 0  # on its way, or sent again once already without an answer
         elif t_gen <= result["t"] + STATUS_AFTER_RESULT_S:
             return 0  # said before it executed the command
+        elif result["t"] >= command.rejoined.get(drone, math.inf):
+            return 0  # answered it again since, and still says otherwise: it did not
+            # restart (a restart is a new epoch), it answers the same id from its memory
         return self.rejoin(drone, now=now)
 
     def on_report(self, drone: str, name: str, *, now: float) -> None:
