@@ -56,6 +56,10 @@ PARAMS_KEPT = 64
 """set_params commands kept for drones that rejoin (the oldest are forgotten first)."""
 STATUS_AFTER_RESULT_S = 1.0
 """A drone's mission state generated this soon after its result may predate it (clocks)."""
+CONTRADICTED_RETRY_S = 30.0
+"""A drone whose mission state contradicts the station's is sent the mission's commands
+again at most this often: one that did not restart answers them from its memory, and every
+2 s (its statuses) they changed nothing but added a log line (39 in 38 s)."""
 
 
 class MissionManager:
@@ -105,6 +109,8 @@ class MissionManager:
         self.params: dict[str, Any] = {}
         self.changes = 0
         """Counts changes worth saving (commands, acks, results, reports)."""
+        self._contradicted: dict[str, float] = {}
+        """Drone -> when its contradicting mission state last brought it back."""
 
     # -- inputs -------------------------------------------------------------------------
     def on_drone_heard(self, drone: str, *, now: float) -> bool:
@@ -300,9 +306,9 @@ class MissionManager:
                 return 0  # on its way, or sent again once already without an answer
         elif t_gen <= result["t"] + STATUS_AFTER_RESULT_S:
             return 0  # said before it executed the command
-        elif result["t"] >= command.rejoined.get(drone, math.inf):
-            return 0  # answered it again since, and still says otherwise: it did not
-            # restart (a restart is a new epoch), it answers the same id from its memory
+        if now - self._contradicted.get(drone, -math.inf) < CONTRADICTED_RETRY_S:
+            return 0
+        self._contradicted[drone] = now
         return self.rejoin(drone, now=now)
 
     def on_report(self, drone: str, name: str, *, now: float) -> None:
