@@ -96,8 +96,9 @@ class CommandExecutor:
         info: dict[str, Any] = {"name": command.name}
         later = replaced_by(self._phase, command)
         if later is not None:
-            self._finish(command, info, error=f"superseded by {later[1]} #{later[0]}, issued "
-                         "later to run before it: the latest start or end decides")
+            self._finish(command, info, skipped=True,
+                         error=f"superseded by {later[1]} #{later[0]}, issued later to run "
+                         "before it: the latest start or end decides")
             return
         try:
             if command.name == "start":
@@ -127,8 +128,10 @@ class CommandExecutor:
             return
         self._finish(command, info)
 
-    def _finish(self, command: Any, info: dict[str, Any], *, error: str | None = None) -> None:
-        """Send and remember the result; then the status message, mission log and log line."""
+    def _finish(self, command: Any, info: dict[str, Any], *, error: str | None = None,
+                skipped: bool = False) -> None:
+        """Send and remember the result; then the status message, mission log and log line
+        (``skipped``: the error is the station's own choice, not a failure: INFO)."""
         now = self._clock()
         if error is None:
             status = Status(state="done", command_id=command.command_id, info=info)
@@ -145,8 +148,9 @@ class CommandExecutor:
             _log_safely(logging.WARNING, "command %s #%d: result not sent: %s",
                         command.name, command.command_id, exc)
         if error is not None:
-            _log_safely(logging.WARNING, "command %s #%d failed: %s", command.name,
-                        command.command_id, error)
+            _log_safely(logging.INFO if skipped else logging.WARNING,
+                        "command %s #%d %s: %s", command.name, command.command_id,
+                        "skipped" if skipped else "failed", error)
             return
         self._on_done(now)
         self._log.write_state(self._drone_id, now, mission=self._mission.state,
