@@ -461,11 +461,11 @@ function renderBadge() {
 function commandLine(c, known) {
   const s = c.summary || {};
   const total = s.total || Math.max(c.sent_to.length, known);
-  let text = `#${c.command_id} <b>${esc(c.name)}</b> @ ${fmt.time(c.t_exec)} — acked ${c.acked_by.length}/${total}` +
-    ` · <span class="${s.done === total && total ? "ok" : ""}">done ${s.done || 0}/${total}</span>`;
+  let text = `#${c.command_id} <b>${esc(c.name)}</b> @ ${fmt.time(c.t_exec)} — acked ${c.acked_by.length}/${total}`;
+  if (c.superseded_by) text += ` · superseded by #${esc(c.superseded_by)} before it ran`;  // not sent, skipped
+  if (!c.superseded_by || s.done) text += ` · <span class="${s.done === total && total ? "ok" : ""}">done ${s.done || 0}/${total}</span>`;
   if (s.error) text += ` · <span class="err">error ${s.error}</span>`;
   if (s["no reply"]) text += ` · <span class="err">no reply ${s["no reply"]}</span>`;
-  if (c.superseded_by) text += ` · superseded by #${esc(c.superseded_by)}`;
   const bad = Object.entries(c.results || {}).filter(([, e]) => e.result === "error" || e.result === "no reply")
     .map(([d, e]) => `<div class="cmd-detail">${esc(d)}: ${esc(e.result)}${e.reason ? " — " + esc(e.reason) : ""}</div>`).join("");
   const counters = Object.entries(c.results || {}).filter(([, e]) => e.info && e.info.counters)

@@ -17,6 +17,7 @@ from typing import Any
 
 import pytest
 
+from companion.protocol import CommandReceived
 from ground_station.app import create_app
 from ground_station.config import GroundConfig
 from ground_station.fake_drone import FakeDrone, fly_demo_fleet
@@ -183,6 +184,15 @@ async def check_map(page: Any) -> None:
         assert_labels_apart_and_inside(boxes)
 
 
+async def _another_start(drone: FakeDrone, other_than: int) -> CommandReceived:
+    async with asyncio.timeout(10):
+        while True:
+            for c in drone.commands:
+                if c.command.name == "start" and c.command.command_id != other_than:
+                    return c
+            await asyncio.sleep(0.05)
+
+
 async def test_dashboard_live_tiles_and_start_mission(
     tmp_path: Path, aiohttp_server: Callable[..., Any]
 ) -> None:
@@ -335,11 +345,25 @@ async def test_dashboard_live_tiles_and_start_mission(
             )
             assert await page.inner_text("#mission-phase") == "scheduled"
             await page.screenshot(path=str(ARTIFACTS / "dashboard_mission.png"), full_page=True)
+            # end mission (now) while the start waits: it cancels the start, which the
+            # command list says; the next start is the one that runs
+            await page.fill("#start-delay", "")
+            await page.click("#btn-end")
+            await wait_js(page, "() => document.querySelector('#mission-info').innerText"
+                          ".includes('superseded by #')", timeout_s=10.0)
+            assert await page.inner_text("#mission-phase") == "idle"
+            await page.fill("#start-delay", "12")
+            clicked = time.time()
+            await page.click("#btn-start")
+            cancelled = commands[0].command.command_id
+            commands = await asyncio.gather(*(_another_start(d, cancelled) for d in fleet))
+            assert all(clicked + 11.0 < c.command.t_exec for c in commands)
             # once the start time passed: the badge follows (issue 11, symptom 6) and every
             # drone's result shows
+            start_line = f"#mission-info [data-command='{commands[0].command.command_id}']"
             await wait_js(
                 page,
-                "() => document.querySelector('#mission-info').innerText.includes('done 4/4')",
+                f"() => document.querySelector(\"{start_line}\")?.innerText.includes('done 4/4')",
                 timeout_s=25.0,
             )
             await wait_js(  # within one badge refresh (0.5 s) of t_exec
