@@ -374,23 +374,26 @@ class Storage(StorageReads):
 
     def cancel_starts(self, mission: str, t_starts: Sequence[float], *, now: float) -> None:
         """Operator's starts replaced before they ran (an end sent while one was scheduled):
-        their bounds go, and the mission's are again those of the rows left, in the
-        missions row and, appended, in the mission log (a later ``t_start`` replaces the
-        open one there). With no start left the next message opens the mission again."""
+        their bounds go, and the mission's are again those of the rows left, in the missions
+        row and in the mission log (a ``cancelled`` record, then the run the start had
+        replaced, if it was open). With no start left the next message opens the mission."""
         for t in t_starts:
             self.db.execute("DELETE FROM mission_bounds WHERE rowid = (SELECT max(rowid) FROM"
                             " mission_bounds WHERE mission = ? AND kind = 'start' AND t_start = ?)",
                             (mission, t))
         t_start = t_end = None
-        for a, b, _ in self.db.execute("SELECT t_start, t_end, kind FROM mission_bounds "
-                                       "WHERE mission = ? ORDER BY rowid", (mission,)):
-            t_start, t_end = (a, None) if a is not None else (t_start, b)
+        start_kind = "start"
+        for a, b, kind in self.db.execute("SELECT t_start, t_end, kind FROM mission_bounds "
+                                          "WHERE mission = ? ORDER BY rowid", (mission,)):
+            t_start, t_end, start_kind = (a, None, kind) if a is not None else (t_start, b,
+                                                                                 start_kind)
         self.db.execute("UPDATE missions SET t_start = ?, t_end = ? WHERE name = ?",
                         (t_start, t_end, mission))
         handle = self._log(mission)
-        for record in ({"t_start": t_start}, {"t_end": t_end}):
-            if None not in record.values():
-                handle.write(json.dumps({"mission": record}) + "\n")
+        for t in t_starts:
+            handle.write(json.dumps({"mission": {"cancelled": t}}) + "\n")
+        if t_start is not None and t_end is None:  # the run it had replaced there, open again
+            handle.write(json.dumps({"mission": {"t_start": t_start, "kind": start_kind}}) + "\n")
         handle.flush()
         if t_start is None:
             self._last_rcv.pop(mission, None)
@@ -430,5 +433,5 @@ class Storage(StorageReads):
                             "VALUES (?, ?, ?, ?)", (mission, bounds.get("t_start"),
                                                     bounds.get("t_end"), kind))
             handle = self._log(mission)
-            handle.write(json.dumps({"mission": bounds}) + "\n")
+            handle.write(json.dumps({"mission": {**bounds, "kind": kind}}) + "\n")
             handle.flush()

@@ -89,7 +89,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         states.update(log.states)
         received_here = any(m.t_rcv is not None for m in log.messages)
         (receiver_logs if received_here else sender_logs).append(
-            intervals_of(log.bounds, str(path)))
+            intervals_of(log.bounds, str(path), log.bound_kinds))
     try:
         selection = select_intervals(receiver_logs, sender_logs, args.mission)
     except ValueError as exc:

@@ -15,6 +15,7 @@ default; ``--mission N|last|all`` chooses.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -47,17 +48,25 @@ class Selection:
     why: str
 
 
-def intervals_of(bounds: Sequence[tuple[float | None, float | None]], source: str
-                 ) -> list[MissionInterval]:
-    """The intervals one log's mission records mark, in file order."""
+def intervals_of(bounds: Sequence[tuple[float | None, float | None]], source: str,
+                 kinds: Sequence[str | None] = ()) -> list[MissionInterval]:
+    """The intervals one log's mission records mark, in file order. With the records'
+    ``kinds`` (the ground station's), an operator's start while an operator's run is open
+    goes on with that run, as the station's report does (``make demo`` starts its mission,
+    then the operator presses start: the first part is the mission's too)."""
     out: list[MissionInterval] = []
     open_start: float | None = None
-    for t_start, t_end in bounds:
-        if t_start is not None and t_end is not None:
+    open_kind: str | None = None
+    for (t_start, t_end), kind in itertools.zip_longest(bounds, kinds[:len(bounds)]):
+        if kind == "cancelled":  # that start never ran: the run it opened is no run
+            if open_start == t_start:
+                open_start = open_kind = None
+        elif t_start is not None and t_end is not None:
             out.append(MissionInterval(t_start, t_end, source))
             open_start = None
         elif t_start is not None:
-            open_start = t_start
+            if not (open_start is not None and open_kind == kind == "start"):
+                open_start, open_kind = t_start, kind
         else:  # an end: closes the open interval, or marks one whose start is unknown
             out.append(MissionInterval(open_start, t_end, source))
             open_start = None

@@ -48,6 +48,10 @@ class MissionLog:
     crash or power loss); every complete record before it counts."""
     bounds: list[tuple[float | None, float | None]] = field(default_factory=list)
     """Every mission record's (t_start, t_end) in file order (see ``utility_specs.intervals``)."""
+    bound_kinds: list[str | None] = field(default_factory=list)
+    """Each of ``bounds``' ``kind``: the ground station's ``open`` (its first message),
+    ``start``/``end`` (an operator's), ``stop`` (its shutdown), ``cancelled`` (a scheduled
+    start called off before it ran: ``(its t_start, None)``); None where a log has none."""
     extras: dict[int, dict[str, Any]] = field(default_factory=dict)
     """Index in ``messages`` -> the extra keys :func:`parse_log` was asked to ``keep``
     (``decision``...: not the model's, but a run summary counts them)."""
@@ -159,12 +163,19 @@ def parse_log(
                     raise MessageError("mission must be an object")
                 t_end = _opt_float(mission, "t_end")
                 t_start = _opt_float(mission, "t_start")
+                cancelled = _opt_float(mission, "cancelled")
+                if cancelled is not None:  # a scheduled start the operator called off
+                    log.bounds.append((cancelled, None))
+                    log.bound_kinds.append("cancelled")
+                    continue
                 if t_end is not None:
                     log.t_end = t_end
                 if t_start is not None:
                     log.t_start = t_start
                 if t_start is not None or t_end is not None:
                     log.bounds.append((t_start, t_end))
+                    kind = mission.get("kind")
+                    log.bound_kinds.append(kind if isinstance(kind, str) else None)
             elif "state" in record:
                 state = record["state"]
                 if not isinstance(state, Mapping) or not isinstance(state.get("agent"), str):

@@ -30,6 +30,7 @@ from ground_station.mission_state import restore_missions, snapshot_missions
 from ground_station.missions import MissionManager
 from ground_station.storage import Storage
 from utility_specs.files import read_log
+from utility_specs.intervals import MissionInterval, intervals_of
 from utility_specs.message import Message
 
 T0 = 1_700_000_000.0
@@ -106,8 +107,21 @@ def test_the_storage_forgets_a_cancelled_start(tmp_path: Path) -> None:
     assert kinds == ["open"]
     s.mark_mission("m", now=T0 + 60, t_end=T0 + 60, stop=True)
     s.close()
+    log = read_log(s.log_path("m"))  # the evaluated interval: as if never scheduled
+    assert intervals_of(log.bounds, "gs", log.bound_kinds) == [
+        MissionInterval(T0, T0 + 60, "gs")]
+
+
+def test_a_cancelled_start_with_nothing_before_it_opens_no_run(tmp_path: Path) -> None:
+    s = Storage(tmp_path, fsync=False)
+    s.mark_mission("m", now=T0, t_start=T0 + 5)
+    s.cancel_starts("m", [T0 + 5], now=T0 + 1)
+    s.mark_mission("m", now=T0 + 9, t_start=T0 + 9)  # the operator's next start
+    s.mark_mission("m", now=T0 + 20, t_end=T0 + 20)
+    s.close()
     log = read_log(s.log_path("m"))
-    assert log.bounds[-2:] == [(T0, None), (None, T0 + 60)]  # [T0, T0+60], never t_end < t_start
+    assert intervals_of(log.bounds, "gs", log.bound_kinds) == [
+        MissionInterval(T0 + 9, T0 + 20, "gs")]
 
 
 class _Decider:

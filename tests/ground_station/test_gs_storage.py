@@ -164,8 +164,9 @@ def test_log_record_is_json_with_versions(tmp_path: Path) -> None:
     s.write_batch([telemetry(5)], now=T0)
     s.close()
     lines = [json.loads(x) for x in Storage(tmp_path).log_path("m").read_text().splitlines()]
-    assert lines[0] == {"mission": {"t_start": T0 + 5}}  # opened by its first message
-    assert lines[-1] == {"mission": {"t_end": T0 + 5.1}}  # closed at its last reception
+    # opened by its first message, closed at its last reception (the station's own bounds)
+    assert lines[0] == {"mission": {"t_start": T0 + 5, "kind": "open"}}
+    assert lines[-1] == {"mission": {"t_end": T0 + 5.1, "kind": "stop"}}
     line = lines[1]
     assert line == {
         "sender": "d1",

@@ -66,6 +66,20 @@ def test_a_station_restart_is_one_interval_not_two_overlapping() -> None:
     assert "the only mission interval" in chosen.why
 
 
+def test_an_operators_second_start_goes_on_with_the_open_run() -> None:
+    """As the station's report does: the launcher (or an operator) starts at 10, the
+    operator presses start at 23: the mission is [10, 60], not [23, 60] (the station's own
+    ``open`` at its first message is replaced by a start, and a cancelled start opens
+    nothing)."""
+    bounds = [(5.0, None), (10.0, None), (23.0, None), (None, 60.0)]
+    kinds = ["open", "start", "start", "end"]
+    assert intervals_of(bounds, "gs", kinds) == [MissionInterval(10.0, 60.0, "gs")]
+    assert intervals_of(bounds, "gs") == [MissionInterval(23.0, 60.0, "gs")]  # no kinds
+    cancelled = [(5.0, None), (30.0, None), (30.0, None), (5.0, None), (None, 60.0)]
+    kinds = ["open", "start", "cancelled", "open", "stop"]
+    assert intervals_of(cancelled, "gs", kinds) == [MissionInterval(5.0, 60.0, "gs")]
+
+
 def test_receiver_intervals_win_over_senders_process_lifetimes() -> None:
     gs = [MissionInterval(10.0, 20.0, "gs")]
     drone = [MissionInterval(0.0, 40.0, "drone")]
