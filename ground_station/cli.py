@@ -325,7 +325,10 @@ def main(argv: list[str] | None = None) -> int:
         token, created = ensure_token(config.token_path)
         print(_login_url(config, token) if args.url else token)
         if created:
-            print(f"(new token stored 0600 in {config.token_path})", file=sys.stderr)
+            unused = not (config.data_dir / "ground_station.sqlite3").exists()
+            print(f"(new token stored 0600 in {config.token_path}"
+                  + ("; no station has run on this data folder yet: a running station's "
+                     "token is in its own --data-dir" if unused else "") + ")", file=sys.stderr)
         return 0
     if args.command == "export":
         from ground_station.export import ExportError, export_mission

@@ -141,3 +141,13 @@ async def test_config_error_exit_code(tmp_path: Path) -> None:
     code, _, err = await run_cli("run", "--config", str(bad))
     assert code == 2
     assert str(bad) in err and "'udp_port'" in err and "an integer port" in err
+
+
+async def test_a_token_for_a_folder_no_station_used_says_so(tmp_path: Path) -> None:
+    """A newcomer typed ``token --data-dir`` with a typo and got a fresh token that no
+    running station knows; the line that says a token was made now says that too."""
+    code, out, err = await run_cli("token", "--data-dir", str(tmp_path / "dtaa"))
+    assert code == 0 and len(out.strip()) >= 16
+    assert "no station has run on this data folder yet" in err
+    code, _, err = await run_cli("token", "--data-dir", str(tmp_path / "dtaa"))
+    assert code == 0 and err == ""  # the same token again, nothing new to say
