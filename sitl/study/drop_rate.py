@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import sys
 import time
 from collections import defaultdict
 from collections.abc import Callable, Mapping, Sequence
@@ -37,6 +36,7 @@ from companion.middleware.constraint import ConstantConstraint
 from companion.middleware.incremental import PlanItem, build_problem, option_message
 from companion.middleware.middleware import Middleware, MiddlewareConfig
 from sitl.netsim import ChannelConfig, SimAgent, SimResult, StreamConfig, ideal_copies, simulate
+from sitl.study.sweep import progress_line as _progress
 from utility_specs.evaluate import evaluate
 from utility_specs.files import builtin_spec
 from utility_specs.message import Message, MessageKey
@@ -287,10 +287,6 @@ def message_utilities(
             prev = fn.integral(msgs[k - 1], a, b) if k > 0 else 0.0
             out[m.key] = info.weight * max(0.0, own - prev)
     return out
-
-
-def _progress(text: str) -> None:
-    print(text, file=sys.stderr, flush=True)
 
 
 def plan(quick: bool) -> dict[str, Any]:

@@ -41,6 +41,7 @@ __all__ = [
     "dask_client",
     "map_cells",
     "mean_interval",
+    "progress_line",
     "read_done",
     "run_sweep",
 ]
@@ -205,8 +206,12 @@ def _fmt_s(s: float) -> str:
     return f"{s / 3600:.1f}h"
 
 
-def _stderr(text: str) -> None:
-    print(text, file=sys.stderr, flush=True)
+def progress_line(text: str) -> None:
+    """A study's progress line on stderr."""
+    # one write: print() writes the text and its newline apart, and a Ctrl-C between the
+    # two left the "interrupted" line glued to the progress line (seen once in make test)
+    sys.stderr.write(text + "\n")
+    sys.stderr.flush()
 
 
 def _call(fn: CellFn, params: dict[str, Any], seed: int) -> dict[str, Any]:
@@ -222,7 +227,7 @@ def map_cells(
     cells: Sequence[Mapping[str, Any]],
     *,
     label: str = "cells",
-    progress: Callable[[str], None] = _stderr,
+    progress: Callable[[str], None] = progress_line,
 ) -> Iterator[tuple[dict[str, Any], int, dict[str, Any] | BaseException]]:
     """Run ``cells`` on ``client``; yield (params, seed, result or exception) as each finishes."""
     from dask.distributed import as_completed
@@ -267,7 +272,7 @@ def run_sweep(
     scheduler: str | None = None,
     workers: int = 2,
     label: str = "cells",
-    progress: Callable[[str], None] = _stderr,
+    progress: Callable[[str], None] = progress_line,
     client: Any = None,
 ) -> SweepResult:
     """Run the cells not yet in ``out``; append each result to ``out`` as it finishes.
