@@ -23,6 +23,14 @@ def _run(*argv: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([str(tool), *argv[1:]], capture_output=True, text=True, timeout=60)
 
 
+def _run_station(tmp_path: Path, config_text: str) -> subprocess.CompletedProcess[str]:
+    """``uav-ground-station run`` on ``config_text`` (keys under ``tmp_path/keys``)."""
+    config = tmp_path / "gs.toml"
+    config.write_text(config_text)
+    return _run("uav-ground-station", "run", "--config", str(config), "--data-dir",
+                str(tmp_path / "data"), "--udp-port", "0", "--http-port", "0")
+
+
 def _one_line_error(result: subprocess.CompletedProcess[str], fragment: str) -> None:
     assert result.returncode == 2, (result.returncode, result.stderr)
     assert "Traceback" not in result.stderr
@@ -36,11 +44,8 @@ def _one_line_error(result: subprocess.CompletedProcess[str], fragment: str) -> 
 def test_station_refuses_a_key_others_can_read(tmp_path: Path, name: str, key: str) -> None:
     keys = write_test_keys(tmp_path / "keys")
     (keys / name).chmod(0o644)
-    config = tmp_path / "gs.toml"
-    config.write_text('[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
-                      'command_key_file = "keys/command.key"\n')
-    result = _run("uav-ground-station", "run", "--config", str(config), "--data-dir",
-                  str(tmp_path / "data"), "--udp-port", "0", "--http-port", "0")
+    result = _run_station(tmp_path, '[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
+                          'command_key_file = "keys/command.key"\n')
     _one_line_error(result, f"has mode 0644: others may read it (chmod 600 {keys / name})")
     assert key in result.stderr
 
@@ -72,22 +77,16 @@ def test_station_refuses_a_fleet_key_of_the_wrong_length(tmp_path: Path, content
                                                          fragment: str) -> None:
     keys = write_test_keys(tmp_path / "keys")
     (keys / "fleet.key").write_bytes(content)
-    config = tmp_path / "gs.toml"
-    config.write_text('[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
-                      'command_key_file = "keys/command.key"\n')
-    result = _run("uav-ground-station", "run", "--config", str(config), "--data-dir",
-                  str(tmp_path / "data"), "--udp-port", "0", "--http-port", "0")
+    result = _run_station(tmp_path, '[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
+                          'command_key_file = "keys/command.key"\n')
     _one_line_error(result, fragment)
 
 
 def test_station_refuses_a_command_key_of_the_wrong_length(tmp_path: Path) -> None:
     keys = write_test_keys(tmp_path / "keys")
     (keys / "command.key").write_bytes(b"QUJD\n")  # base64 of 3 bytes
-    config = tmp_path / "gs.toml"
-    config.write_text('[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
-                      'command_key_file = "keys/command.key"\n')
-    result = _run("uav-ground-station", "run", "--config", str(config), "--data-dir",
-                  str(tmp_path / "data"), "--udp-port", "0", "--http-port", "0")
+    result = _run_station(tmp_path, '[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
+                          'command_key_file = "keys/command.key"\n')
     _one_line_error(result, "command_key_file")
 
 
@@ -169,20 +168,14 @@ def test_companion_refuses_an_untagged_fleet_key_as_its_public_key(tmp_path: Pat
 def test_station_refuses_a_key_file_of_another_kind(tmp_path: Path, fleet: str, command: str,
                                                    fragment: str) -> None:
     _keygen(tmp_path)
-    config = tmp_path / "gs.toml"
-    config.write_text(f'[ground_station]\nfleet_key_file = "keys/{fleet}"\n'
-                      f'command_key_file = "keys/{command}"\n')
-    result = _run("uav-ground-station", "run", "--config", str(config), "--data-dir",
-                  str(tmp_path / "data"), "--udp-port", "0", "--http-port", "0")
+    result = _run_station(tmp_path, f'[ground_station]\nfleet_key_file = "keys/{fleet}"\n'
+                          f'command_key_file = "keys/{command}"\n')
     _one_line_error(result, fragment)
 
 
 def test_station_refuses_an_untagged_command_key_as_its_fleet_key(tmp_path: Path) -> None:
     keys = write_test_keys(tmp_path / "keys")
-    config = tmp_path / "gs.toml"
-    config.write_text('[ground_station]\nfleet_key_file = "keys/command.key"\n'
-                      'command_key_file = "keys/command.key"\n')
-    result = _run("uav-ground-station", "run", "--config", str(config), "--data-dir",
-                  str(tmp_path / "data"), "--udp-port", "0", "--http-port", "0")
+    result = _run_station(tmp_path, '[ground_station]\nfleet_key_file = "keys/command.key"\n'
+                          'command_key_file = "keys/command.key"\n')
     _one_line_error(result, "the fleet key is the same key as the command key")
     assert (keys / "command.key").exists()
