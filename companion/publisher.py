@@ -141,9 +141,7 @@ class TelemetryPublisher:
                         t_status = min(t_status, self._t_status_sent + STATUSTEXT_GAP_S)
                 if now_mono >= t_status:
                     self._t_status_sent = now_mono
-                    t_status = now_mono + (cfg.status_period_s
-                                           if self._mission.running
-                                           else min(cfg.status_period_s, IDLE_STATUS_PERIOD_S))
+                    t_status = now_mono + self._status_period()
                     key = self._key(snap)
                     if key != self._status_key or self._since is None:
                         self._since = self._clock()
@@ -184,6 +182,10 @@ class TelemetryPublisher:
             data["battery_v"] = snap.battery_v
         return data
 
+    def _status_period(self) -> float:
+        period = self._settings.status_period_s
+        return period if self._mission.running else min(period, IDLE_STATUS_PERIOD_S)
+
     def _status(self, snap: TelemetrySnapshot) -> dict[str, Any]:
         """Mission status; field names are the ones the ground station's fleet view reads."""
         # Not heard, the autopilot's mode, arming and fix are unknown (null), not the last
@@ -196,7 +198,10 @@ class TelemetryPublisher:
                                 "failsafe": snap.system_status in FAILSAFE_STATES and heard,
                                 "mission": self._mission.state, "autopilot": snap.autopilot,
                                 "optimiser_ready": self._dispatcher.optimiser_ready,
-                                "fix_type": snap.gps_fix_type if heard else None}
+                                "fix_type": snap.gps_fix_type if heard else None,
+                                # The station judges this drone's silence by it (its own
+                                # link_lost_s assumes a status every second or so).
+                                "status_period_s": self._status_period()}
         xi = self._dispatcher.constraint_limit()
         if xi is not None:
             data["xi_bytes_per_s"] = xi

@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 
 from companion.protocol import Address
 
-__all__ = ["IMAGE_RATE_WINDOW_S", "RATE_WINDOW_S", "Alert", "DroneState", "LatestImage"]
+__all__ = ["IMAGE_RATE_WINDOW_S", "MAX_STATUS_PERIOD_S", "RATE_WINDOW_S", "Alert", "DroneState",
+           "LatestImage"]
 
 RATE_WINDOW_S = 5.0
 IMAGE_RATE_WINDOW_S = 30.0
@@ -27,6 +28,9 @@ STALE_AFTER_S: Mapping[str, float] = {"position": 3.0, "alt_m": 3.0, "heading_de
 """A field older than this is marked stale on the dashboard (position 1 Hz: three missed)."""
 DEFAULT_STALE_AFTER_S = 12.0
 """Every other field (status every 5 s, battery every 5 s): two missed and some slack."""
+MAX_STATUS_PERIOD_S = 60.0
+"""The longest status period a drone's word is taken for: a drone still counts as lost after
+2.5 of these (150 s) of silence whatever it says."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -78,6 +82,9 @@ class DroneState:
     y_m: float | None = None
     heading_deg: float | None = None
     xi_bytes_per_s: float | None = None
+    status_period_s: float | None = None
+    """How often the drone says it sends its status (None: it does not say); a drone that
+    sends it less often than ``link_lost_s`` allows is judged by its own period."""
     fallback_share: float | None = None
     """Share of the drone's decisions not made by its optimiser (greedy fallback, timeout)."""
     delta_s: float | None = None

@@ -16,6 +16,7 @@ from typing import Any
 from companion.protocol import Address
 from ground_station.drone_state import (
     DEFAULT_STALE_AFTER_S,
+    MAX_STATUS_PERIOD_S,
     RATE_WINDOW_S,
     SNAPSHOT_SERIES_VALUES,
     STALE_AFTER_S,
@@ -225,6 +226,9 @@ class FleetView:
                           "limit_bytes_per_s")
         if xi is not None and newer("xi_bytes_per_s"):
             state.xi_bytes_per_s = xi
+        period = first_number(data, "status_period_s")
+        if period is not None and 0.0 < period <= MAX_STATUS_PERIOD_S:
+            state.status_period_s = period
         fallback = first_number(data, "fallback_share")
         if fallback is not None and 0.0 <= fallback <= 1.0:
             state.fallback_share = fallback
@@ -302,6 +306,13 @@ class FleetView:
         out, self._back_ids = self._back_ids, []
         return out
 
+    def lost_after(self, state: DroneState) -> float:
+        """Silence that makes this drone lost: ``link_lost_s``, or 2.5 of the status periods
+        the drone says it keeps when that is longer. A drone set to a status every 5 s was
+        called lost and back every few seconds on a healthy link."""
+        period = state.status_period_s
+        return self.link_lost_s if period is None else max(self.link_lost_s, 2.5 * period)
+
     def take_new_alerts(self) -> list[Alert]:
         """Alerts raised since the last call (the shell broadcasts and stores them)."""
         out, self._new_alerts = self._new_alerts, []
@@ -315,7 +326,7 @@ class FleetView:
         point_drones: dict[str, dict[str, float | None]] = {}
         latencies: list[float] = []
         for drone, state in self.drones.items():
-            if not state.link_lost and now - state.last_heard > self.link_lost_s:
+            if not state.link_lost and now - state.last_heard > self.lost_after(state):
                 state.link_lost = True
                 self.alert(
                     Alert(
@@ -358,6 +369,8 @@ class FleetView:
             goodput_total = self.goodput_total(now=now)
         own = state.goodput_bytes_per_s(now)
         ages = {name: round(max(0.0, now - t), 3) for name, t in state.field_t.items()}
+        slow = max(DEFAULT_STALE_AFTER_S, 2.5 * (state.status_period_s or 0.0))
+        stale_after = {name: STALE_AFTER_S.get(name, slow) for name in ages}
         out: dict[str, Any] = {
             "drone": state.drone,
             "addr": list(state.addr) if state.addr else None,
@@ -392,11 +405,9 @@ class FleetView:
             "no_position": state.no_position,
             "peers": _peer_ages(state, now),
             "ages": ages,
-            "stale_after_s": {name: STALE_AFTER_S.get(name, DEFAULT_STALE_AFTER_S)
-                              for name in ages},
+            "stale_after_s": stale_after,
             "t": now,
-            "stale": sorted(name for name, age in ages.items()
-                            if age > STALE_AFTER_S.get(name, DEFAULT_STALE_AFTER_S)),
+            "stale": sorted(name for name, age in ages.items() if age > stale_after[name]),
             "reports": list(state.reports),
             "latest_image": asdict(state.latest_image) if state.latest_image else None,
         }
