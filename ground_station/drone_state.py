@@ -8,11 +8,13 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 from companion.protocol import Address
+from utility_specs.data_fields import first_number
 
 __all__ = ["IMAGE_RATE_WINDOW_S", "MAX_STATUS_PERIOD_S", "RATE_WINDOW_S", "Alert", "DroneState",
-           "LatestImage"]
+           "LatestImage", "declared_status_period", "lost_after_s"]
 
 RATE_WINDOW_S = 5.0
 IMAGE_RATE_WINDOW_S = 30.0
@@ -31,6 +33,21 @@ DEFAULT_STALE_AFTER_S = 12.0
 MAX_STATUS_PERIOD_S = 60.0
 """The longest status period a drone's word is taken for: a drone still counts as lost after
 2.5 of these (150 s) of silence whatever it says."""
+
+
+def declared_status_period(data: Mapping[str, Any]) -> float | None:
+    """The ``status_period_s`` a drone's status says it keeps, if it is one to take."""
+    period = first_number(data, "status_period_s")
+    return period if period is not None and 0.0 < period <= MAX_STATUS_PERIOD_S else None
+
+
+def lost_after_s(link_lost_s: float, status_period_s: float | None) -> float:
+    """Silence that makes a drone lost: ``link_lost_s``, or 2.5 of the status periods the
+    drone says it keeps when that is longer. A drone set to a status every 5 s was called
+    lost and back every few seconds on a healthy link."""
+    if status_period_s is None:
+        return link_lost_s
+    return max(link_lost_s, 2.5 * status_period_s)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -16,13 +16,14 @@ from typing import Any
 from companion.protocol import Address
 from ground_station.drone_state import (
     DEFAULT_STALE_AFTER_S,
-    MAX_STATUS_PERIOD_S,
     RATE_WINDOW_S,
     SNAPSHOT_SERIES_VALUES,
     STALE_AFTER_S,
     Alert,
     DroneState,
     LatestImage,
+    declared_status_period,
+    lost_after_s,
 )
 from utility_specs.data_fields import first_number
 from utility_specs.message import Message
@@ -226,8 +227,8 @@ class FleetView:
                           "limit_bytes_per_s")
         if xi is not None and newer("xi_bytes_per_s"):
             state.xi_bytes_per_s = xi
-        period = first_number(data, "status_period_s")
-        if period is not None and 0.0 < period <= MAX_STATUS_PERIOD_S:
+        period = declared_status_period(data)
+        if period is not None:
             state.status_period_s = period
         fallback = first_number(data, "fallback_share")
         if fallback is not None and 0.0 <= fallback <= 1.0:
@@ -306,13 +307,6 @@ class FleetView:
         out, self._back_ids = self._back_ids, []
         return out
 
-    def lost_after(self, state: DroneState) -> float:
-        """Silence that makes this drone lost: ``link_lost_s``, or 2.5 of the status periods
-        the drone says it keeps when that is longer. A drone set to a status every 5 s was
-        called lost and back every few seconds on a healthy link."""
-        period = state.status_period_s
-        return self.link_lost_s if period is None else max(self.link_lost_s, 2.5 * period)
-
     def take_new_alerts(self) -> list[Alert]:
         """Alerts raised since the last call (the shell broadcasts and stores them)."""
         out, self._new_alerts = self._new_alerts, []
@@ -326,7 +320,8 @@ class FleetView:
         point_drones: dict[str, dict[str, float | None]] = {}
         latencies: list[float] = []
         for drone, state in self.drones.items():
-            if not state.link_lost and now - state.last_heard > self.lost_after(state):
+            if not state.link_lost and now - state.last_heard > lost_after_s(self.link_lost_s,
+                                                                      state.status_period_s):
                 state.link_lost = True
                 self.alert(
                     Alert(

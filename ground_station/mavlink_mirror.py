@@ -4,8 +4,9 @@ QGroundControl, Mission Planner and MAVProxy show one vehicle per MAVLink system
 module makes the ground station look like a router with every drone of the fleet behind it.
 For each drone heard it sends, from the drone's own system id (component 1):
 
-- HEARTBEAT once a second while the drone is heard (silence longer than ``link_lost_s``
-  stops it, so the GCS shows that vehicle's link lost, as it would for a real one);
+- HEARTBEAT once a second while the drone is heard (silence longer than ``link_lost_s``, or
+  2.5 of the status periods the drone says it keeps, stops it, so the GCS shows that
+  vehicle's link lost, as it would for a real one);
 - GLOBAL_POSITION_INT and ATTITUDE when a new position arrives, and once a second;
 - SYS_STATUS, BATTERY_STATUS and GPS_RAW_INT once a second;
 - STATUSTEXT for every autopilot message the drone forwarded (its ``statustext``).
@@ -47,6 +48,7 @@ from typing import Any, cast
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from ground_station.drone_state import declared_status_period, lost_after_s
 from ground_station.mavlink_signing import SignedFrames
 from utility_specs.data_fields import first_number
 
@@ -274,7 +276,8 @@ class MavlinkMirror:
 
     def _emit_due(self, now: float) -> None:
         for state in self.drones.values():
-            silent = now - state.last_heard > self.link_lost_s
+            silent = now - state.last_heard > lost_after_s(
+                self.link_lost_s, declared_status_period(state.data))
             periodic = now >= state.next_period
             if periodic:
                 state.next_period = max(state.next_period + PERIOD_S, now + 0.5 * PERIOD_S)

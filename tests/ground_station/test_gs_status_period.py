@@ -121,3 +121,27 @@ async def test_the_companion_says_the_period_its_next_status_keeps(
         with pytest.raises(asyncio.CancelledError):
             await task
     assert dispatcher.statuses and dispatcher.statuses[0]["status_period_s"] == expected
+
+
+def test_the_mavlink_mirror_keeps_a_slow_drone_alive_between_its_statuses() -> None:
+    """QGroundControl, fed by the mirror, showed the drone lost between two 5 s statuses."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    from ground_station.mavlink_mirror import MavlinkMirror
+
+    def heartbeats(m: MavlinkMirror) -> int:
+        parser = mavlink.MAVLink(None)
+        frames = [f for d, _ in m.datagrams_to_send() for f in parser.parse_buffer(d) or []]
+        return sum(f.get_type() == "HEARTBEAT" for f in frames)
+
+    slow = MavlinkMirror(now=100.0)
+    usual = MavlinkMirror(now=100.0)
+    slow.on_data("d1", {"mode": "GUIDED", "armed": True, "status_period_s": 5.0}, now=100.0)
+    usual.on_data("d1", {"mode": "GUIDED", "armed": True}, now=100.0)
+    heartbeats(slow), heartbeats(usual)
+    for t in (104.5, 112.0):
+        slow.handle_timer(t)
+        usual.handle_timer(t)
+        assert heartbeats(slow) >= 1 and heartbeats(usual) == 0, t
+    slow.handle_timer(113.0)
+    assert heartbeats(slow) == 0  # 2.5 periods of silence: lost there too
