@@ -15,6 +15,7 @@ import pytest
 
 from ground_station.drone_state import MAX_STATUS_PERIOD_S
 from ground_station.fleet import FleetView
+from tests.publisher_dispatcher import RecordingDispatcher
 from utility_specs.message import Message
 
 T0 = 1_700_000_000.0
@@ -74,27 +75,6 @@ def test_the_longest_period_taken_still_loses_a_silent_drone() -> None:
     assert len(lost_alerts(fv)) == 1
 
 
-class _Dispatcher:
-    optimiser_ready = True
-
-    def __init__(self) -> None:
-        self.statuses: list[dict[str, object]] = []
-
-    async def submit_telemetry(self, type_name: str, data: dict[str, object]) -> bool:
-        if type_name == "status":
-            self.statuses.append(data)
-        return True
-
-    def constraint_limit(self) -> None:
-        return None
-
-    def link_health(self) -> dict[str, object]:
-        return {}
-
-    def fallback_share(self) -> None:
-        return None
-
-
 @pytest.mark.parametrize(("state", "expected"), [("running", 5.0), ("idle", 1.0),
                                                  ("ended", 1.0)])
 async def test_the_companion_says_the_period_its_next_status_keeps(
@@ -105,7 +85,7 @@ async def test_the_companion_says_the_period_its_next_status_keeps(
     from companion.publisher import TelemetryPublisher
     from companion.telemetry import TelemetryState
 
-    dispatcher = _Dispatcher()
+    dispatcher = RecordingDispatcher()
     publisher = TelemetryPublisher(TelemetryConfig(status_period_s=5.0),
                                    telemetry=TelemetryState(),
                                    dispatcher=dispatcher,  # type: ignore[arg-type]

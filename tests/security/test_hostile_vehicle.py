@@ -27,6 +27,7 @@ import pytest
 from companion.protocol import Decoder, MessageReassembled
 from tests.integration.test_peers_e2e import FLEET, KEY, SPEC, companion_config, free_port
 from tests.processes import interrupt
+from tests.publisher_dispatcher import RecordingDispatcher
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mav
@@ -138,30 +139,6 @@ def test_the_status_text_begins_with_the_most_severe_and_counts_what_was_dropped
     assert field.endswith(" (+12 more)") and len(field) == STATUSTEXT_CHARS
 
 
-class _Dispatcher:
-    """What the publisher asks of the dispatcher; a decision takes 5 ms, like a small MCTS."""
-
-    optimiser_ready = True
-
-    def __init__(self) -> None:
-        self.statuses: list[dict[str, object]] = []
-
-    async def submit_telemetry(self, type_name: str, data: dict[str, object]) -> bool:
-        await asyncio.sleep(0.005)
-        if type_name == "status":
-            self.statuses.append(data)
-        return True
-
-    def constraint_limit(self) -> None:
-        return None
-
-    def link_health(self) -> dict[str, object]:
-        return {}
-
-    def fallback_share(self) -> None:
-        return None
-
-
 async def test_a_statustext_flood_rides_on_a_status_at_most_every_gap() -> None:
     """The unit form of the process test above (it runs in the default, not-slow, suite):
     2 s of STATUSTEXT at ~2 kHz. Before the fix: a status per decision (~150 here)."""
@@ -170,7 +147,7 @@ async def test_a_statustext_flood_rides_on_a_status_at_most_every_gap() -> None:
     from companion.publisher import MAX_PENDING_TEXTS, STATUSTEXT_GAP_S, TelemetryPublisher
     from companion.telemetry import StatusTextSample, TelemetryState
 
-    dispatcher = _Dispatcher()
+    dispatcher = RecordingDispatcher(decide_s=0.005)  # 5 ms a decision, like a small MCTS
     state = TelemetryState()
     publisher = TelemetryPublisher(TelemetryConfig(status_period_s=5.0), telemetry=state,
                                    dispatcher=dispatcher,  # type: ignore[arg-type]
