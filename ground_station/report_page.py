@@ -149,8 +149,16 @@ def utility_series(db: sqlite3.Connection, mission: str, *, bin_s: float = BIN_S
             "runs": [[a, b] for a, b in runs], "images": len(rows_in),
             "images_outside": len(rows) - len(rows_in),
             "t": [i * bin_s for i in range(n)],
-            "drones": {d: {"utility": v, "total": sum(v), "color": color(d)}
+            "drones": {d: {"utility": v, "total": sum(v), "total_text": total_text(sum(v)),
+                           "color": color(d)}
                        for d, v in sorted(drones.items())}}
+
+
+def total_text(total: float) -> str:
+    """A drone's total as both charts' legends print it. Each rounded on its own, the page
+    (JavaScript, half up) said "total 1" and the picture (Python, half to even) "total 0" for
+    one image of U 0.5, and early in a mission every total read 0 or 1."""
+    return f"{total:.1f}" if abs(total) < 100 else f"{total:.0f}"
 
 
 def _gaps(series: dict[str, Any]) -> list[tuple[float, float]]:
@@ -171,9 +179,13 @@ def figure(series: dict[str, Any]) -> Any:
     ax = fig.add_subplot()
     for drone, d in series["drones"].items():
         ax.plot(series["t"], d["utility"], color=d["color"], lw=1.8, marker="o", ms=3,
-                label=f"{drone} (total {d['total']:.0f})")
+                label=f"{drone} (total {d['total_text']})")
     for gap_start, gap_end in _gaps(series):
         ax.axvspan(gap_start, gap_end, color="#8b949e", alpha=0.2, lw=0)
+    # As the page's chart: time from 0, one bin wide at least (one bin was centred on a
+    # -0.04..0.04 axis), utility from 0.
+    ax.set_xlim(0.0, max([series["bin_s"], *series["t"]]))
+    ax.set_ylim(bottom=0.0)
     ax.set_xlabel("mission time (s)")
     ax.set_ylabel(f"utility received per {series['bin_s']:g} s")
     name = "".join(c if c.isprintable() else "?" for c in str(series["mission"]))[:80]

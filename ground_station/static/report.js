@@ -55,7 +55,7 @@ function draw(series) {
     });
   }
   $("r-legend").innerHTML = drones.map(([drone, d]) =>
-    `<span class="lg" data-drone="${esc(drone)}" data-color="${esc(d.color)}"><i style="background:${esc(d.color)}"></i>${esc(drone)} total ${d.total.toFixed(0)}</span>`).join(" ");
+    `<span class="lg" data-drone="${esc(drone)}" data-color="${esc(d.color)}"><i style="background:${esc(d.color)}"></i>${esc(drone)} total ${esc(d.total_text ?? d.total.toFixed(1))}</span>`).join(" ");
   $("r-empty").classList.toggle("hidden", drones.length > 0);
 }
 

@@ -9,7 +9,7 @@ from typing import Any
 
 from ground_station.app import create_app
 from ground_station.config import GroundConfig
-from ground_station.report_page import color, figure, utility_series, write_png
+from ground_station.report_page import color, figure, total_text, utility_series, write_png
 from ground_station.storage import Storage
 
 TOKEN = "report-test-token-0123456789"
@@ -50,7 +50,7 @@ def test_a_running_mission_shows_only_the_bins_that_are_over(tmp_path: Path) -> 
     assert running["t"] == [0.0, 5.0]
     assert running["drones"]["uav1"]["utility"] == [3.0, 0.0]
     assert running["drones"]["uav3"] == {"utility": [0.0, 11.0], "total": 11.0,
-                                         "color": "#3fb950"}
+                                         "total_text": "11.0", "color": "#3fb950"}
     assert utility_series(db, "m", bin_s=5.0, now=115.0)["t"] == [0.0, 5.0, 10.0]
     assert utility_series(db, "m", bin_s=5.0, now=101.0)["t"] == [0.0]  # the first, filling
     db.execute("UPDATE missions SET t_end = 113.0 WHERE name = 'm'")
@@ -68,8 +68,8 @@ def test_png_legend_covers_no_curve_and_stays_in_the_picture(tmp_path: Path) -> 
     plot, legend = ax.get_window_extent(renderer), ax.get_legend().get_window_extent(renderer)
     assert legend.x0 >= plot.x1  # beside the plot, not on it
     assert legend.x1 <= fig.bbox.x1 and legend.y0 >= fig.bbox.y0  # whole, in the PNG
-    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["uav1 (total 4)",
-                                                                   "uav3 (total 12)"]
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["uav1 (total 4.0)",
+                                                                   "uav3 (total 11.5)"]
 
 
 def test_png_is_written(tmp_path: Path) -> None:
@@ -124,3 +124,21 @@ def test_a_start_while_the_mission_runs_goes_on_with_its_run(tmp_path: Path) -> 
     assert series["runs"] == [[100.0, 113.0]]
     assert series["images"] == 5 and series["images_outside"] == 1  # "other" at 90 s
     assert series["drones"]["uav1"]["utility"] == [3.0, 0.0, 1.0]
+
+
+def test_one_bin_is_drawn_as_the_page_draws_it_with_totals_both_legends_print_alike(
+        tmp_path: Path) -> None:
+    """Seen 8 s into `make demo`: one bin, four drones of one image each. The picture's axis
+    ran from -0.04 to 0.04 s and its legend said "total 0" where the page said "total 1"
+    (U 0.5 rounded half to even and half up)."""
+    db = sqlite3.connect(_fill(tmp_path))
+    db.execute("UPDATE images SET utility = 0.5 WHERE sender = 'uav3'")
+    series = utility_series(db, "m", bin_s=5.0, now=102.0)
+    assert series["t"] == [0.0]
+    ax = figure(series).axes[0]
+    assert ax.get_xlim() == (0.0, 5.0) and ax.get_ylim()[0] == 0.0
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert labels == ["uav1 (total 3.0)"]
+    assert [total_text(x) for x in (0.5, 0.25, 99.94, 123.4, 0.0)] == [
+        "0.5", "0.2", "99.9", "123", "0.0"]
+    assert utility_series(db, "m", bin_s=5.0)["drones"]["uav3"]["total_text"] == "1.0"
