@@ -26,7 +26,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from companion.camera import CameraError, CameraService, FrameSource, open_source
+from companion.camera import CameraError, FrameSource, open_source
+from companion.camera_service import CameraService
 from companion.commands import CommandExecutor
 from companion.config import CompanionConfig, missing_keys
 from companion.dispatch import COUNTERS, Dispatcher
@@ -45,7 +46,7 @@ from companion.protocol import (
 )
 from companion.publisher import TelemetryPublisher
 from companion.scoring import Scorer, make_scorer
-from companion.telemetry import LinkStateSample, Sample, TelemetryState
+from companion.telemetry import LinkStateSample, Sample, StatusTextSample, TelemetryState
 from utility_specs.message import Message
 
 if TYPE_CHECKING:  # the middleware (numba, numpy) is imported when a decider is built
@@ -62,6 +63,9 @@ log = logging.getLogger(__name__)
 
 STALL_LATE_S = 1.0
 """The housekeeping tick this late means the process did not run (:meth:`CompanionApp._stalled`)."""
+CAMERA_REOPEN_S = 2.0
+"""A live camera that cannot be opened, or stops giving frames, is opened again this often;
+the companion runs on without it (telemetry first)."""
 
 Clock = Callable[[], float]
 
@@ -111,7 +115,7 @@ class CompanionApp:
         if cam.enabled and frame_source is None:  # first: a camera that cannot open stops here
             frame_source = open_source(cam.source, width=cam.width, height=cam.height,
                                        rate_hz=cam.rate_hz, pose=self.telemetry.snapshot,
-                                       options=dict(cam.options))
+                                       options=dict(cam.options), reopen_s=CAMERA_REOPEN_S)
         self.mission = MissionWindow("idle" if config.mission.wait_for_start else "running")
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.mission_log = MissionLogWriter(mission_log if mission_log is not None
@@ -153,7 +157,14 @@ class CompanionApp:
                 scorer=scorer or make_scorer(config.scoring.scorers, config.scoring.settings))
             self.camera = CameraService(frame_source, self.pipeline.on_frame, clock=clock,
                                         rate_hz=cam.rate_hz, width=cam.width,
-                                        height=cam.height, pose=self.telemetry.snapshot)
+                                        height=cam.height, pose=self.telemetry.snapshot,
+                                        on_problem=self._camera_problem)
+
+    def _camera_problem(self, severity: int, text: str) -> None:
+        """A camera outage rides on the status as an autopilot text does: the dashboard's
+        alerts and a GCS fed by the station's MAVLink mirror show it."""
+        self.publisher.on_sample(StatusTextSample(t=self.clock(), severity=severity,
+                                                  text=text))
 
     @property
     def config(self) -> CompanionConfig:

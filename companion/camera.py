@@ -1,4 +1,4 @@
-"""Frame sources and the camera service: the freshest frame, at a set size and rate, off the loop.
+"""Frame sources: the freshest frame of a camera, a video file or a folder of images.
 
 Sources (all blocking, used from worker threads only):
 
@@ -15,17 +15,14 @@ installed packages declare as entry points (group ``uav_infodist.frame_sources``
 adds ``synthetic`` that way, the SITL camera rendered from the telemetry pose, so the companion
 never imports the simulator.
 
-:class:`CameraService` grabs at ``rate_hz`` in a worker thread, resizes to the configured size
-and hands each :class:`Frame` to an async sink; a slow sink makes it skip frames, never queue.
+:class:`companion.camera_service.CameraService` reads them at a set rate, off the loop.
 """
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
-import logging
 import threading
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -38,7 +35,6 @@ from companion.telemetry import TelemetrySnapshot
 
 __all__ = [
     "CameraError",
-    "CameraService",
     "FolderSource",
     "Frame",
     "FrameSource",
@@ -51,7 +47,6 @@ __all__ = [
     "register_frame_source",
 ]
 
-log = logging.getLogger(__name__)
 
 Image = npt.NDArray[Any]
 Clock = Callable[[], float]
@@ -84,48 +79,98 @@ class FrameSource(Protocol):
     def close(self) -> None: ...
 
 
+def quiet_opencv() -> None:
+    """OpenCV's own warnings ("can't open camera by index") went to stderr between the JSON
+    log lines, three lines at every attempt to open; the companion says it once, in its log."""
+    with contextlib.suppress(AttributeError, cv2.error):
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+
+
 class LiveCaptureSource:
-    """A live OpenCV capture drained by its own grab thread (always the freshest frame)."""
+    """A live OpenCV capture drained by its own grab thread (always the freshest frame).
+
+    With ``reopen_s`` (the companion's own cameras) a device that cannot be opened, or that
+    stops giving frames (a USB camera unplugged by the vibration of a flight), is opened
+    again every ``reopen_s`` until it gives frames; reads raise :class:`CameraError` in the
+    meantime. Before, such a camera stopped the companion at start (no telemetry either),
+    and one lost in flight was never read again until the companion restarted. Without
+    ``reopen_s`` (``uav-companion check``) a camera that cannot be opened raises at once."""
+
+    FAILED_READS = 50
+    """Reads without a frame in a row that make the capture lost."""
 
     def __init__(self, target: str | int, *, api: int = cv2.CAP_ANY, width: int | None = None,
-                 height: int | None = None, fps: float | None = None) -> None:
+                 height: int | None = None, fps: float | None = None,
+                 reopen_s: float | None = None,
+                 capture: Callable[[], Any] | None = None) -> None:
         self.description = f"live:{target}"
-        self._cap = cv2.VideoCapture(target, api)
-        if not self._cap.isOpened():
-            raise CameraError(f"cannot open camera {target!r}")
-        with contextlib.suppress(cv2.error):
-            self._cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)
-            if width:
-                self._cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)
-            if height:
-                self._cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)
-            if fps:
-                self._cap.set(cv2.CAP_PROP_FPS, fps)
+        quiet_opencv()
+        self._target = target
+        self._new_capture = capture or (lambda: cv2.VideoCapture(target, api))
+        self._settings = (width, height, fps)
+        self._reopen_s = reopen_s
         self._cond = threading.Condition()
         self._latest: Image | None = None
         self._fresh = False
         self._failed: str | None = None
         self._stop = threading.Event()
+        self._cap = self._open()
+        if self._cap is None:
+            if reopen_s is None:
+                raise CameraError(f"cannot open camera {target!r}")
+            self._failed = f"cannot open camera {target!r} (trying again every {reopen_s:g} s)"
         self._thread = threading.Thread(target=self._grab, name="camera-grab", daemon=True)
         self._thread.start()
+
+    def _open(self) -> Any:
+        cap = self._new_capture()
+        if not cap.isOpened():
+            cap.release()
+            return None
+        width, height, fps = self._settings
+        with contextlib.suppress(cv2.error):
+            cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)
+            if width:
+                cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)
+            if height:
+                cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)
+            if fps:
+                cap.set(cv2.CAP_PROP_FPS, fps)
+        return cap
+
+    def _set_failed(self, text: str) -> None:
+        with self._cond:
+            self._failed = text
+            self._cond.notify_all()
 
     def _grab(self) -> None:
         failures = 0
         while not self._stop.is_set():
+            if self._cap is None:  # lost or never opened, and reopen_s is set
+                if self._stop.wait(self._reopen_s):
+                    return
+                self._cap = self._open()
+                failures = 0
+                continue
             ok, image = self._cap.read()
             if not ok or image is None:
                 failures += 1
-                if failures >= 50:
-                    with self._cond:
-                        self._failed = f"{self.description}: no frame in 50 reads"
-                        self._cond.notify_all()
-                    return
+                if failures >= self.FAILED_READS:
+                    text = f"{self.description}: no frame in {failures} reads"
+                    if self._reopen_s is None:
+                        self._set_failed(text)
+                        return
+                    self._set_failed(f"{text} (opening it again every {self._reopen_s:g} s)")
+                    self._cap.release()
+                    self._cap = None
+                    continue
                 self._stop.wait(0.02)
                 continue
             failures = 0
             with self._cond:
                 self._latest = image
                 self._fresh = True
+                self._failed = None
                 self._cond.notify_all()
 
     def read(self, *, timeout_s: float) -> Image | None:
@@ -139,7 +184,8 @@ class LiveCaptureSource:
     def close(self) -> None:
         self._stop.set()
         self._thread.join(2.0)
-        self._cap.release()
+        if self._cap is not None and not self._thread.is_alive():
+            self._cap.release()
 
 
 class VideoFileSource:
@@ -208,6 +254,9 @@ class SourceRequest:
     """The vehicle's current state, for sources that render what it sees."""
     options: Mapping[str, Any] = field(default_factory=dict)
     """``camera.options``: the source's own keywords."""
+    reopen_s: float | None = None
+    """A live source that cannot be opened or stops giving frames is opened again this often
+    (None: it raises :class:`CameraError`, for a probe)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -230,16 +279,19 @@ def _device(request: SourceRequest) -> FrameSource:
                               "N the V4L2 device number")
         target = int(number)
     return LiveCaptureSource(target, api=cv2.CAP_V4L2, width=request.width,
-                             height=request.height, fps=request.rate_hz)
+                             height=request.height, fps=request.rate_hz,
+                             reopen_s=request.reopen_s)
 
 
 BUILTIN_SOURCES: tuple[SourceKind, ...] = (
     SourceKind(name="device", describe="a device",
                claims=lambda s: s.startswith(("device:", "/dev/video")), open=_device),
     SourceKind(name="gstreamer", describe="a GStreamer pipeline", claims=lambda s: "!" in s,
-               open=lambda r: LiveCaptureSource(r.source, api=cv2.CAP_GSTREAMER)),
+               open=lambda r: LiveCaptureSource(r.source, api=cv2.CAP_GSTREAMER,
+                                                reopen_s=r.reopen_s)),
     SourceKind(name="url", describe="a URL", claims=lambda s: "://" in s,
-               open=lambda r: LiveCaptureSource(r.source, api=cv2.CAP_FFMPEG)),
+               open=lambda r: LiveCaptureSource(r.source, api=cv2.CAP_FFMPEG,
+                                                reopen_s=r.reopen_s)),
     SourceKind(name="folder", describe="a folder", claims=lambda s: Path(s).is_dir(),
                open=lambda r: FolderSource(r.source)),
     SourceKind(name="file", describe="an existing video file",
@@ -291,78 +343,11 @@ def source_kinds_text() -> str:
 
 def open_source(source: str, *, width: int, height: int, rate_hz: float,
                 pose: Callable[[], TelemetrySnapshot] | None = None,
-                options: Mapping[str, Any] | None = None) -> FrameSource:
+                options: Mapping[str, Any] | None = None,
+                reopen_s: float | None = None) -> FrameSource:
     """Open the source a configuration string names (the first kind that claims it)."""
     kind = find_source_kind(source)
     if kind is None:
         raise CameraError(f"camera source {source!r}: not {source_kinds_text()}")
     return kind.open(SourceRequest(source=source, width=width, height=height, rate_hz=rate_hz,
-                                   pose=pose, options=dict(options or {})))
-
-
-FrameSink = Callable[[Frame], Awaitable[None]]
-
-
-class CameraService:
-    """Captures at ``rate_hz`` off the event loop and awaits ``sink(frame)`` for each frame.
-
-    The capture runs in a worker thread bounded by ``read_timeout_s``; the resize to
-    ``width`` x ``height`` happens there too. Read errors are logged and counted; the service
-    keeps going (a camera that recovers resumes the stream).
-    """
-
-    def __init__(self, source: FrameSource, sink: FrameSink, *, clock: Clock, rate_hz: float,
-                 width: int, height: int, pose: Callable[[], TelemetrySnapshot] | None = None,
-                 read_timeout_s: float = 2.0) -> None:
-        if rate_hz <= 0:
-            raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
-        self.source = source
-        self._sink = sink
-        self._clock = clock
-        self._period_s = 1.0 / rate_hz
-        self._size = (width, height)
-        self._pose = pose
-        self._read_timeout_s = read_timeout_s
-        self._stopping = asyncio.Event()
-        self.counters = {"frames": 0, "empty_reads": 0, "read_errors": 0}
-
-    def _capture(self) -> Image | None:
-        image = self.source.read(timeout_s=self._read_timeout_s)
-        if image is None:
-            return None
-        if image.ndim == 2:
-            image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-        if (image.shape[1], image.shape[0]) != self._size:
-            image = cv2.resize(image, self._size, interpolation=cv2.INTER_AREA)
-        return image
-
-    async def run(self) -> None:
-        loop = asyncio.get_running_loop()
-        index = 0
-        try:
-            while not self._stopping.is_set():
-                t_next = loop.time() + self._period_s
-                try:
-                    async with asyncio.timeout(self._read_timeout_s + 1.0):
-                        image = await asyncio.to_thread(self._capture)
-                except (CameraError, TimeoutError, cv2.error) as exc:
-                    self.counters["read_errors"] += 1
-                    log.warning("camera %s: %s", self.source.description, exc or "timeout")
-                    image = None
-                if image is None:
-                    self.counters["empty_reads"] += 1
-                else:
-                    snap = self._pose() if self._pose is not None else None
-                    frame = Frame(image=image, t_capture=self._clock(), index=index,
-                                  telemetry=snap)
-                    index += 1
-                    self.counters["frames"] += 1
-                    await self._sink(frame)
-                with contextlib.suppress(TimeoutError):
-                    async with asyncio.timeout(max(0.0, t_next - loop.time())):
-                        await self._stopping.wait()
-        finally:
-            await asyncio.to_thread(self.source.close)
-
-    def stop(self) -> None:
-        self._stopping.set()
+                                   pose=pose, options=dict(options or {}), reopen_s=reopen_s))

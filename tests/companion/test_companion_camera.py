@@ -12,13 +12,13 @@ import pytest
 
 from companion.camera import (
     CameraError,
-    CameraService,
     FolderSource,
     Frame,
     LiveCaptureSource,
     VideoFileSource,
     open_source,
 )
+from companion.camera_service import CameraService
 from companion.telemetry import TelemetrySnapshot
 
 
