@@ -34,7 +34,7 @@ from companion.dispatch import COUNTERS, Dispatcher
 from companion.mavlink import MavlinkService, MavlinkSettings
 from companion.mavlink_commands import wildcard_mavlink_warning
 from companion.mission import MissionWindow
-from companion.mission_log import MissionLogWriter
+from companion.mission_log import MissionLogWriter, log_problem
 from companion.peers import PeerServices, peer_types_of
 from companion.pipeline import CameraPipeline
 from companion.protocol import (
@@ -344,6 +344,10 @@ def check_setup(config: CompanionConfig) -> list[str]:
     if problem is not None:
         raise AppSetupError(problem)
     lines.append("keys: fleet key and the ground station's command key loaded")
+    if config.mission.log is not None:
+        if (unwritable := log_problem(config.mission.log)) is not None:
+            raise AppSetupError(f"{config.source}: mission.log: {unwritable}")
+        lines.append(f"mission log: {config.mission.log}")
     return lines
 
 

@@ -15,9 +15,23 @@ from typing import IO, Any
 from utility_specs.log import message_to_record, write_record
 from utility_specs.message import Message
 
-__all__ = ["MissionLogWriter"]
+__all__ = ["MissionLogWriter", "log_problem"]
 
 log = logging.getLogger(__name__)
+
+
+def log_problem(path: str | Path) -> str | None:
+    """Why the mission log cannot be appended to at ``path`` (None: it can; the file and its
+    folders are made). A log that could not be opened stopped ``run`` with a traceback,
+    and ``check`` had said ok."""
+    target = Path(path)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with open(target, "a", encoding="utf-8"):
+            pass
+    except OSError as exc:
+        return f"cannot write {target}: {exc.strerror or exc}"
+    return None
 
 
 class MissionLogWriter:

@@ -58,6 +58,11 @@ def bad(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     files["keyed_companion"].write_text(
         '[drone]\nid = "d1"\n[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
         'command_public_key_file = "keys/command.pub"\n')
+    files["unwritable_log"] = root / "unwritable_log.toml"
+    files["unwritable_log"].write_text(
+        files["keyed_companion"].read_text()
+        + f'[mission]\nlog = "{files["a_file"]}/mission.jsonl"\n[camera]\nenabled = false\n'
+        '[mavlink]\nurl = "udpout:127.0.0.1:9"\n')
     return files
 
 
@@ -76,6 +81,11 @@ CASES = [
      "typo.toml: mavlink.ulr: expected a known key (did you mean 'url'?), one of ['baud', "),
     ("uav-companion", "run --config {long_id}", 2,
      "drone.id: expected a printable sender id of 1..32 UTF-8 bytes"),
+    # run ended in a FileExistsError traceback; check had said "check: ok"
+    ("uav-companion", "run --config {unwritable_log}", 2,
+     "mission.log: cannot write {a_file}/mission.jsonl: File exists"),
+    ("uav-companion", "check --config {unwritable_log} --skip-mavlink --skip-camera", 2,
+     "mission.log: cannot write {a_file}/mission.jsonl: File exists"),
     ("uav-companion", "install-service --dry-run --config {binary}", 2, "not a text file"),
     ("uav-companion", "install-service --dry-run --user a:b --config {binary}", 2,
      "argument --user: expected a user name like pi, got 'a:b'"),
@@ -190,10 +200,12 @@ CASES = [
                          ids=[f"{c[0]} {c[1]}" for c in CASES])
 def test_bad_input_is_one_line_and_nonzero(bad: dict[str, Path], script: str, argv: str,
                                            code: int, fragment: str) -> None:
-    args = argv.format(**{k: str(v) for k, v in bad.items()}).split()
+    names = {k: str(v) for k, v in bad.items()}
+    args = argv.format(**names).split()
     result = subprocess.run([_tool(script), *args], capture_output=True, text=True,
                             timeout=60, check=False)
-    assert_one_line_error(result, code, fragment)
+    assert_one_line_error(result, code, fragment.format(**names) if "{" in fragment
+                          else fragment)
 
 
 def test_vehicle_on_a_busy_port_names_the_ports_and_the_flag() -> None:
