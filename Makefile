@@ -46,14 +46,16 @@ $(VENV)/.installed-test: $(VENV)/bin/python pyproject.toml
 	@touch $@ $(VENV)/.installed
 
 # Debian packages the tests use: Chromium for the dashboard test, iperf3 and iproute2 for the
-# link tests, socat for the serial-cable test (a pty pair). Installed when running as root on Debian (as CI does); elsewhere those tests
-# skip and say how to enable them.
+# link tests, socat for the serial-cable test (a pty pair), systemd's systemd-analyze to verify
+# the companion's unit. Installed when running as root on Debian (as CI does); elsewhere those
+# tests skip and say how to enable them.
 system-deps:
 	@missing=""; \
 	command -v chromium >/dev/null || missing="$$missing chromium"; \
 	command -v iperf3 >/dev/null || missing="$$missing iperf3"; \
 	command -v tc >/dev/null || missing="$$missing iproute2"; \
 	command -v socat >/dev/null || missing="$$missing socat"; \
+	command -v systemd-analyze >/dev/null || missing="$$missing systemd"; \
 	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 	    echo "installing with apt-get:$$missing"; \

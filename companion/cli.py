@@ -342,8 +342,11 @@ def _install(args: argparse.Namespace) -> int:
         return 2
     config_path = Path(args.config).resolve()
     unit_dir = Path(args.unit_dir) if args.unit_dir else DEFAULT_UNIT_DIR
+    log = None if config.mission.log is None else Path(config.mission.log)
     if args.user and not args.dry_run:
         import pwd
+
+        from companion.service import make_folder_for, unreadable_for
 
         try:
             pwd.getpwnam(args.user)
@@ -351,10 +354,23 @@ def _install(args: argparse.Namespace) -> int:
             print(f"install-service failed: no user {args.user!r} on this machine "
                   "(create it, or drop --user)", file=sys.stderr)
             return 1
+        files = [config_path, *map(Path, config.ground_station.key_files)]
+        if (problem := unreadable_for(args.user, files)) is not None:
+            print(f"install-service failed: {problem}: the service could not start "
+                  f"(chown {args.user} the file, or drop --user)", file=sys.stderr)
+            return 1
+        if log is not None:
+            try:
+                make_folder_for(args.user, log.parent)
+            except OSError as exc:
+                print(f"install-service failed: mission.log: {log.parent}: {exc.strerror}",
+                      file=sys.stderr)
+                return 1
     try:
         result = install_service(config_path=config_path, unit_dir=unit_dir,
                                  dry_run=args.dry_run, enable=not args.no_enable,
-                                 user=args.user)
+                                 user=args.user,
+                                 writable=() if log is None else (log.parent,))
     except (OSError, RuntimeError) as exc:
         print(f"install-service failed: {exc}", file=sys.stderr)
         return 1

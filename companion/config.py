@@ -95,6 +95,8 @@ class GroundStationConfig:
     link_rate_bytes_per_s: float = 0.0
     """The radio link's rate toward the station, when known (0: unknown). The transport
     never paces a message's datagrams faster than this (docs/protocol.md, pacing)."""
+    key_files: tuple[str, ...] = ()
+    """The key files the keys were read from: the service's user must read them too."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -325,6 +327,9 @@ def parse_config(raw: Mapping[str, Any], *, source: str = "<memory>") -> Compani
         listen_host=gs.string("listen_host", "0.0.0.0"),
         listen_port=gs.integer("listen_port", 0, low=0, high=65535),
         link_rate_bytes_per_s=gs.number("link_rate_bytes_per_s", 0.0, strict=False),
+        key_files=tuple(str(_resolve(name, base)) for name in (
+            gs.string("fleet_key_file", None), gs.string("command_public_key_file", None))
+            if name is not None),
     )
     gs.done()
 

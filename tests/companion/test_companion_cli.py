@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import signal
 import socket
 import subprocess
@@ -228,6 +229,32 @@ def test_unit_text_quotes_paths_and_sets_user() -> None:
     assert "Environment=NUMBA_CACHE_DIR=%C/uav-companion" in text
 
 
+def test_the_unit_runs_the_companion_with_least_privilege(tmp_path: Path) -> None:
+    """It ran as root with every privilege, and a configuration error restarted every 2 s."""
+    text = unit_text(config_path=Path("/etc/uav-companion/config.toml"),
+                     exec_argv=["/usr/bin/uav-companion"], user="pi",
+                     writable=[Path("/srv/uav logs")])
+    lines = text.splitlines()
+    for directive in ("NoNewPrivileges=yes", "ProtectSystem=full", "ProtectHome=read-only",
+                      "PrivateTmp=yes", "RestrictSUIDSGID=yes", "RestartPreventExitStatus=2",
+                      "StateDirectory=uav-companion"):
+        assert directive in lines, directive
+    assert "ReadWritePaths='-/srv/uav logs'" in lines
+    # the autopilot's UART and the camera stay reachable: nothing that narrows /dev
+    assert not any(line.startswith(("PrivateDevices", "DevicePolicy", "DeviceAllow",
+                                    "ProtectClock")) for line in lines)
+    verify = shutil.which("systemd-analyze")
+    if verify is None:
+        pytest.skip("systemd-analyze not installed (apt install systemd) to check the unit")
+    unit = tmp_path / UNIT_NAME
+    unit.write_text(text)
+    result = subprocess.run([verify, "verify", str(unit)], capture_output=True, text=True,
+                            timeout=60, check=False)
+    complaints = [line for line in (result.stdout + result.stderr).splitlines()
+                  if str(unit) in line]  # not its words about the host's own units
+    assert complaints == [], complaints
+
+
 def test_structured_logs_are_one_json_object_per_line(
         capsys: pytest.CaptureFixture[str]) -> None:
     import json
@@ -253,3 +280,41 @@ def test_check_without_keys_never_says_ok_first(tmp_path: Path) -> None:
     assert result.stdout == ""
     assert result.stderr.startswith(f"configuration error: {config}: "
                                     "ground_station.fleet_key_file is not set")
+
+
+def test_install_service_checks_what_the_service_user_can_read(tmp_path: Path) -> None:
+    """A key only root could read passed install-service --user; the service then failed at
+    every start ("a readable key file (Permission denied)")."""
+    import os
+    import pwd
+    import tempfile
+
+    from companion.service import make_folder_for, unreadable_for
+
+    try:
+        nobody = pwd.getpwnam("nobody")
+    except KeyError:
+        pytest.skip("no user 'nobody' on this machine")
+    open_dir = Path(tempfile.mkdtemp(dir="/tmp"))
+    try:
+        open_dir.chmod(0o755)
+        key = open_dir / "fleet.key"
+        key.write_text("k\n")
+        key.chmod(0o600)
+        problem = unreadable_for("nobody", [key])
+        assert problem is not None and problem.startswith(f"user nobody cannot read {key} (")
+        assert "mode 0600" in problem
+        assert unreadable_for("root", [key]) is None
+        key.chmod(0o644)
+        assert unreadable_for("nobody", [key]) is None
+        hidden = open_dir / "private"
+        hidden.mkdir(mode=0o700)
+        (hidden / "command.pub").write_text("p\n")
+        problem = unreadable_for("nobody", [hidden / "command.pub"])
+        assert problem is not None and f"({hidden}: owner uid" in problem
+        if os.geteuid() == 0:  # the mission log's folder, made for the service's user
+            make_folder_for("nobody", open_dir / "logs" / "uav")
+            assert (open_dir / "logs" / "uav").stat().st_uid == nobody.pw_uid
+            assert (open_dir / "logs").stat().st_uid == nobody.pw_uid
+    finally:
+        shutil.rmtree(open_dir)

@@ -91,6 +91,9 @@ CASES = [
      "argument --user: expected a user name like pi, got 'a:b'"),
     ("uav-companion", "install-service --no-enable --user nosuchuser0 --unit-dir {folder} "
      "--config {keyed_companion}", 1, "no user 'nosuchuser0' on this machine"),
+    # keys only root can read (the test's folders are 0700): the service failed at each start
+    ("uav-companion", "install-service --no-enable --user nobody --unit-dir {folder} "
+     "--config {keyed_companion}", 1, "install-service failed: user nobody cannot read "),
     ("uav-ground-station", "run --config {keyed} --data-dir {a_file} --udp-port 0 --http-port 0",
      2, "is a file, not a folder"),
     ("uav-ground-station",
