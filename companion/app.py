@@ -22,12 +22,14 @@ import asyncio
 import contextlib
 import logging
 import secrets
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 from companion.camera import CameraError, FrameSource, open_source
 from companion.camera_service import CameraService
+from companion.clock_check import ClockCheck
 from companion.commands import CommandExecutor
 from companion.config import CompanionConfig, missing_keys
 from companion.dispatch import COUNTERS, Dispatcher
@@ -145,6 +147,7 @@ class CompanionApp:
         self.publisher.status_extra = self.peers.status_fields
         self.telemetry.add_listener(self.publisher.on_sample)
         self.telemetry.add_listener(self._on_link_state)
+        self.telemetry.add_listener(ClockCheck(time.monotonic).on_sample)
         self.commands = CommandExecutor(
             drone_id=config.drone_id, clock=clock, send_status=self.transport.send_status,
             dispatcher=self.dispatcher, mission=self.mission, mission_log=self.mission_log,

@@ -229,15 +229,20 @@ def _check(args: argparse.Namespace) -> int:
 def _probe_mavlink(config: Any, timeout_s: float) -> tuple[Any, list[str], bool]:
     import threading
 
+    from companion.clock_check import clock_problem
     from companion.mavlink import MavlinkReader
-    from companion.telemetry import TelemetryState
+    from companion.telemetry import SystemTimeSample, TelemetryState
 
     state = TelemetryState()
     lock = threading.Lock()
 
+    times: list[SystemTimeSample] = []
+
     def post(sample: Any) -> None:
         with lock:
             state.apply(sample)
+            if isinstance(sample, SystemTimeSample):
+                times.append(sample)
 
     reader = MavlinkReader(config.mavlink, clock=time.time, post=post)
     reader.start()
@@ -280,6 +285,8 @@ def _probe_mavlink(config: Any, timeout_s: float) -> tuple[Any, list[str], bool]
         remaining = ("?" if snap.battery_remaining is None
                      else f"{100 * snap.battery_remaining:.0f} %")
         lines.append(f"mavlink: battery {snap.battery_v:.2f} V, {remaining}")
+    if times and (problem := clock_problem(times[-1].t, times[-1].unix_time_s)) is not None:
+        return snap, [*lines, f"clock: {problem}"], False
     return snap, lines, True
 
 

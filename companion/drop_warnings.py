@@ -23,6 +23,9 @@ HINTS = {
                "that file the station's fleet.key, of its current keys (or does another "
                "fleet send to this port)?",
     "wrong_fleet": "a datagram of another fleet id: is ground_station.fleet_id the station's?",
+    "stale": "a datagram of the fleet stamped too far from this computer's clock: the fleet's "
+             "clocks must agree within 30 s; set this computer's clock (chrony or gpsd with "
+             "the autopilot's GPS, or NTP), or the station's",
 }
 """Refusal reason -> what it usually means; other reasons stay at DEBUG."""
 

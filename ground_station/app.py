@@ -351,7 +351,8 @@ def create_app(
     app[IMAGE_UTILITY] = image_utility_from_spec(config.spec, alpha=config.alpha)
     high_utility = (config.high_utility if config.high_utility is not None
                     else app[IMAGE_UTILITY].high_threshold(config.high_utility_fraction))
-    app[FLEET] = FleetView(high_utility=high_utility, link_lost_s=config.link_lost_s)
+    app[FLEET] = FleetView(high_utility=high_utility, link_lost_s=config.link_lost_s,
+                           clock_tolerance_s=config.clock_tolerance_s)
     scene = load_scene_map(config.scene) if config.scene is not None else None
     if scene is not None:  # the map's frame: east/north metres from the scene's home
         app[FLEET].set_origin(scene["home"]["lat_deg"], scene["home"]["lon_deg"])

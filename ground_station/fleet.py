@@ -14,6 +14,7 @@ from dataclasses import asdict
 from typing import Any
 
 from companion.protocol import Address
+from ground_station.clock_watch import ClockWatch
 from ground_station.drone_state import (
     DEFAULT_STALE_AFTER_S,
     RATE_WINDOW_S,
@@ -65,6 +66,7 @@ class FleetView:
         alerts_len: int = 500,
         forget_after_s: float = 600.0,
         max_drones: int = 128,
+        clock_tolerance_s: float = 30.0,
     ) -> None:
         if max_drones < 1 or not forget_after_s > 0:
             raise ValueError("max_drones must be >= 1 and forget_after_s > 0")
@@ -72,6 +74,7 @@ class FleetView:
         self.link_lost_s = link_lost_s
         self.forget_after_s = forget_after_s
         self.max_drones = max_drones
+        self.clocks = ClockWatch(clock_tolerance_s)
         self.forgotten = 0
         """Tiles dropped so far (silent too long, or evicted by newer drones)."""
         self._forgotten_ids: list[str] = []
@@ -266,8 +269,13 @@ class FleetView:
         y = math.radians(lat - lat0) * r_earth_m
         return x, y
 
-    def on_drop(self, reason: str, *, now: float, drone: str | None = None) -> None:
+    def on_drop(self, reason: str, *, now: float, drone: str | None = None,
+                skew_s: float | None = None) -> None:
         self.drops[reason] += 1
+        if drone is not None and skew_s is not None:  # refused for its clock: name it
+            if (text := self.clocks.refused(drone, skew_s, now)) is not None:
+                self.alert(Alert(t=now, level="error", kind="clock", drone=drone, text=text))
+            return
         n = self.drops[reason]
         # One alert for the first drop of a reason, then at powers of ten: visible, not noisy.
         if n == 1 or math.log10(n).is_integer():

@@ -233,7 +233,8 @@ class GroundLink(LinkOutput):
                 self.fleet.on_drop(reason, now=now, drone=event.sender)
             elif isinstance(event, PacketDropped):
                 if event.reason not in ("duplicate_fragment",):
-                    self.fleet.on_drop(event.reason, now=now)
+                    self.fleet.on_drop(event.reason, now=now, drone=event.sender,
+                                       skew_s=event.skew_s)
             else:
                 # REPORT/COMMAND packets are for drones; a ground station ignores them.
                 self.counters["ignored_" + type(event).__name__] += 1

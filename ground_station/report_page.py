@@ -179,7 +179,7 @@ def figure(series: dict[str, Any]) -> Any:
     ax = fig.add_subplot()
     for drone, d in series["drones"].items():
         ax.plot(series["t"], d["utility"], color=d["color"], lw=1.8, marker="o", ms=3,
-                label=f"{drone} (total {d['total_text']})")
+                label=f"{drone} (total {d.get('total_text') or total_text(d['total'])})")
     for gap_start, gap_end in _gaps(series):
         ax.axvspan(gap_start, gap_end, color="#8b949e", alpha=0.2, lw=0)
     # As the page's chart: time from 0, one bin wide at least (one bin was centred on a

@@ -403,7 +403,7 @@ class Decoder:
                     self._receive_one(data, addr, now)  # first datagram of a sender
                     continue
                 if skew is not None and abs(t_sent - now) > skew:
-                    self._check_fresh(t_sent, now)
+                    self._check_fresh(t_sent, now, sender)
                 window = windows.get(sender)
                 if (window is not None and pn > window.highest
                         and now - window.last_accept <= forget_after):
@@ -421,7 +421,7 @@ class Decoder:
                 counters["accepted"] += 1
                 receive_data(sender, t_sent, view[start:end], addr, now)
             except RemoteProtocolError as exc:
-                self._drop(exc.reason, str(exc), addr)
+                self._refuse(exc, addr)
 
     def _receive_one(self, data: bytes, addr: Address, now: float) -> None:
         """Every check, for any kind of datagram (errors escape to the caller)."""
@@ -440,7 +440,7 @@ class Decoder:
             windows = self._command_windows
         if self._floors:
             self._check_floor(header, now)
-        self._check_fresh(header.t_sent, now)
+        self._check_fresh(header.t_sent, now, header.sender)
         self._check_replay(header, now, windows)
         self.counters["accepted"] += 1
         if kind is PacketKind.DATA:
@@ -454,12 +454,12 @@ class Decoder:
 
     # -- checks --------------------------------------------------------------------------
 
-    def _check_fresh(self, t_sent: float, now: float) -> None:
+    def _check_fresh(self, t_sent: float, now: float, sender: str | None = None) -> None:
         skew = self.limits.max_clock_skew_s
         if skew is not None and abs(t_sent - now) > skew:
             raise StalePacket(
                 f"t_sent {t_sent:.3f} is {t_sent - now:+.3f} s from now "
-                f"(allowed ±{skew} s)"
+                f"(allowed ±{skew} s)", sender=sender, skew_s=t_sent - now
             )
 
     def _verify_command(self, data: bytes, body: memoryview) -> memoryview:
@@ -833,9 +833,18 @@ class Decoder:
 
     # -- plumbing ------------------------------------------------------------------------
 
-    def _drop(self, reason: str, detail: str, addr: Address) -> None:
+    def _refuse(self, exc: RemoteProtocolError, addr: Address) -> None:
+        """Count and tell a refused datagram (with its sender and skew when stale)."""
+        if isinstance(exc, StalePacket):
+            self._drop(exc.reason, str(exc), addr, sender=exc.sender, skew_s=exc.skew_s)
+        else:
+            self._drop(exc.reason, str(exc), addr)
+
+    def _drop(self, reason: str, detail: str, addr: Address, *, sender: str | None = None,
+              skew_s: float | None = None) -> None:
         self.counters[reason] = self.counters.get(reason, 0) + 1
-        self._emit(PacketDropped(reason=reason, detail=detail, addr=addr))
+        self._emit(PacketDropped(reason=reason, detail=detail, addr=addr, sender=sender,
+                                 skew_s=skew_s))
 
     def _emit(self, event: Event) -> None:
         """Queue ``event``. When the queue is full, a drop notice gives way before anything

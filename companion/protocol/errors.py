@@ -85,6 +85,14 @@ class StalePacket(RemoteProtocolError):
 
     reason = "stale"
 
+    def __init__(self, message: str, *, sender: str | None = None,
+                 skew_s: float | None = None) -> None:
+        super().__init__(message)
+        self.sender = sender
+        """The authenticated sender (the tag is checked first)."""
+        self.skew_s = skew_s
+        """Its ``t_sent`` minus the receiver's ``now``: how far its clock is off."""
+
 
 class ReplayedPacket(RemoteProtocolError):
     """The packet number was already seen from this sender, or is older than the window."""

@@ -122,3 +122,8 @@ class PacketDropped(Event):
     detail: str
     """Human-readable cause, for logs."""
     addr: Address
+    sender: str | None = None
+    """The sender, when the datagram was refused after its tag was verified (``stale``)."""
+    skew_s: float | None = None
+    """For ``stale``: the sender's clock minus ours, s. A drone whose clock is off (a
+    Raspberry Pi has no real-time clock) is refused whole; this names it and by how much."""

@@ -16,6 +16,7 @@ import json
 import math
 import os
 import sys
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -214,10 +215,13 @@ def build_configs(args: argparse.Namespace) -> list[VehicleConfig]:
                 mission = load_waypoints(Path(args.pattern[1]), home=home, default_alt_m=alt,
                                          item0_is_home=ap)
         fix = {} if args.first_fix is None else {"first_fix_s": args.first_fix}
+        # GPS time is UTC, as a real autopilot's (SYSTEM_TIME): the host's clock at start,
+        # then the simulated time (at --speedup 1, the host's clock). A fixed 2023 epoch made
+        # every companion's clock look 3 years off the autopilot's GPS time.
         configs.append(VehicleConfig(system_id=args.sysid + i, flavour=flavour, home=home,
                                      params=params, mission=tuple(mission),
                                      seed=args.seed + i, autostart=args.autostart,
-                                     reboot_s=args.reboot_s, **fix))
+                                     reboot_s=args.reboot_s, boot_unix_s=time.time(), **fix))
     return configs
 
 

@@ -33,7 +33,7 @@ class ReferenceDecoder(Decoder):
             try:
                 self._receive_one(bytes(data), addr, now)
             except RemoteProtocolError as exc:
-                self._drop(exc.reason, str(exc), addr)
+                self._refuse(exc, addr)
 
 
 def pair(**limits: object) -> tuple[Decoder, Decoder]:
