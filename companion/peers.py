@@ -46,6 +46,9 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+FORGET_INTERVAL_S = 1.0
+"""How often silent peers are looked for (``forget_after_s``), with or without ADSB."""
+
 
 # -- settings -------------------------------------------------------------------------------
 
@@ -146,9 +149,7 @@ class AdsbInjector:
         if not math.isfinite(self.period_s):
             return
         while not self._stop.is_set():
-            now = self.clock()
-            self.table.forget_silent(now)
-            self.inject(now)
+            self.inject(self.clock())  # PeerServices forgets the silent peers
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._stop.wait(), self.period_s)
 
@@ -168,7 +169,8 @@ class PeerServices:
                  send_mavlink: Callable[[Any], None] | None = None,
                  send_report: Callable[[Report, float], object] | None = None,
                  learn: Callable[[Report, float], object] | None = None,
-                 report_interval_s: float = REPORT_INTERVAL_S) -> None:
+                 report_interval_s: float = REPORT_INTERVAL_S,
+                 forget_interval_s: float = FORGET_INTERVAL_S) -> None:
         """``send_report(report, now)`` puts this drone's receiver report on the medium;
         ``learn(report, now)`` hands each delivery heard to its own optimiser as it arrives
         (a one-entry report). Without ``send_report`` (no medium) nothing is reported."""
@@ -180,6 +182,7 @@ class PeerServices:
         self._send_report = send_report
         self._learn = learn
         self.report_interval_s = report_interval_s
+        self.forget_interval_s = forget_interval_s
         self.clock = clock
         self.peer_types = peer_types
         self.table = PeerTable(own_id, forget_after_s=settings.forget_after_s)
@@ -273,7 +276,32 @@ class PeerServices:
                          c["heard"], len(self.table.peers), c["reports"],
                          extra={"event": "peers", "counters": dict(c)})
 
+    def forget_silent(self) -> list[str]:
+        """Drop the peers silent for ``forget_after_s`` (from the table, ``/peers``, the
+        status's ``peers`` map and the ADSB injection); each is logged once."""
+        gone = self.table.forget_silent(self.clock())
+        for drone in gone:
+            log.info("peer %s forgotten: nothing heard from it for %.0f s (peers.forget_after_s)",
+                     drone, self.settings.forget_after_s)
+        return gone
+
+    async def _forget_loop(self) -> None:
+        # Not in the ADSB injector only: with adsb_rate_hz = 0 (the default) a stopped peer
+        # stayed in /peers and on the dashboard for ever, whatever forget_after_s said.
+        while not self._stop.is_set():
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._stop.wait(), self.forget_interval_s)
+            self.forget_silent()
+
     async def _serve(self) -> None:
+        forgetting = asyncio.ensure_future(self._forget_loop())
+        try:
+            await self._serve_endpoints()
+        finally:
+            self._stop.set()
+            await forgetting
+
+    async def _serve_endpoints(self) -> None:
         if self.http is not None:
             try:
                 await self.http.start()

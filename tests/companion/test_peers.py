@@ -202,3 +202,32 @@ async def test_a_busy_http_port_is_logged_and_the_rest_runs(caplog: pytest.LogCa
         busy.close()
     assert services.http is None
     assert any("peers.http: cannot serve on" in r.getMessage() for r in caplog.records)
+
+
+async def test_a_silent_peer_is_forgotten_without_adsb(caplog: pytest.LogCaptureFixture
+                                                        ) -> None:
+    """forget_after_s held only while ADSB_VEHICLE injection ran: with adsb_rate_hz = 0 (the
+    default) a stopped drone stayed in /peers and the dashboard's peers row for ever (seen
+    on a 3-drone netns fleet: drone7 stopped, still listed 55 s later and growing)."""
+    caplog.set_level("INFO", logger="companion.peers")
+    now = [100.0]
+    services = PeerServices(PeersSettings(medium="broadcast:127.255.255.255:14700",
+                                          forget_after_s=5.0),
+                            own_id="d1", clock=lambda: now[0], forget_interval_s=0.01)
+    assert services.injector is None
+    services.table.on_message(msg("d2", "position", 99.9, lat_deg=LAT, lon_deg=LON), now=100.0)
+    task = asyncio.create_task(services.run())
+    try:
+        await asyncio.sleep(0.05)
+        assert services.status_fields()["peers"] == {"d2": 0.1}  # heard 0 s ago: kept
+        now[0] = 106.0
+        async with asyncio.timeout(5):
+            while services.table.peers:
+                await asyncio.sleep(0.01)
+    finally:
+        services.stop()
+        await task
+    assert services.status_fields()["peers"] == {}
+    assert services.table.snapshot(now[0])["peers"] == []
+    assert any("peer d2 forgotten" in r.getMessage() and "peers.forget_after_s" in
+               r.getMessage() for r in caplog.records)
