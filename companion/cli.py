@@ -185,6 +185,14 @@ def _run(args: argparse.Namespace) -> int:
     try:
         return asyncio.run(main_async())
     except ExceptionGroup as group:  # a service failed; systemd restarts us (on-failure)
+        from companion.transport import TransportStartError
+
+        opened, _ = group.split(TransportStartError)
+        if opened is not None:  # a port in use, an interface not up yet: a line, no traceback
+            problem = str(opened.exceptions[0])
+            logging.getLogger("companion").error("cannot start: %s", problem)
+            print(f"cannot start: {problem}", file=sys.stderr)
+            return 1
         logging.getLogger("companion").error("companion failed", exc_info=group)
         print(f"companion failed: {group.exceptions[0]!r}", file=sys.stderr)
         return 1

@@ -5,13 +5,14 @@ the drone's :class:`~companion.transport.UdpTransport` and the ground station bo
 
 from __future__ import annotations
 
+import errno
 import ipaddress
 import socket
 from dataclasses import dataclass
 from typing import Literal
 
-__all__ = ["SharedMedium", "open_medium_socket", "parse_medium", "prepare_medium_sender",
-           "sender_id"]
+__all__ = ["SharedMedium", "medium_problem", "open_medium_socket", "parse_medium",
+           "prepare_medium_sender", "sender_id"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -33,6 +34,32 @@ class SharedMedium:
     @property
     def target(self) -> tuple[str, int]:
         return (self.address, self.port)
+
+    def __str__(self) -> str:
+        """As configured: ``broadcast:ADDR:PORT`` or ``multicast:GROUP:PORT:IFACE_ADDR``."""
+        tail = f":{self.interface}" if self.interface != "0.0.0.0" else ""
+        return f"{self.kind}:{self.address}:{self.port}{tail}"
+
+
+def medium_problem(exc: OSError, medium: SharedMedium, setting: str) -> str:
+    """One line for a medium whose sockets cannot be opened: the setting, what the system
+    said and what to change (the bare ``OSError(99, 'Cannot assign requested address')``
+    named neither the medium nor the fix)."""
+    said = exc.strerror or str(exc)
+    if exc.errno == errno.EADDRINUSE:
+        hint = (f"port {medium.port} is held by a program that does not share it (the "
+                "ground station's udp_port on this computer?): give every fleet member the "
+                "same medium port, one no other socket uses")
+    elif medium.kind == "multicast" and exc.errno == errno.EADDRNOTAVAIL:
+        hint = (f"{medium.interface} is not an address of this computer: the fourth part is "
+                "this member's own address on the fleet network")
+    elif medium.kind == "multicast" and exc.errno == errno.ENODEV:
+        hint = ("no interface to join the group on: add this member's own address on the "
+                f"fleet network ({setting} = \"multicast:{medium.address}:{medium.port}:"
+                "IFACE_ADDR\")")
+    else:
+        hint = f"check {setting} (docs/peers.md)"
+    return f"{setting} {medium}: cannot open the shared medium ({said}): {hint}"
 
 
 def parse_medium(text: str) -> SharedMedium:

@@ -24,6 +24,7 @@ from typing import Any
 from companion.drop_warnings import DropWarnings
 from companion.medium import (
     SharedMedium,
+    medium_problem,
     open_medium_socket,
     parse_medium,
     prepare_medium_sender,
@@ -44,7 +45,8 @@ from companion.protocol.records import EPOCH_STATUS
 from companion.remote_lookup import RemoteLookup
 from utility_specs.message import Message
 
-__all__ = ["Clock", "SharedMedium", "UdpTransport", "open_medium_socket", "parse_medium"]
+__all__ = ["Clock", "SharedMedium", "TransportStartError", "UdpTransport", "open_medium_socket",
+           "parse_medium"]
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +67,11 @@ SEND_COUNTERS = (
     "medium_reports_sent",
     "send_dropped_pacer_full",
 )
+
+
+class TransportStartError(RuntimeError):
+    """A socket of the transport cannot be opened; the text names the setting and the fix
+    (``uav-companion run`` prints it as one line instead of a traceback)."""
 
 
 class _MediumProtocol(asyncio.DatagramProtocol):
@@ -173,13 +180,23 @@ class UdpTransport:
                 self._lookup = lookup  # retrying in the background; nothing is sent meanwhile
             else:
                 self.remote_addr = resolved
-        transport, _ = await self._loop.create_datagram_endpoint(
-            lambda: _Protocol(self), local_addr=self.local_addr
-        )
+        try:
+            transport, _ = await self._loop.create_datagram_endpoint(
+                lambda: _Protocol(self), local_addr=self.local_addr)
+        except OSError as exc:
+            host, port = self.local_addr
+            raise TransportStartError(
+                f"ground_station.listen_host/listen_port {host}:{port}: cannot bind "
+                f"({exc.strerror or exc}): another program holds it, or it is not an address "
+                "of this computer (listen_port = 0 takes any free port)") from None
         self._transport = transport
         if self.medium is not None:
-            prepare_medium_sender(transport.get_extra_info("socket"), self.medium)
-            medium_sock = open_medium_socket(self.medium)
+            try:
+                prepare_medium_sender(transport.get_extra_info("socket"), self.medium)
+                medium_sock = open_medium_socket(self.medium)
+            except OSError as exc:
+                raise TransportStartError(medium_problem(exc, self.medium, "peers.medium")
+                                          ) from None
             self._medium_transport, _ = await self._loop.create_datagram_endpoint(
                 lambda: _MediumProtocol(self), sock=medium_sock)
             log.info("shared medium: %s %s:%d", self.medium.kind, self.medium.address,
