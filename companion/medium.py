@@ -50,10 +50,11 @@ def medium_problem(exc: OSError, medium: SharedMedium, setting: str) -> str:
         hint = (f"port {medium.port} is held by a program that does not share it (the "
                 "ground station's udp_port on this computer?): give every fleet member the "
                 "same medium port, one no other socket uses")
-    elif medium.kind == "multicast" and exc.errno == errno.EADDRNOTAVAIL:
+    elif medium.kind == "multicast" and medium.interface != "0.0.0.0" \
+            and exc.errno in (errno.EADDRNOTAVAIL, errno.ENODEV):
         hint = (f"{medium.interface} is not an address of this computer: the fourth part is "
                 "this member's own address on the fleet network")
-    elif medium.kind == "multicast" and exc.errno == errno.ENODEV:
+    elif medium.kind == "multicast" and exc.errno in (errno.ENODEV, errno.EADDRNOTAVAIL):
         hint = ("no interface to join the group on: add this member's own address on the "
                 f"fleet network ({setting} = \"multicast:{medium.address}:{medium.port}:"
                 "IFACE_ADDR\")")

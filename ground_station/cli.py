@@ -279,6 +279,8 @@ def _serve_problem(exc: OSError, config: GroundConfig) -> str:
     that moves it (aiohttp's own words named neither the dashboard nor the flag); so does a
     host name that does not resolve (``[Errno -2] Name or service not known`` named neither)."""
     udp = (exc.strerror or "").startswith("UDP ")  # the transport names its address
+    if (exc.strerror or "").startswith("shared_medium "):  # says the setting and the fix
+        return exc.strerror or ""
     if isinstance(exc, socket.gaierror) or (exc.errno is not None and exc.errno < 0):
         why = (exc.strerror or str(exc)).rpartition(": ")[2] if udp else exc.strerror or exc
         if udp:

@@ -205,11 +205,15 @@ class GroundConfig:
         if self.shared_medium is not None:
             from companion.medium import parse_medium
             try:
-                parse_medium(self.shared_medium)
+                medium = parse_medium(self.shared_medium)
             except ValueError:
                 raise ConfigError("<config>", "shared_medium",
                                   "broadcast:ADDR:PORT or multicast:GROUP:PORT[:IFACE]",
                                   self.shared_medium) from None
+            if medium.port == self.udp_port:  # run said "dashboard ... is already in use"
+                raise ConfigError("<config>", "shared_medium", "", detail=(
+                    f"{self.shared_medium!r} uses port {medium.port}, the station's udp_port "
+                    "too: give the medium a port of its own, the same on every drone"))
 
     @property
     def token_path(self) -> Path:

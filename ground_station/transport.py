@@ -117,10 +117,15 @@ class UdpTransport:
         self._sock, self._sink = sock, sink
         loop.add_reader(sock.fileno(), self._read_ready, sock)
         if self.medium is not None:
-            from companion.transport import open_medium_socket, parse_medium
+            from companion.medium import medium_problem, open_medium_socket, parse_medium
 
+            medium = parse_medium(self.medium)
             try:
-                medium_sock = open_medium_socket(parse_medium(self.medium))
+                medium_sock = open_medium_socket(medium)
+            except OSError as exc:  # "cannot serve: [Errno 19] No such device" named nothing
+                self.close()
+                raise OSError(exc.errno, medium_problem(exc, medium, "shared_medium")
+                              ) from None
             except BaseException:
                 self.close()
                 raise
