@@ -30,6 +30,7 @@ from companion.medium import (
     prepare_medium_sender,
     sender_id,
 )
+from companion.medium_watch import MediumWatch
 from companion.protocol import (
     Address,
     Decoder,
@@ -70,8 +71,7 @@ SEND_COUNTERS = (
 
 
 class TransportStartError(RuntimeError):
-    """A socket of the transport cannot be opened; the text names the setting and the fix
-    (``uav-companion run`` prints it as one line instead of a traceback)."""
+    """A socket cannot open; the text names the setting and the fix (one line in ``run``)."""
 
 
 class _MediumProtocol(asyncio.DatagramProtocol):
@@ -157,6 +157,9 @@ class UdpTransport:
         self._pace_deadline: float | None = None
         self._drop_warnings = DropWarnings(log)
         """A wrong key or fleet id is told at WARNING (rate-limited), not only at DEBUG."""
+        self.medium_watch = MediumWatch(medium, log) if medium is not None else None
+        self._sending_to: Address | None = None
+        self._watch_timer: asyncio.TimerHandle | None = None
 
     # -- lifecycle -----------------------------------------------------------------------
 
@@ -201,9 +204,17 @@ class UdpTransport:
                 lambda: _MediumProtocol(self), sock=medium_sock)
             log.info("shared medium: %s %s:%d", self.medium.kind, self.medium.address,
                      self.medium.port)
+            self._watch_medium()
         self._started.set()
         log.info("protocol transport bound to %s", self.local_address)
         self._announce_epoch()
+
+    def _watch_medium(self) -> None:
+        if self.medium_watch is None or self._loop is None or self._transport is None:
+            return
+        self.medium_watch.check(self.counters)
+        self._watch_timer = self._loop.call_later(self.medium_watch.period_s,
+                                                  self._watch_medium)
 
     def _resolved(self, addr: tuple[str, int]) -> None:
         self.remote_addr = addr
@@ -243,6 +254,9 @@ class UdpTransport:
         if self._pace_timer is not None:
             self._pace_timer.cancel()
             self._pace_timer = None
+        if self._watch_timer is not None:
+            self._watch_timer.cancel()
+            self._watch_timer = None
         if self._transport is not None:
             self._transport.close()
             self._transport = None
@@ -310,7 +324,7 @@ class UdpTransport:
             return 0
         if self.pacer is None:
             for data in datagrams:
-                transport.sendto(data, target)
+                self._sendto(transport, data, target)
         else:
             now = self._clock()
             if not self.pacer.offer(datagrams, target, now):
@@ -335,7 +349,7 @@ class UdpTransport:
             return
         for data, target in pacer.pop_due(now):
             if transport is not None:
-                transport.sendto(data, target)
+                self._sendto(transport, data, target)
         deadline = pacer.next_due()
         if deadline == self._pace_deadline and self._pace_timer is not None:
             return
@@ -355,9 +369,20 @@ class UdpTransport:
         # as _on_timer: the loop's clock and the fleet clock differ slightly; never early
         self._release_paced(max(now, deadline) if deadline is not None else now)
 
+    def _sendto(self, transport: asyncio.DatagramTransport, data: bytes, target: Address
+                ) -> None:
+        self._sending_to = target  # asyncio reports a failed sendto before it returns
+        try:
+            transport.sendto(data, target)
+        finally:
+            self._sending_to = None
+
     def _on_send_error(self, exc: Exception) -> None:
         self.counters["send_errors"] += 1
         log.debug("UDP error: %s", exc)
+        if self.medium_watch is not None and isinstance(exc, OSError) \
+                and self.medium is not None and self._sending_to == self.medium.target:
+            self.medium_watch.send_failed(exc, self._clock())
 
     # -- receiving -----------------------------------------------------------------------
 
