@@ -37,7 +37,7 @@ from companion.mavlink import MavlinkService, MavlinkSettings
 from companion.mavlink_commands import wildcard_mavlink_warning
 from companion.mission import MissionWindow
 from companion.mission_log import MissionLogWriter, log_problem
-from companion.peers import PeerServices, peer_types_of
+from companion.peers import PeerServices, peer_types_of, peers_setup_problem
 from companion.pipeline import CameraPipeline
 from companion.protocol import (
     CommandReceived,
@@ -136,10 +136,12 @@ class CompanionApp:
         self.publisher = TelemetryPublisher(config.telemetry, telemetry=self.telemetry,
                                             dispatcher=self.dispatcher, mission=self.mission,
                                             clock=clock)
+        spec_peer_types = peer_types_of(load_mission_spec(config))
+        self.peers_problem = peers_setup_problem(config.peers, spec_peer_types)
         self.peers = PeerServices(  # peer table, /peers endpoint, ADSB_VEHICLE (docs/peers.md)
             config.peers, own_id=config.drone_id, clock=clock,
-            peer_types=(peer_types_of(load_mission_spec(config)) if config.peers.medium
-                        else frozenset()), send_mavlink=self.mavlink.send_message,
+            peer_types=spec_peer_types if config.peers.medium else frozenset(),
+            send_mavlink=self.mavlink.send_message,
             send_report=(getattr(self.transport, "send_report_shared", None)
                          if config.peers.medium else None),
             learn=self._learn_heard)
@@ -194,6 +196,8 @@ class CompanionApp:
         exposed = wildcard_mavlink_warning(self.config.mavlink.url)
         if exposed is not None:
             log.warning(exposed)
+        if self.peers_problem is not None:
+            log.warning(self.peers_problem)
         self.mission_log.write({"mission": {"t_start": self.clock()}})
         self.dispatcher.bind(self._stopping)
         try:
@@ -343,6 +347,9 @@ def check_setup(config: CompanionConfig) -> list[str]:
     lines.append(f"scoring: {', '.join(config.scoring.scorers) or 'none'}")
     gs = config.ground_station
     lines.append(f"ground station: {gs.host}:{gs.port} fleet {gs.fleet_id}")
+    unshared = peers_setup_problem(config.peers, peer_types_of(spec))
+    if unshared is not None:
+        lines.append(f"peers: {unshared}")
     problem = missing_keys(config)  # check refuses what run would refuse
     if problem is not None:
         raise AppSetupError(problem)

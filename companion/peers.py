@@ -42,6 +42,7 @@ __all__ = [
     "icao_for",
     "parse_peers_settings",
     "peer_types_of",
+    "peers_setup_problem",
 ]
 
 log = logging.getLogger(__name__)
@@ -323,6 +324,27 @@ class PeerServices:
 
     def stop(self) -> None:
         self._stop.set()
+
+
+def peers_setup_problem(settings: PeersSettings, peer_types: frozenset[str]) -> str | None:
+    """What a ``[peers]`` table without ``medium`` will not do that the config asks for
+    (a spec sharing types with peers, ``http``, ``adsb_rate_hz``); None when nothing is lost.
+    Such a drone ran without a word: its shared types went to the ground only, its ``/peers``
+    stayed empty and it injected no ADSB_VEHICLE."""
+    if settings.medium is not None:
+        return None
+    asked = []
+    if peer_types:
+        asked.append(f"the mission spec shares {', '.join(sorted(peer_types))} with peers "
+                     "(receivers), so they go to the ground station only")
+    if settings.http is not None:
+        asked.append(f"GET /peers on {settings.http} will list no peer")
+    if settings.adsb_rate_hz > 0:
+        asked.append("no peer goes to the autopilot as ADSB_VEHICLE")
+    if not asked:
+        return None
+    return (f"peers.medium is not set: {'; '.join(asked)}; set peers.medium to the fleet's "
+            "shared medium (docs/peers.md)")
 
 
 def peer_types_of(spec: Any) -> frozenset[str]:

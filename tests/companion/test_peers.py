@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import json
 import zlib
+from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
@@ -231,3 +232,30 @@ async def test_a_silent_peer_is_forgotten_without_adsb(caplog: pytest.LogCapture
     assert services.table.snapshot(now[0])["peers"] == []
     assert any("peer d2 forgotten" in r.getMessage() and "peers.forget_after_s" in
                r.getMessage() for r in caplog.records)
+
+
+def test_peer_settings_without_a_medium_are_told(tmp_path: Path) -> None:
+    """A spec sharing types with peers (or peers.http, adsb_rate_hz) without peers.medium ran
+    without a word: its shared types went to the ground only and /peers stayed empty (seen by
+    hand: `uav-companion run` with builtin:peer_sharing and no medium, nothing above INFO)."""
+    from companion.app import check_setup
+    from companion.peers import peers_setup_problem
+    from tests.keys import write_test_keys
+
+    shared = frozenset({"position", "status"})
+    assert peers_setup_problem(PeersSettings(), frozenset()) is None
+    assert peers_setup_problem(PeersSettings(medium="broadcast:10.0.0.255:14700"),
+                               shared) is None
+    problem = peers_setup_problem(PeersSettings(http="127.0.0.1:8091", adsb_rate_hz=1.0),
+                                  shared)
+    assert problem is not None and problem.startswith(
+        "peers.medium is not set: the mission spec shares position, status with peers")
+    assert "GET /peers on 127.0.0.1:8091 will list no peer" in problem
+    assert "ADSB_VEHICLE" in problem
+    keys = write_test_keys(tmp_path / "keys")
+    config = parse_config({"drone": {"id": "d1"}, "mission": {"spec": "builtin:peer_sharing"},
+                           "ground_station": {"fleet_key_file": str(keys / "fleet.key"),
+                                              "command_public_key_file":
+                                                  str(keys / "command.pub")}})
+    assert any(line.startswith("peers: peers.medium is not set")
+               for line in check_setup(config))
