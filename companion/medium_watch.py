@@ -48,8 +48,9 @@ class MediumWatch:
         count = "" if self._failed_told_at is None else f" ({self._failed} times since)"
         self._failed_told_at, self._failed = now, 0
         self.log.warning("peers.medium %s: sending on the shared medium failed (%s)%s: what "
-                         "this drone shares with its peers is lost; %s", self.medium,
-                         exc.strerror or exc, count, _HINT)
+                         "this drone shares with its peers is lost while it fails; the "
+                         "network is down, or %s", self.medium, exc.strerror or exc, count,
+                         _HINT)
 
     def check(self, counters: Mapping[str, int]) -> str:
         """Compare the transport's medium counters with the last check's; returns the state."""
