@@ -186,3 +186,17 @@ def test_any_mavlink_message_can_be_turned_off(tmp_path: Path) -> None:
         with pytest.raises(ConfigError, match="a table of MAVLink message names"):
             load_config(_write(tmp_path, f'[drone]\nid = "d"\n[mavlink.stream_rates_hz]\n'
                                          f'{bad} = 0\n'))
+
+
+def test_example_shows_the_peers_table_with_its_defaults() -> None:
+    """examples/companion.toml had no [peers] table (docs/peers.md's keys had no template:
+    a user following the peer-sharing page by hand wrote it from the doc's snippet)."""
+    import re
+
+    from companion.peers import PeersSettings
+
+    assert load_config(EXAMPLE).peers == PeersSettings()
+    text = EXAMPLE.read_text()
+    section = text[text.index("\n[peers]"):]
+    named = set(re.findall(r"^(?:# )?([a-z_]+) = ", section, re.MULTILINE))
+    assert named == set(PeersSettings.__dataclass_fields__), named
