@@ -46,6 +46,7 @@ from ground_station.keys import (
     TOKEN,
     WEBSOCKETS,
 )
+from ground_station.medium_hint import StatusUnheard
 from ground_station.missions import MissionManager
 from ground_station.receiver import GroundLink
 from ground_station.scene_map import load_scene_map
@@ -353,6 +354,8 @@ def create_app(
                     else app[IMAGE_UTILITY].high_threshold(config.high_utility_fraction))
     app[FLEET] = FleetView(high_utility=high_utility, link_lost_s=config.link_lost_s,
                            clock_tolerance_s=config.clock_tolerance_s)
+    if config.shared_medium is None:  # a fleet sharing status on a medium would be unheard
+        app[FLEET].status_unheard = StatusUnheard()
     scene = load_scene_map(config.scene) if config.scene is not None else None
     if scene is not None:  # the map's frame: east/north metres from the scene's home
         app[FLEET].set_origin(scene["home"]["lat_deg"], scene["home"]["lon_deg"])

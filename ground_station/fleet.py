@@ -26,6 +26,7 @@ from ground_station.drone_state import (
     declared_status_period,
     lost_after_s,
 )
+from ground_station.medium_hint import StatusUnheard
 from utility_specs.data_fields import first_number
 from utility_specs.message import Message
 
@@ -85,6 +86,8 @@ class FleetView:
         self.drops: Counter[str] = Counter()
         self._origin: tuple[float, float] | None = None
         self._new_alerts: list[Alert] = []
+        self.status_unheard: StatusUnheard | None = None
+        """Set when the station hears no shared medium: drones sending no status are told."""
 
     def set_origin(self, lat: float, lon: float) -> None:
         """Local coordinates around this point (the scene's home) instead of the first fix."""
@@ -133,6 +136,8 @@ class FleetView:
     ) -> DroneState:
         """Apply one received message; ``utility`` is given for images."""
         state = self.heard(message.sender, now=now, addr=addr)
+        if self.status_unheard is not None:
+            self.status_unheard.on_message(message.sender, message.type, now)
         t_rcv = message.t_rcv if message.t_rcv is not None else now
         state.messages += 1
         state.bytes_total += message.size
@@ -324,6 +329,8 @@ class FleetView:
     def tick(self, *, now: float) -> dict[str, Any]:
         """Sample the link charts and check for link loss; returns the new series point."""
         self.forget_silent(now=now)
+        for drone, text in self.status_unheard.check(now) if self.status_unheard else ():
+            self.alert(Alert(t=now, level="warning", kind="config", drone=drone, text=text))
         goodput_total = 0.0
         point_drones: dict[str, dict[str, float | None]] = {}
         latencies: list[float] = []
