@@ -354,8 +354,8 @@ def create_app(
                     else app[IMAGE_UTILITY].high_threshold(config.high_utility_fraction))
     app[FLEET] = FleetView(high_utility=high_utility, link_lost_s=config.link_lost_s,
                            clock_tolerance_s=config.clock_tolerance_s)
-    if config.shared_medium is None:  # a fleet sharing status on a medium would be unheard
-        app[FLEET].status_unheard = StatusUnheard()
+    # a fleet sharing its status on a medium the station does not hear: told, not silent
+    app[FLEET].status_unheard = StatusUnheard(medium=config.shared_medium)
     scene = load_scene_map(config.scene) if config.scene is not None else None
     if scene is not None:  # the map's frame: east/north metres from the scene's home
         app[FLEET].set_origin(scene["home"]["lat_deg"], scene["home"]["lon_deg"])

@@ -87,7 +87,7 @@ class FleetView:
         self._origin: tuple[float, float] | None = None
         self._new_alerts: list[Alert] = []
         self.status_unheard: StatusUnheard | None = None
-        """Set when the station hears no shared medium: drones sending no status are told."""
+        """Set by the app: a drone heard 30 s without a status is told (a medium unheard)."""
 
     def set_origin(self, lat: float, lon: float) -> None:
         """Local coordinates around this point (the scene's home) instead of the first fix."""

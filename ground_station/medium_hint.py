@@ -1,4 +1,4 @@
-"""A station without ``shared_medium`` whose drones share their status on a medium.
+"""A station that does not hear the medium its drones share their status on.
 
 Seen on a netns fleet (docs/peers.md, by hand): three drones on ``peers.medium`` with the
 spec ``peer_sharing`` (position and status to ``["ground", "peers"]``: sent once, on the
@@ -24,7 +24,9 @@ one every ``telemetry.status_period_s``, 1 s by default)."""
 class StatusUnheard:
     """Per drone: the first message's time, until its first status; one WARNING per drone."""
 
-    def __init__(self, *, after_s: float = UNHEARD_AFTER_S) -> None:
+    def __init__(self, *, medium: str | None = None, after_s: float = UNHEARD_AFTER_S) -> None:
+        self.medium = medium
+        """The station's ``shared_medium`` (None: it hears none)."""
         self.after_s = after_s
         self._first: dict[str, float] = {}
         self._done: set[str] = set()
@@ -44,10 +46,12 @@ class StatusUnheard:
         for drone, first in list(self._first.items()):
             if now - first < self.after_s:
                 continue
+            ours = ("" if self.medium is None else f" (this station's is {self.medium!r}: "
+                    "not the one the drone sends on?)")
             text = (f"{now - first:.0f} s of messages from {drone} and no status: a fleet that "
                     "shares status with its peers sends it on the shared medium only; set "
-                    "shared_medium to the drones' peers.medium (docs/peers.md), or give the "
-                    "mission spec a status type")
+                    f"shared_medium to the drones' peers.medium{ours} (docs/peers.md), or give "
+                    "the mission spec a status type")
             log.warning(text)
             told.append((drone, text))
             self._done.add(drone)

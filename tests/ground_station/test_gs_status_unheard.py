@@ -37,7 +37,18 @@ def test_a_drone_without_status_is_told_once(caplog: pytest.LogCaptureFixture) -
     assert len(warnings) == 1 and "d1" in warnings[0].getMessage()
 
 
-def test_only_a_station_without_a_medium_looks(tmp_path: object) -> None:
+def test_a_station_on_another_medium_says_which_it_hears() -> None:
+    """A station with a shared_medium other than the drones' (seen: broadcast port 14700
+    while the drones used multicast) showed the same dashboard and said nothing either."""
+    watch = StatusUnheard(medium="broadcast:10.77.0.255:14700", after_s=30.0)
+    watch.on_message("d1", "image", 0.0)
+    [(drone, text)] = watch.check(31.0)
+    assert drone == "d1"
+    assert "this station's is 'broadcast:10.77.0.255:14700': not the one the drone sends on?" \
+        in text
+
+
+def test_every_station_looks(tmp_path: object) -> None:
     from pathlib import Path
 
     from ground_station.app import create_app
@@ -53,4 +64,5 @@ def test_only_a_station_without_a_medium_looks(tmp_path: object) -> None:
     on_medium = create_app(base.with_overrides(
         shared_medium="broadcast:127.255.255.255:14799", data_dir=tmp_path / "gs2"),
         token="t" * 24)
-    assert on_medium[FLEET].status_unheard is None
+    assert on_medium[FLEET].status_unheard is not None
+    assert on_medium[FLEET].status_unheard.medium == "broadcast:127.255.255.255:14799"
