@@ -40,6 +40,20 @@ class MediumWatch:
         self._last: dict[str, int] = {}
         self._failed = 0
         self._failed_told_at: float | None = None
+        self._twins: set[tuple[str, int]] = set()
+
+    def own_id_heard(self, addr: tuple[str, int], own_port: int) -> None:
+        """A datagram with this drone's sender id from ``addr``: our echo comes from our own
+        port; another port is another fleet member with our ``drone.id`` (a copied config).
+        Seen: peers then mixed the two (the real drone's position aged 19 s at its peers, its
+        status flipped) and the station dropped 246 datagrams as replayed, with no word why."""
+        if addr[1] == own_port or addr in self._twins or len(self._twins) >= 8:
+            return
+        self._twins.add(addr)
+        self.log.warning("drone.id: another fleet member at %s:%d sends with this drone's id "
+                         "on the shared medium (peers.medium %s): its peers and the ground "
+                         "station mix the two and drop their datagrams as replays; give "
+                         "every drone its own drone.id", addr[0], addr[1], self.medium)
 
     def send_failed(self, exc: OSError, now: float) -> None:
         self._failed += 1

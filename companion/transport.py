@@ -55,18 +55,9 @@ Clock = Callable[[], float]
 """Fleet clock: Unix seconds (``time.time`` in production)."""
 
 SEND_COUNTERS = (
-    "datagrams_sent",
-    "bytes_sent",
-    "messages_sent",
-    "send_errors",
-    "send_dropped_buffer_full",
-    "send_not_ready",
-    "events_dropped",
-    "medium_sent",
-    "medium_received",
-    "medium_own_echo",
-    "medium_reports_sent",
-    "send_dropped_pacer_full",
+    "datagrams_sent", "bytes_sent", "messages_sent", "send_errors", "send_dropped_buffer_full",
+    "send_not_ready", "events_dropped", "medium_sent", "medium_received", "medium_own_echo",
+    "medium_reports_sent", "send_dropped_pacer_full",
 )
 
 
@@ -84,6 +75,8 @@ class _MediumProtocol(asyncio.DatagramProtocol):
         owner = self._owner
         if sender_id(data) == owner.encoder.sender:  # our own datagram, looped back
             owner.counters["medium_own_echo"] += 1
+            if owner.medium_watch is not None and owner._transport is not None:  # or a twin's
+                owner.medium_watch.own_id_heard(addr, owner.local_address[1])
             return
         owner.counters["medium_received"] += 1
         owner._on_datagram(data, addr)

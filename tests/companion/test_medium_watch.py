@@ -101,3 +101,46 @@ async def test_the_transport_tells_a_medium_send_that_failed(caplog: pytest.LogC
         t._transport = real
     finally:
         t._close()
+
+
+async def test_another_member_with_our_id_is_told(caplog: pytest.LogCaptureFixture) -> None:
+    """Seen on a netns fleet: a second drone with a copied config (drone.id = "drone1") made
+    the real drone1's position age 19 s at its peers, flipped its status there, and the
+    station dropped 246 datagrams as replayed; no log said why."""
+    import asyncio
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    medium = parse_medium(f"broadcast:127.255.255.255:{port}")
+
+    def drone() -> UdpTransport:
+        return UdpTransport(encoder=Encoder(1, "drone1", TEST_FLEET_KEY),
+                            decoder=Decoder(1, TEST_FLEET_KEY, local_id="drone1"),
+                            remote_addr=("127.0.0.1", 9), local_addr=("127.0.0.1", 0),
+                            medium=medium)
+
+    real, twin = drone(), drone()
+    await real.start()
+    try:
+        position = Message(sender="drone1", seq=1, type="position", t_gen=time.time(),
+                           size=20, data={"lat_deg": 47.0, "lon_deg": 8.0})
+        real.send_message(position, b"", shared=True)  # its own echo: not a twin
+        async with asyncio.timeout(5):
+            while real.counters["medium_own_echo"] < 1:
+                await asyncio.sleep(0.01)
+        assert not warnings(caplog)
+        await twin.start()
+        for _ in range(3):
+            twin.send_message(position, b"", shared=True)
+        async with asyncio.timeout(5):
+            while real.counters["medium_own_echo"] < 4:
+                await asyncio.sleep(0.01)
+        told = [w for w in warnings(caplog) if w.startswith("drone.id: another fleet member")]
+        twin_port = twin.local_address[1]
+        assert len(told) == 1  # three datagrams from the twin, told once
+        assert any(f"127.0.0.1:{twin_port} sends with this drone's id" in w for w in told)
+    finally:
+        real._close()
+        twin._close()
