@@ -219,6 +219,10 @@ def _check(args: argparse.Namespace) -> int:
     if unresolved is not None:  # `run` would send nothing until it resolves
         print(f"ground station: {unresolved}")
         failures += 1
+    if config.peers.medium is not None:  # `run` would stop at once: say so before the flight
+        line, ok = _probe_medium(config.peers.medium)
+        print(line)
+        failures += not ok
     snapshot = None
     if not args.skip_mavlink:
         snapshot, lines, ok = _probe_mavlink(config, args.timeout)
@@ -232,6 +236,27 @@ def _check(args: argparse.Namespace) -> int:
             print(line)
     print("check: ok" if failures == 0 else f"check: {failures} problem(s)")
     return 0 if failures == 0 else 1
+
+
+def _probe_medium(text: str) -> tuple[str, bool]:
+    """Open the shared medium's sockets as ``run`` does and close them again."""
+    import socket
+
+    from companion.medium import (
+        medium_problem,
+        open_medium_socket,
+        parse_medium,
+        prepare_medium_sender,
+    )
+
+    medium = parse_medium(text)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+        try:
+            prepare_medium_sender(sender, medium)
+            open_medium_socket(medium).close()
+        except OSError as exc:
+            return f"peers: {medium_problem(exc, medium, 'peers.medium')}", False
+    return f"peers: shared medium {medium} opened", True
 
 
 def _probe_mavlink(config: Any, timeout_s: float) -> tuple[Any, list[str], bool]:

@@ -90,3 +90,30 @@ def test_run_prints_one_line_and_no_traceback(tmp_path: Path) -> None:
     records = [json.loads(line) for line in lines if line.startswith("{")]
     errors = [r for r in records if r["level"] == "error"]
     assert len(errors) == 1 and "exc" not in errors[0], errors
+
+
+def test_check_opens_the_medium(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`uav-companion check` said `check: ok` for a medium `run` could not open (seen: a
+    multicast interface address not the drone's; `run` then stopped at once)."""
+    from companion.cli import main
+
+    write_test_keys(tmp_path / "keys")
+    base = ('[drone]\nid = "d1"\n[camera]\nenabled = false\n'
+            '[ground_station]\nfleet_key_file = "keys/fleet.key"\n'
+            'command_public_key_file = "keys/command.pub"\n')
+    bad = tmp_path / "bad.toml"
+    bad.write_text(base + f'[peers]\nmedium = "multicast:239.255.42.99:14799:{NOT_OURS}"\n')
+    assert main(["check", "--config", str(bad), "--skip-mavlink"]) == 1
+    out = capsys.readouterr().out.splitlines()
+    assert out[-1] == "check: 1 problem(s)"
+    assert any(line.startswith("peers: peers.medium multicast:239.255.42.99:14799:") and
+               f"{NOT_OURS} is not an address of this computer" in line for line in out), out
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    good = tmp_path / "good.toml"
+    good.write_text(base + f'[peers]\nmedium = "broadcast:127.255.255.255:{port}"\n')
+    assert main(["check", "--config", str(good), "--skip-mavlink"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert f"peers: shared medium broadcast:127.255.255.255:{port} opened" in out
+    assert out[-1] == "check: ok"
