@@ -51,11 +51,11 @@ ADSB_ALTITUDE_TYPE_GEOMETRIC = 1
 """The altitude is from GNSS (AMSL), not a pressure altitude."""
 ADSB_EMITTER_TYPE_UAV = 14
 MAX_PEERS = 256
+"""Peers kept; a new one beyond this evicts the least recently heard."""
 MAX_FUTURE_S = 2.0
 """A message's ``t_gen`` counts as at most this far ahead of our clock (GPS/NTP-synced fleet
 clocks differ by milliseconds): a forged far-future time no longer freezes a peer's position
 (every true one after it was ``older_position``) for longer than this."""
-"""Peers kept; a new one beyond this evicts the least recently heard."""
 MAX_STATUS_PEERS = 32
 """Peers whose ages a status message carries at most (the most recently heard)."""
 _CALLSIGN_DROP = re.compile(r"[^A-Z0-9]")
