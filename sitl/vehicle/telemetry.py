@@ -171,8 +171,11 @@ class Telemetry:
             0, 0, 0, 0, 0, 0)
 
     def system_time(self, now: float) -> Any:
+        # ArduCopter 4.5 SITL (measured 2026-12-04): time_unix_usec 0 until its GPS has the
+        # time, then UTC (3.2 s behind the host's clock there). PX4 sends its own clock.
+        unknown = self.flavour.name != "px4" and not self.fc.gps_has_fix
         return mavlink.MAVLink_system_time_message(
-            int((self.boot_unix_s + now) * 1e6), self.boot_ms(now))
+            0 if unknown else int((self.boot_unix_s + now) * 1e6), self.boot_ms(now))
 
     def gps_raw_int(self, now: float) -> Any:
         if not self.fc.gps_has_fix:
