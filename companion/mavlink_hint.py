@@ -14,6 +14,12 @@ from pathlib import Path
 __all__ = ["other_openers", "sharing_hint", "silence_hint", "udp_listeners"]
 
 
+UNPARSABLE_MIN = 3
+"""Unparsable chunks that make a silent line a baud problem: a wrong baud rate brings them
+steadily, while a frame torn by a reboot or a pulled cable is one (ArduCopter 4.5 SITL sent
+6 unparsable bytes on its UART 1.2 s after MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, measured)."""
+
+
 def silence_hint(url: str, *, own_socket_open: bool = False, unparsable: int = 0,
                  baud: int | None = None) -> str:
     """What usually explains an open link that stays silent. ``own_socket_open``: our socket
@@ -41,7 +47,7 @@ def silence_hint(url: str, *, own_socket_open: bool = False, unparsable: int = 0
     shared = sharing_hint(url)
     if shared is not None:
         return shared
-    if unparsable:
+    if unparsable >= UNPARSABLE_MIN:
         rate = url.partition(",")[2] or baud or "the configured rate"
         return (f"bytes arrive but no MAVLink frame parses ({unparsable} unparsable): the baud "
                 f"rate ({rate}) differs from the autopilot's (SERIALn_BAUD on ArduPilot, "

@@ -87,6 +87,8 @@ class MavlinkReader:
         """Why the last attempt to open the link failed, in plain words (None: it opened)."""
         self._silent = False
         """Reopening a link that never brought a HEARTBEAT: said once, not per reopening."""
+        self._t_lost: float | None = None
+        """When the autopilot's link was lost (None: up, or never heard)."""
         self.counters: dict[str, int] = {
             "connects": 0, "connect_errors": 0, "heartbeat_losses": 0, "messages": 0,
             "samples": 0, "bad_messages": 0, "stream_requests": 0, "stream_fallbacks": 0,
@@ -120,6 +122,7 @@ class MavlinkReader:
         self._converter = MavlinkConverter()
         self._connected = False
         self._t_opened = 0.0
+        self._unparsable = 0  # BAD_DATA since this opening (for the silence hint)
         self._t_last_heartbeat: float | None = None
         self._t_last_look: float | None = None
         self._forgave = False
@@ -213,6 +216,7 @@ class MavlinkReader:
         self.counters["messages"] += 1
         if msg.get_type() == "BAD_DATA":
             self.counters["bad_messages"] += 1
+            self._unparsable += 1
             return
         if self._connected and (msg.get_srcSystem(), msg.get_srcComponent()) == (
                 self._converter.target_system, self._converter.target_component):
@@ -229,10 +233,12 @@ class MavlinkReader:
             self._t_last_heartbeat, self._forgave = now, False
             if not self._connected:
                 self._connected = True
-                if self._silent:
-                    self._silent = False
-                    log.info("mavlink: HEARTBEAT from system %d on %s", sample.system_id,
-                             self.settings.url)
+                self._silent = False
+                # each time: after a loss the journal's last word was "link lost"
+                back = "" if self._t_lost is None else f": back after {now - self._t_lost:.1f} s"
+                self._t_lost = None
+                log.info("mavlink: HEARTBEAT from system %d on %s%s", sample.system_id,
+                         self.settings.url, back)
                 self._emit(LinkStateSample(t=now, connected=True,
                                            reason=f"heartbeat from system {sample.system_id}"))
                 self._request_streams(conn, now)
@@ -309,7 +315,7 @@ class MavlinkReader:
                      "autopilot HEARTBEAT arrives (%s)", reason, self.settings.url,
                      self.settings.heartbeat_timeout_s + self.settings.reconnect_delay_s,
                      silence_hint(self.settings.url, own_socket_open=True,
-                                  unparsable=self.counters["bad_messages"],
+                                  unparsable=self._unparsable,
                                   baud=self.settings.baud))
         self._fail_pending(f"link lost: {reason}")
         with contextlib.suppress(OSError):
