@@ -133,6 +133,14 @@ def describe_command(command: Command) -> str:
     return type(command).__name__
 
 
+def unconfirmed(command: Command) -> str:
+    """Why ``command`` failed when nothing answered it in time."""
+    if isinstance(command, ParamReadCommand):  # ArduCopter 4.5 SITL: no answer, measured
+        return (f"read parameter {command.name}: no PARAM_VALUE within {command.timeout_s} s "
+                "(the autopilot has no such parameter: it answers an unknown name with nothing)")
+    return f"{describe_command(command)}: not confirmed by HEARTBEAT within {command.timeout_s} s"
+
+
 def fail_command(command: Command, text: str) -> None:
     if not command.future.done():
         command.future.set_exception(CommandError(text))

@@ -24,6 +24,7 @@ from companion.mavlink_commands import (
     describe_command,
     describe_connect_error,
     fail_command,
+    unconfirmed,
 )
 from companion.mavlink_connect import default_connect as _default_connect
 from companion.mavlink_convert import (
@@ -298,16 +299,15 @@ class MavlinkReader:
                 self._request_data_stream(conn)
         for pending in [p for p in self._pending if now >= p.deadline]:
             self._pending.remove(pending)
-            fail_command(pending.command,
-                         f"{describe_command(pending.command)}: not confirmed by HEARTBEAT "
-                         f"within {pending.command.timeout_s} s")
+            fail_command(pending.command, unconfirmed(pending.command))
         return conn
 
     def _lose(self, conn: Any, reason: str) -> None:
         """Close the connection; ``_main`` reopens it after ``reconnect_delay_s``."""
         if self._connected:
             self.counters["heartbeat_losses"] += 1
-            self._emit(LinkStateSample(t=self._clock(), connected=False, reason=reason))
+            self._t_lost = self._clock()
+            self._emit(LinkStateSample(t=self._t_lost, connected=False, reason=reason))
             log.warning("mavlink link lost: %s", reason)
         elif not self._silent:  # never heard: close and reopen (serial re-enumeration, ...)
             self._silent = True

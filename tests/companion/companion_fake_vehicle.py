@@ -183,7 +183,9 @@ class FakeVehicle:
                 self.rates_hz = {i: float(msg.req_message_rate) for i in STREAM_IDS}
         elif kind == "PARAM_REQUEST_READ":
             name = msg.param_id
-            value, ptype = self.params.get(name, (0.0, mav.MAV_PARAM_TYPE_REAL32))
+            if name not in self.params:  # ArduCopter 4.5 SITL answers an unknown name with
+                return  # nothing (measured), as does PX4 since v1.14
+            value, ptype = self.params[name]
             if self.autopilot == "px4" and ptype == mav.MAV_PARAM_TYPE_INT32:
                 value = struct.unpack("<f", struct.pack("<i", int(value)))[0]
             self.send(mav.MAVLink_param_value_message(name.encode(), value, ptype,

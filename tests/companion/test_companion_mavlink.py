@@ -232,6 +232,22 @@ def test_px4_streams_unasked_and_int_params_decode(
     assert recorder.state.snapshot().params["MAV_SYS_ID"] == 1
 
 
+def test_an_unknown_parameter_is_a_read_that_nobody_answers(
+        vehicle: FakeVehicle, recorder: Recorder, started: list[MavlinkReader]) -> None:
+    """ArduCopter 4.5 SITL does not answer PARAM_REQUEST_READ for a name it lacks; the error
+    said "not confirmed by HEARTBEAT", as if a HEARTBEAT could confirm a parameter."""
+    reader = _reader(vehicle.port, recorder)
+    started.append(reader)
+    reader.start()
+    assert recorder.wait(lambda: recorder.state.snapshot().connected)
+    with pytest.raises(CommandError) as err:
+        reader.submit(ParamReadCommand(name="NO_SUCH_PARAM", timeout_s=0.5)).result(5)
+    assert str(err.value) == (
+        "read parameter NO_SUCH_PARAM: no PARAM_VALUE within 0.5 s (the autopilot has no "
+        "such parameter: it answers an unknown name with nothing)")
+    assert reader.submit(ParamReadCommand(name="SYSID_THISMAV")).result(5) == 1
+
+
 def test_heartbeat_loss_and_reconnect_without_restart(
         recorder: Recorder, started: list[MavlinkReader]) -> None:
     vehicle = FakeVehicle(autopilot="ardupilot").start()
