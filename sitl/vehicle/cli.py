@@ -106,10 +106,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    help="NAME=VALUE parameter override (repeatable)")
     p.add_argument("--wind", type=float, nargs=2, metavar=("SPEED", "FROM_DEG"),
                    default=None, help="mean wind speed (m/s) and direction it blows from")
-    p.add_argument("--reboot-s", type=float, default=4.0, metavar="S",
+    p.add_argument("--reboot-s", type=float, default=None, metavar="S",
                    help="wall seconds MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN keeps the vehicle silent"
-                        " before it boots again (default 4; ArduCopter 4.5 SITL: 2.1, shorter"
-                        " than a client's 3 s heartbeat timeout)")
+                        " before it boots again (default: ardupilot 2.1, as ArduCopter 4.5 SITL"
+                        " measured, shorter than a client's 3 s heartbeat timeout; px4 4)")
     p.add_argument("--duration", type=float, default=None,
                    help="stop after S wall seconds (default: run until stopped)")
     p.add_argument("--seed", type=int, default=0, help="seed of the GPS noise")
@@ -153,7 +153,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             p.error(f"{flag} must be a finite number > 0, got {value}")
     if args.alt is not None and not math.isfinite(args.alt):
         p.error(f"--alt must be a finite number of metres, got {args.alt}")
-    if not 0 <= args.reboot_s < 1e6:
+    if args.reboot_s is not None and not 0 <= args.reboot_s < 1e6:
         p.error(f"--reboot-s must be a number of seconds >= 0, got {args.reboot_s}")
     if args.duration is not None and not args.duration >= 0:
         p.error(f"--duration must be a number of seconds >= 0, got {args.duration}")
@@ -177,7 +177,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 def build_configs(args: argparse.Namespace) -> list[VehicleConfig]:
     """One VehicleConfig per vehicle: homes 4 m apart eastwards, patterns split the area."""
     from sitl.scenes import load_scene
-    from sitl.vehicle.core import VehicleConfig
+    from sitl.vehicle.core import ARDUPILOT_REBOOT_S, VehicleConfig
     from sitl.vehicle.flavour import FLAVOURS
     from sitl.vehicle.patterns import load_waypoints, orbit, survey
 
@@ -215,13 +215,15 @@ def build_configs(args: argparse.Namespace) -> list[VehicleConfig]:
                 mission = load_waypoints(Path(args.pattern[1]), home=home, default_alt_m=alt,
                                          item0_is_home=ap)
         fix = {} if args.first_fix is None else {"first_fix_s": args.first_fix}
+        reboot_s = args.reboot_s if args.reboot_s is not None else \
+            ARDUPILOT_REBOOT_S if ap else 4.0
         # GPS time is UTC, as a real autopilot's (SYSTEM_TIME): the host's clock at start,
         # then the simulated time (at --speedup 1, the host's clock). A fixed 2023 epoch made
         # every companion's clock look 3 years off the autopilot's GPS time.
         configs.append(VehicleConfig(system_id=args.sysid + i, flavour=flavour, home=home,
                                      params=params, mission=tuple(mission),
                                      seed=args.seed + i, autostart=args.autostart,
-                                     reboot_s=args.reboot_s, boot_unix_s=time.time(), **fix))
+                                     reboot_s=reboot_s, boot_unix_s=time.time(), **fix))
     return configs
 
 

@@ -51,7 +51,8 @@ from sitl.vehicle.stream_tables import (
 from sitl.vehicle.telemetry import Telemetry
 from sitl.vehicle.traffic import TrafficAwareness
 
-__all__ = ["DEFAULT_FIRST_FIX_S", "DEFAULT_HOME", "VehicleConfig", "VehicleCore"]
+__all__ = ["ARDUPILOT_REBOOT_S", "DEFAULT_FIRST_FIX_S", "DEFAULT_HOME", "VehicleConfig",
+           "VehicleCore"]
 
 DEFAULT_HOME = GeoPoint(lat_deg=47.397742, lon_deg=8.545594, alt_m=488.0)
 
@@ -59,6 +60,10 @@ DEFAULT_HOME = GeoPoint(lat_deg=47.397742, lon_deg=8.545594, alt_m=488.0)
 DEFAULT_FIRST_FIX_S = 15.0
 """ArduCopter 4.5 SITL (measured): EKF origin 18.5 s, a usable EKF position 41.5 s after
 start; kept shorter so demos fly sooner. PX4 SIH: not measured."""
+
+ARDUPILOT_REBOOT_S = 2.1
+"""ArduCopter 4.5 SITL, MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN's ACK to the next HEARTBEAT: 2.1 s
+on TCP and on a UART (2026-12-04: 2.14 s), within a client's 3 s heartbeat timeout."""
 
 CONTROL_PERIOD_S = 0.1
 TRAFFIC_PERIOD_S = 1.0
@@ -100,7 +105,8 @@ class VehicleConfig:
     """Arm and start the preloaded mission as soon as the vehicle can arm (after the fix);
     at the first boot only (a rebooted autopilot waits on the ground)."""
     reboot_s: float = 4.0
-    """Wall seconds a reboot (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN) keeps the vehicle silent."""
+    """Wall seconds a reboot (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN) keeps the vehicle silent
+    (``uav-sitl vehicle`` gives the ArduPilot flavour ``ARDUPILOT_REBOOT_S``)."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.system_id <= 255:

@@ -68,3 +68,18 @@ def test_px4_accepts_a_no_op_and_denies_a_reboot_while_armed(make_gcs):
     assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
     assert gcs.command(REBOOT, 1).result == M.MAV_RESULT_DENIED
     assert gcs.core.rebooting_until is None
+
+
+def test_the_cli_reboots_ardupilot_as_fast_as_arducopter_sitl() -> None:
+    """ArduCopter 4.5 SITL sent its next HEARTBEAT 2.1 s after the reboot's ACK (TCP and
+    UART, measured): within a companion's 3 s heartbeat timeout, so the link never looks lost.
+    ``uav-sitl vehicle`` kept the ArduPilot flavour silent 4 s, past that timeout: a companion
+    tested against it always saw a lost link, never the reboot it must notice by itself."""
+    from sitl.vehicle.cli import build_configs, parse_args
+
+    (ardupilot,) = build_configs(parse_args(["--flavour", "ardupilot"]))
+    assert ardupilot.reboot_s == 2.1
+    (px4,) = build_configs(parse_args(["--flavour", "px4"]))
+    assert px4.reboot_s == 4.0  # PX4 SITL denies the reboot: nothing measured
+    (chosen,) = build_configs(parse_args(["--flavour", "ardupilot", "--reboot-s", "5"]))
+    assert chosen.reboot_s == 5.0
