@@ -25,7 +25,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shlex
 import signal
 import socket
 import sqlite3
@@ -42,6 +41,7 @@ import pytest
 from test_companion_system import FLEET, KEY, _write_config  # type: ignore[import-not-found]
 
 from tests.autopilot_checks import AP_GUIDED, AP_LAND, PX4_HOLD, PX4_LAND, Autopilot, m
+from tests.autopilot_process import AutopilotProcess, from_environment
 from tests.companion_process import start_companion, stop_companion
 from tests.keys import write_test_keys
 
@@ -63,36 +63,6 @@ def _free_port(kind: int) -> int:
 
 
 # --------------------------------------------------------------------- autopilots under test
-
-
-@dataclass
-class AutopilotProcess:
-    """An autopilot the test starts, kills and starts again (same ports)."""
-
-    argv: list[str]
-    log: Path
-    proc: subprocess.Popen[bytes] | None = None
-
-    def start(self) -> None:
-        with self.log.open("ab") as out:
-            self.proc = subprocess.Popen(self.argv, stdout=out, stderr=subprocess.STDOUT,
-                                         start_new_session=True)
-
-    def stop(self) -> None:
-        if self.proc is None:
-            return
-        with _suppress_lookup():
-            os.killpg(self.proc.pid, signal.SIGKILL)
-        self.proc.wait(10)
-        self.proc = None
-
-
-class _suppress_lookup:
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, kind: type[BaseException] | None, *_: object) -> bool:
-        return kind is ProcessLookupError
 
 
 @dataclass
@@ -120,13 +90,12 @@ def _builtin(flavour: str, tmp_path: Path) -> Target:
 
 def _from_environment(tmp_path: Path) -> Target:
     url = os.environ.get("UAV_TEST_MAVLINK_URL", "")
-    cmd = os.environ.get("UAV_TEST_AUTOPILOT_CMD", "")
     if not url:
         pytest.skip("no real autopilot configured: set UAV_TEST_MAVLINK_URL (e.g. "
                     "udpin:127.0.0.1:14550 or tcp:127.0.0.1:5762) to a running ArduPilot/PX4 "
                     "SITL, optionally UAV_TEST_AUTOPILOT_CMD to let the test start and restart "
                     "it; see docs/companion.md")
-    process = AutopilotProcess(shlex.split(cmd), tmp_path / "autopilot.log") if cmd else None
+    process = from_environment(tmp_path / "autopilot.log")
     return Target(companion_url=url, gcs_url=os.environ.get("UAV_TEST_MAVLINK_GCS_URL", url),
                   process=process)
 

@@ -3,16 +3,21 @@
 mode confirmed by HEARTBEAT, arm, takeoff, climb, mission progress, landing.
 
 Run against a real SITL too: ``UAV_TEST_MAVLINK_URL=udpin:0.0.0.0:14550 pytest
-tests/sitl/test_sitl_vehicle_conformance.py`` (docs/companion.md, "Testing against a real
-autopilot")."""
+tests/sitl/test_sitl_vehicle_conformance.py``, with ``UAV_TEST_AUTOPILOT_CMD`` to have the
+test start (and kill) it (docs/companion.md, "Testing against a real autopilot")."""
 
 from __future__ import annotations
 
 import os
+import shlex
+import socket
+import sys
+from pathlib import Path
 
 import pytest
 
 from tests.autopilot_checks import run_all_checks
+from tests.autopilot_process import from_environment
 
 
 @pytest.mark.timeout(120)
@@ -36,7 +41,38 @@ def test_builtin_vehicle_passes_the_real_autopilot_checks(vehicle_process, flavo
 @pytest.mark.skipif(not os.environ.get("UAV_TEST_MAVLINK_URL"),
                     reason="set UAV_TEST_MAVLINK_URL (e.g. udpin:0.0.0.0:14550) to run the same "
                            "checks against a real ArduPilot/PX4 SITL; see docs/companion.md")
-def test_real_autopilot_passes_the_checks():
-    # The checks are a GCS: they fly on the GCS link when one is named. ArduPilot SITL opens
-    # its second serial port (the companion's) only once a client is on the first.
-    run_all_checks(os.environ.get("UAV_TEST_MAVLINK_GCS_URL") or os.environ["UAV_TEST_MAVLINK_URL"])
+def test_real_autopilot_passes_the_checks(tmp_path: Path) -> None:
+    # With UAV_TEST_AUTOPILOT_CMD the checks start their own, fresh, autopilot and kill it
+    # after, as test_real_autopilot.py does (they ran against nothing: the real-autopilot
+    # test had killed its SITL, and the first read raised ConnectionRefusedError).
+    process = from_environment(tmp_path / "autopilot.log")
+    if process is not None:
+        process.start()
+    try:
+        # The checks are a GCS: they fly on the GCS link when one is named. ArduPilot SITL
+        # opens its second serial port (the companion's) only once a client is on the first.
+        run_all_checks(os.environ.get("UAV_TEST_MAVLINK_GCS_URL")
+                       or os.environ["UAV_TEST_MAVLINK_URL"])
+    finally:
+        if process is not None:
+            process.stop()
+
+
+@pytest.mark.timeout(120)
+def test_the_real_checks_start_the_autopilot_command_they_are_given(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # UAV_TEST_AUTOPILOT_CMD set to the built-in vehicle, so it runs in the default suite
+    port = _free_udp_port()
+    monkeypatch.setenv("UAV_TEST_AUTOPILOT_CMD", shlex.join([
+        sys.executable, "-m", "sitl.cli", "vehicle", "--port", str(port), "--flavour",
+        "ardupilot", "--speedup", "10", "--first-fix", "20"]))
+    monkeypatch.setenv("UAV_TEST_MAVLINK_URL", f"udpout:127.0.0.1:{port}")
+    monkeypatch.delenv("UAV_TEST_MAVLINK_GCS_URL", raising=False)
+    test_real_autopilot_passes_the_checks(tmp_path)
+    assert "READY" in (tmp_path / "autopilot.log").read_text()
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
