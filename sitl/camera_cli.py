@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 from companion.cli_help import DefaultsRawFormatter
+from sitl.argv import attach_negative_values
 
 __all__ = ["MAX_SIDE", "main"]
 
@@ -66,7 +67,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--t", type=float, default=0.0, help="scene time (s) for lighting")
     p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise")
     p.add_argument("--texture", action="store_true", help="also write the ground texture")
-    args = p.parse_args(argv)
+    args = p.parse_args(attach_negative_values(argv, ("--pose",)))
     if not 0 <= args.noise < math.inf:
         p.error(f"--noise must be a finite std >= 0, got {args.noise}")
     if args.mount_pitch is not None and not -180 <= args.mount_pitch <= 180:

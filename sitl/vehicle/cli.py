@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 
 from companion.cli_help import DefaultsRawFormatter
 from companion.stop_signals import EarlyStop
+from sitl.argv import attach_negative_values
 from sitl.geo import Enu, GeoPoint, geo_from_enu
 
 if TYPE_CHECKING:  # pymavlink is imported only after MAVLINK20 is set in main()
@@ -126,7 +127,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--baud", type=int, default=115200,
                    help="with --serial: line rate in bit/s; the vehicle sends at most baud/10"
                         " bytes per second like a real UART (default 115200)")
-    args = p.parse_args(argv)
+    args = p.parse_args(attach_negative_values(argv, ("--home",)))
     if args.count < 1 or args.count > 250:
         p.error("--count must be in 1..250")
     if args.first_fix is not None and not (0.0 <= args.first_fix < 1e6):

@@ -44,3 +44,16 @@ def test_camera_numbers(argv: list[str], message: str, tmp_path: Path,
     assert exit_.value.code == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "f").exists()
+
+
+def test_a_southern_home_and_a_western_pose_are_values_not_options(tmp_path: Path) -> None:
+    """``uav-sitl vehicle --home -35.362361,149.165230,584`` (beside ArduCopter SITL's default
+    home, Canberra) failed with "argument --home: expected one argument": argparse took the
+    value for an option. So did a camera pose west or south of the scene's origin."""
+    args = parse_args(["--home", "-35.362361,149.165230,584", "--flavour", "ardupilot"])
+    assert (args.home.lat_deg, args.home.lon_deg, args.home.alt_m) == (-35.362361, 149.16523,
+                                                                      584.0)
+    assert parse_args(["--home", "47.3,-122.3"]).home.lon_deg == -122.3
+    assert camera_cli.main(["--pose", "-20,-30,30", "--size", "64x48", "--out",
+                            str(tmp_path / "f")]) == 0
+    assert len(list((tmp_path / "f").iterdir())) == 1
