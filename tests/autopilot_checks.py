@@ -66,6 +66,18 @@ class Autopilot:
                            ardupilot=hb.autopilot == m.MAV_AUTOPILOT_ARDUPILOTMEGA)
         raise AssertionError(f"no autopilot HEARTBEAT on {url} within {timeout_s} s")
 
+    def close(self) -> None:
+        """Close the link. ArduPilot SITL's TCP ports take one client at a time: a link left
+        to the garbage collector (pymavlink's objects form a cycle) kept port 5760 taken, and
+        the next client's connection waited unaccepted, without a byte, until it gave up."""
+        self.conn.close()
+
+    def __enter__(self) -> Autopilot:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.close()
+
     # ------------------------------------------------------------------------ primitives
 
     def sent_it(self, msg: Any) -> bool:
@@ -350,13 +362,13 @@ def check_land(ap: Autopilot) -> None:
 
 def run_all_checks(url: str, *, alt_m: float = 10.0, north_m: float = 30.0) -> Autopilot:
     """Every check in flight order, against the autopilot at ``url``."""
-    ap = Autopilot.connect(url)
-    check_heartbeat(ap)
-    check_streams(ap)
-    check_first_fix_and_home(ap)
-    check_parameters(ap)
-    first_wp = check_mission_upload_download(ap, north_m, alt_m)
-    check_arm_and_takeoff(ap, alt_m)
-    check_mission_progress(ap, first_wp)
-    check_land(ap)
+    with Autopilot.connect(url) as ap:  # closed after: what was learnt stays readable
+        check_heartbeat(ap)
+        check_streams(ap)
+        check_first_fix_and_home(ap)
+        check_parameters(ap)
+        first_wp = check_mission_upload_download(ap, north_m, alt_m)
+        check_arm_and_takeoff(ap, alt_m)
+        check_mission_progress(ap, first_wp)
+        check_land(ap)
     return ap

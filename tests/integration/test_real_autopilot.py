@@ -378,9 +378,11 @@ def _run(target: Target, gs: GroundStation, tmp_path: Path) -> None:
     companion = start_companion(config, json_logs=True)
     lags = Lags()
     try:
-        ap = Autopilot.connect(target.gcs_url, timeout_s=60.0)
-        _fly(ap, gs, lags)
-        _restart(target, ap, gs, lags)
+        # closed at the end: a TCP port of ArduPilot SITL takes one client at a time, and
+        # the conformance checks after this test waited 30 s for a HEARTBEAT behind it
+        with Autopilot.connect(target.gcs_url, timeout_s=60.0) as ap:
+            _fly(ap, gs, lags)
+            _restart(target, ap, gs, lags)
         assert companion.poll() is None, "the companion exited"
     finally:
         code, err = stop_companion(companion)

@@ -12,11 +12,12 @@ import os
 import shlex
 import socket
 import sys
+import threading
 from pathlib import Path
 
 import pytest
 
-from tests.autopilot_checks import run_all_checks
+from tests.autopilot_checks import Autopilot, run_all_checks
 from tests.autopilot_process import from_environment
 
 
@@ -31,6 +32,7 @@ def test_builtin_vehicle_passes_the_real_autopilot_checks(vehicle_process, flavo
     vehicle = vehicle_process("--flavour", flavour, "--speedup", "10", "--first-fix", "20",
                               *extra)
     ap = run_all_checks(f"udpout:127.0.0.1:{vehicle.port}")
+    assert ap.conn.port.fileno() == -1  # closed: the next client of a one-client port waits
     assert ap.ardupilot == (flavour == "ardupilot")
     assert ap.home is not None
     assert ap.home[:2] == pytest.approx((vehicle.records[0]["home"][0],
@@ -59,7 +61,7 @@ def test_real_autopilot_passes_the_checks(tmp_path: Path) -> None:
 
 
 @pytest.mark.timeout(120)
-def test_the_real_checks_start_the_autopilot_command_they_are_given(
+def test_the_checks_start_the_autopilot_command_they_are_given(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     # UAV_TEST_AUTOPILOT_CMD set to the built-in vehicle, so it runs in the default suite
     port = _free_udp_port()
@@ -76,3 +78,47 @@ def _free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
+
+
+def test_a_checks_link_is_closed_when_done() -> None:
+    """ArduPilot SITL's TCP port 5760 takes one client at a time. Run after
+    test_real_autopilot.py in one pytest, the conformance checks' connection waited
+    unaccepted behind that test's link (left to the garbage collector) and failed with "no
+    autopilot HEARTBEAT on tcp:127.0.0.1:5760 within 30 s" (ArduCopter 4.5.5 SITL)."""
+    from pymavlink.dialects.v20 import ardupilotmega as m
+
+    server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    server.settimeout(5)
+    port = server.getsockname()[1]
+    eof = threading.Event()
+
+    def serve() -> None:  # one client, HEARTBEATs at 10 Hz, until it closes
+        client, _ = server.accept()
+        client.settimeout(0.1)
+        encoder = m.MAVLink(None, srcSystem=1, srcComponent=1)
+        hb = m.MAVLink_heartbeat_message(m.MAV_TYPE_QUADROTOR, m.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                                         81, 0, 3, 3)
+        with client:
+            while True:
+                try:
+                    client.sendall(hb.pack(encoder))
+                    if client.recv(4096) == b"":
+                        eof.set()
+                        return
+                except TimeoutError:
+                    continue
+                except OSError:
+                    eof.set()
+                    return
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        with Autopilot.connect(f"tcp:127.0.0.1:{port}", timeout_s=5.0) as ap:
+            assert ap.ardupilot
+        assert eof.wait(5.0), "the link stayed open after the checks"
+    finally:
+        server.close()
+        thread.join(5)
